@@ -1,0 +1,1 @@
+"""Learners: tabular Q-learning and the replay-buffer DQN family."""

@@ -1,0 +1,257 @@
+"""Tabular Q-learning over a discretised observation.
+
+State -> index mapping (:class:`Discretizer`): the task names which
+observation entries form the tabular state and the range ``[low, high]`` of
+each (``task.tabular_state``); entry ``i`` is cut into ``splits[i]`` equal bins
+over its range (values outside fall into the end bins), and the bins combine
+mixed-radix, first entry fastest::
+
+    bin_i  = clip(floor((x_i - low_i) / (high_i - low_i) * splits_i), 0, splits_i - 1)
+    index  = bin_0 + splits_0 * (bin_1 + splits_1 * (bin_2 + ...))
+
+The Q-table is a ``[prod(splits), n_actions]`` float64 tensor; unseen pairs are 0.
+
+Update, for a batch of transitions at once::
+
+    Q(s,a) <- Q(s,a) + alpha * (r + gamma * max_a' Q(s',a') * (1 - terminated) - Q(s,a))
+
+Transitions of one batch that hit the same (s, a) have their increments
+averaged (with ``num_envs=1`` this is the ordinary sequential update).
+Exploration is epsilon-greedy; epsilon is multiplied by ``epsilon_discount``
+after each finished episode while it is above ``epsilon_min``.
+
+The original learner's quirks are options, off by default:
+``first_visit_reward`` (a pair's first update sets Q <- r),
+``bootstrap_terminal`` (bootstrap through terminal states) and
+``noise_exploration`` (instead of a random action, with probability epsilon
+add uniform noise of the Q-values' magnitude and act greedily on the result).
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from learners.run import Run
+from tasks.base import Bounds, require
+
+
+class Discretizer:
+    """Maps observations to tabular state indices (see the module docstring)."""
+
+    def __init__(self, bounds: Bounds, splits: int | Sequence[int]) -> None:
+        n = len(bounds.names)
+        if isinstance(splits, int):
+            splits = [splits] * n
+        splits = [int(s) for s in splits]
+        require(len(splits) == n,
+                f"learner.number_splits must be one int or one per tabular_state entry {list(bounds.names)}",
+                splits)
+        require(all(s >= 1 for s in splits), "learner.number_splits must be >= 1", splits)
+        self.bounds = bounds
+        self.splits = splits
+        self.n_states = int(np.prod(splits))
+        self._index = torch.as_tensor(bounds.indices)
+        self._low = torch.as_tensor(bounds.low)
+        self._width = torch.as_tensor(bounds.high - bounds.low)
+        self._splits = torch.as_tensor(splits)
+        self._radix = torch.as_tensor(np.concatenate([[1], np.cumprod(splits)[:-1]]).astype(np.int64))
+
+    def __call__(self, observation: torch.Tensor) -> torch.Tensor:
+        x = observation[..., self._index].to(torch.float64)
+        bins = torch.floor((x - self._low) / self._width * self._splits).long()
+        bins = torch.minimum(bins.clamp_min(0), self._splits - 1)
+        return (bins * self._radix).sum(-1)
+
+    def describe(self) -> dict:
+        return {
+            "names": list(self.bounds.names),
+            "low": self.bounds.low.tolist(),
+            "high": self.bounds.high.tolist(),
+            "splits": self.splits,
+        }
+
+
+class QTablePolicy(TensorDictModuleBase):
+    """Reads ``observation``, writes ``state_index``, ``action_value`` and ``action``.
+
+    Acts epsilon-greedily (or greedily when ``epsilon`` is 0), breaking ties
+    between equal Q-values uniformly at random.
+    """
+
+    in_keys = ["observation"]
+    out_keys = ["state_index", "action_value", "action"]
+
+    def __init__(self, discretizer: Discretizer, n_actions: int, epsilon: float = 0.0,
+                 noise_exploration: bool = False, generator: torch.Generator | None = None) -> None:
+        super().__init__()
+        self.discretizer = discretizer
+        self.n_actions = int(n_actions)
+        self.register_buffer("table", torch.zeros(discretizer.n_states, n_actions, dtype=torch.float64))
+        self.register_buffer("visited", torch.zeros(discretizer.n_states, n_actions, dtype=torch.bool))
+        self.epsilon = float(epsilon)
+        self.noise_exploration = noise_exploration
+        self.generator = generator if generator is not None else torch.Generator()
+
+    def _rand(self, *shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=self.generator, dtype=torch.float64)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        state = self.discretizer(tensordict.get("observation"))
+        q = self.table[state]
+        explore = self._rand(*state.shape) < self.epsilon
+        if self.noise_exploration:
+            magnitude = q.abs().amax(-1, keepdim=True)
+            noise = (self._rand(*q.shape) * 2 - 1) * magnitude
+            scored = torch.where(explore.unsqueeze(-1), q + noise, q)
+        else:
+            scored = q
+        # Random tie-break: among the maxima, pick by a random key.
+        best = scored == scored.amax(-1, keepdim=True)
+        action = torch.where(best, self._rand(*q.shape), -1.0).argmax(-1)
+        if not self.noise_exploration:
+            random_action = (self._rand(*state.shape) * self.n_actions).long().clamp_max(self.n_actions - 1)
+            action = torch.where(explore, random_action, action)
+        tensordict.set("state_index", state)
+        tensordict.set("action_value", q.to(torch.float32))
+        tensordict.set("action", action)
+        return tensordict
+
+
+class QLearn:
+    """Tabular Q-learning; ``train`` runs it on a batched :class:`RobotTaskEnv`."""
+
+    def __init__(
+        self,
+        alpha: float = 0.1,
+        gamma: float = 0.7,
+        epsilon: float = 0.9,
+        epsilon_discount: float = 0.999,
+        epsilon_min: float = 0.05,
+        nepisodes: int = 500,
+        nsteps: int = 1000,
+        number_splits: int | Sequence[int] = 10,
+        first_visit_reward: bool = False,
+        bootstrap_terminal: bool = False,
+        noise_exploration: bool = False,
+    ) -> None:
+        require(0 < alpha <= 1, "learner.alpha must be in (0, 1]", alpha)
+        require(0 <= gamma <= 1, "learner.gamma must be in [0, 1]", gamma)
+        require(0 <= epsilon <= 1, "learner.epsilon must be in [0, 1]", epsilon)
+        require(0 < epsilon_discount <= 1, "learner.epsilon_discount must be in (0, 1]", epsilon_discount)
+        require(0 <= epsilon_min <= 1, "learner.epsilon_min must be in [0, 1]", epsilon_min)
+        require(nepisodes >= 1, "learner.nepisodes must be >= 1", nepisodes)
+        require(nsteps >= 1, "learner.nsteps must be >= 1", nsteps)
+        self.alpha = float(alpha)
+        self.gamma = float(gamma)
+        self.epsilon_start = float(epsilon)
+        self.epsilon_discount = float(epsilon_discount)
+        self.epsilon_min = float(epsilon_min)
+        self.nepisodes = int(nepisodes)
+        self.nsteps = int(nsteps)
+        self.number_splits = (
+            int(number_splits) if isinstance(number_splits, (int, np.integer)) else list(number_splits)
+        )
+        self.first_visit_reward = bool(first_visit_reward)
+        self.bootstrap_terminal = bool(bootstrap_terminal)
+        self.noise_exploration = bool(noise_exploration)
+        self.policy: QTablePolicy | None = None
+
+    # -- building ------------------------------------------------------------
+    def build(self, task, generator: torch.Generator | None = None) -> QTablePolicy:
+        """Creates the Q-table policy for ``task``'s tabular state and actions."""
+        discretizer = Discretizer(task.tabular_state, self.number_splits)
+        self.policy = QTablePolicy(discretizer, task.n_actions, self.epsilon_start,
+                                   self.noise_exploration, generator)
+        return self.policy
+
+    @property
+    def stats(self) -> dict[str, float]:
+        return {"alpha": self.alpha, "gamma": self.gamma, "epsilon": self.policy.epsilon}
+
+    # -- learning ------------------------------------------------------------
+    def update(self, tensordict: TensorDictBase) -> None:
+        """One Q-update from a batch of transitions (``tensordict`` holds ``next``)."""
+        policy = self.policy
+        table = policy.table
+        state = tensordict.get("state_index").reshape(-1)
+        action = tensordict.get("action").reshape(-1)
+        reward = tensordict.get(("next", "reward")).reshape(-1).to(torch.float64)
+        terminated = tensordict.get(("next", "terminated")).reshape(-1)
+        next_state = policy.discretizer(tensordict.get(("next", "observation"))).reshape(-1)
+        bootstrap = table[next_state].amax(-1)
+        if not self.bootstrap_terminal:
+            bootstrap = torch.where(terminated, 0.0, bootstrap)
+        target = reward + self.gamma * bootstrap
+        old = table[state, action]
+        new = old + self.alpha * (target - old)
+        if self.first_visit_reward:
+            new = torch.where(policy.visited[state, action], new, reward)
+        flat = state * policy.n_actions + action
+        delta = torch.zeros(table.numel(), dtype=torch.float64).index_add_(0, flat, new - old)
+        count = torch.zeros(table.numel(), dtype=torch.float64).index_add_(
+            0, flat, torch.ones_like(old))
+        hit = count > 0
+        table.view(-1)[hit] += delta[hit] / count[hit]
+        policy.visited.view(-1)[hit] = True
+
+    @contextmanager
+    def greedy(self) -> Iterator[None]:
+        """Within the block the policy acts greedily (epsilon 0, no noise)."""
+        saved = self.policy.epsilon
+        self.policy.epsilon = 0.0
+        try:
+            yield
+        finally:
+            self.policy.epsilon = saved
+
+    def end_episode(self) -> None:
+        if self.policy.epsilon > self.epsilon_min:
+            self.policy.epsilon *= self.epsilon_discount
+
+    def train(self, env, run: Run) -> None:
+        """Runs episodes on ``env`` until ``run`` is done (budget or win)."""
+        td = env.reset()
+        while not run.done:
+            td = self.policy(td)
+            td, td_next = env.step_and_maybe_reset(td)
+            self.update(td)
+            for _ in run.record(td.get("next"), self.stats):
+                self.end_episode()
+            td = td_next
+
+    # -- persistence ---------------------------------------------------------
+    def state_dict(self) -> dict:
+        return {
+            "kind": "qlearn",
+            "table": self.policy.table.clone(),
+            "visited": self.policy.visited.clone(),
+            "epsilon": self.policy.epsilon,
+            "discretizer": self.policy.discretizer.describe(),
+            "n_actions": self.policy.n_actions,
+        }
+
+    def save(self, path: Path, meta: dict) -> None:
+        save_checkpoint(path, {**self.state_dict(), "meta": meta})
+
+    def load(self, path: Path) -> None:
+        """Loads a saved Q-table into the built policy, checking it fits."""
+        ckpt = load_checkpoint(path, kind="qlearn")
+        mine = self.policy.discretizer.describe()
+        if ckpt["discretizer"] != mine or ckpt["n_actions"] != self.policy.n_actions:
+            raise CheckpointError(
+                f"checkpoint {path} does not fit this run: it has state {ckpt['discretizer']} "
+                f"x {ckpt['n_actions']} actions, this run has {mine} x {self.policy.n_actions}"
+            )
+        self.policy.table.copy_(ckpt["table"])
+        self.policy.visited.copy_(ckpt["visited"])
+
+
+__all__ = ["Discretizer", "QTablePolicy", "QLearn"]

@@ -1,0 +1,1 @@
+"""Tasks: actions, observations, reward, episode end and reset for a robot."""

@@ -1,0 +1,121 @@
+"""The TorchRL environment: a task (which has a robot) over a batch of physics copies.
+
+``RobotTaskEnv`` compiles the task's arena once and steps ``num_envs`` copies
+of it per call (``batch_size=[num_envs]``). Keys:
+
+- ``observation``: float32 ``[num_envs, n_obs]``
+- ``action``: int64 ``[num_envs]`` in ``[0, n_actions)``
+- ``reward``: float32 ``[num_envs, 1]``
+- ``terminated`` (the task failed or succeeded), ``truncated`` (time limit),
+  ``done = terminated | truncated``: bool ``[num_envs, 1]``
+
+A ``_reset`` mask resets only the marked copies. All randomness comes from one
+``numpy.random.Generator`` seeded by ``set_seed``: same seed, same rollouts.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from robots.physics import BatchedPhysics
+
+
+def compile_model(arena) -> mujoco.MjModel:
+    """Compiles a dm_control MJCF arena (with its attached robot) to an ``MjModel``."""
+    return mujoco.MjModel.from_xml_string(arena.to_xml_string(), assets=arena.get_assets())
+
+
+class RobotTaskEnv(EnvBase):
+    """A batched TorchRL environment for any task and the robot it has."""
+
+    def __init__(self, task: Any, num_envs: int = 1, seed: int = 0, nthread: int | None = None):
+        if int(num_envs) < 1:
+            raise ValueError(f"env.num_envs must be >= 1, got {num_envs}")
+        super().__init__(batch_size=torch.Size([int(num_envs)]), device="cpu")
+        self.task = task
+        self.num_envs = int(num_envs)
+        self.model = compile_model(task.build_arena())
+        self.physics = BatchedPhysics(self.model, self.num_envs, nthread=nthread)
+        task.bind(self.physics)
+        n = self.num_envs
+        n_obs = len(task.observation_names)
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(n, n_obs), dtype=torch.float32), shape=(n,)
+        )
+        self.action_spec = Categorical(task.n_actions, shape=(n,), dtype=torch.int64)
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
+        self.done_spec = Composite(
+            done=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            shape=(n,),
+        )
+        self.elapsed_steps = np.zeros(n, dtype=np.int64)
+        self._rng = np.random.default_rng(seed)
+        self._renderer: mujoco.Renderer | None = None
+        self._render_data: mujoco.MjData | None = None
+
+    # -- EnvBase -----------------------------------------------------------------
+    def _set_seed(self, seed: int | None) -> None:
+        self._rng = np.random.default_rng(seed)
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        mask = np.ones(self.num_envs, dtype=bool)
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
+        self.physics.reset(mask)
+        self.task.initialize_episode(self.physics, mask, self._rng)
+        self.physics.forward(mask)
+        self.elapsed_steps[mask] = 0
+        obs = self.task.observation(self.physics)
+        false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
+        return TensorDict(
+            observation=torch.as_tensor(obs, dtype=torch.float32),
+            done=false, terminated=false.clone(), truncated=false.clone(),
+            batch_size=self.batch_size,
+        )
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action").reshape(self.num_envs).cpu().numpy()
+        self.task.apply_action(self.physics, action)
+        self.physics.step(self.task.n_substeps)
+        self.elapsed_steps += 1
+        obs = self.task.observation(self.physics)
+        terminated = np.asarray(self.task.terminated(self.physics, obs), dtype=bool)
+        truncated = (self.elapsed_steps >= self.task.max_episode_steps) & ~terminated
+        reward = self.task.reward(self.physics, obs, terminated)
+        terminated_t = torch.as_tensor(terminated).unsqueeze(-1)
+        truncated_t = torch.as_tensor(truncated).unsqueeze(-1)
+        return TensorDict(
+            observation=torch.as_tensor(obs, dtype=torch.float32),
+            reward=torch.as_tensor(reward, dtype=torch.float32).unsqueeze(-1),
+            done=terminated_t | truncated_t,
+            terminated=terminated_t,
+            truncated=truncated_t,
+            batch_size=self.batch_size,
+        )
+
+    # -- extras -----------------------------------------------------------------
+    def render(self, width: int = 480, height: int = 360, camera: str | int = -1,
+               index: int = 0) -> np.ndarray:
+        """An RGB frame (``height x width x 3``, uint8) of copy ``index``."""
+        if self._renderer is None or (self._renderer.width, self._renderer.height) != (width, height):
+            self._renderer = mujoco.Renderer(self.model, height=height, width=width)
+            self._render_data = mujoco.MjData(self.model)
+        self.physics.load_into(self._render_data, index)
+        self._renderer.update_scene(self._render_data, camera=camera)
+        return self._renderer.render()
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        self.physics.close()
+        super().close(raise_if_closed=raise_if_closed)

@@ -1,0 +1,108 @@
+"""Train (or evaluate) a learner on a robot's task, all chosen by Hydra config.
+
+    python train.py                                  # cartpole / stay_up / qlearn
+    python train.py robot=cube learner=qlearn        # the robot's default task follows
+    python train.py -m learner=qlearn seed=0,1,2     # a sweep
+    python train.py mode=eval checkpoint=outputs/.../model.pt
+
+The run folder (printed at the end) holds config.yaml (resolved), metrics.csv,
+reward_curve.png and model.pt. The last line printed is machine-readable:
+``VERDICT solved=<true|false> episodes=<n> best100=<v> wall_s=<v> run_dir=<path>``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
+from learners.checkpoint import CheckpointError
+from learners.run import Run, WinCriterion, evaluate, seed_everything, verdict_lines
+from tasks.base import ConfigError
+from tasks.env import RobotTaskEnv
+
+
+def build_task(cfg: DictConfig):
+    """A fresh task (with its robot) from the ``robot`` and ``task`` configs."""
+    robot = instantiate(cfg.robot, _convert_="all")
+    return instantiate(cfg.task, robot=robot, _convert_="all")
+
+
+def build_env(cfg: DictConfig, num_envs: int, seed: int, max_episode_steps: int | None = None):
+    task = build_task(cfg)
+    if max_episode_steps is not None:
+        task.max_episode_steps = min(task.max_episode_steps, int(max_episode_steps))
+    return RobotTaskEnv(task, num_envs=num_envs, seed=seed)
+
+
+def run(cfg: DictConfig, run_dir: Path) -> dict:
+    """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict)."""
+    if cfg.mode not in ("train", "eval"):
+        raise ConfigError(f"mode must be train or eval; got {cfg.mode!r}")
+    generator = seed_everything(int(cfg.seed))
+    learner = instantiate(cfg.learner, _convert_="all")
+    env = build_env(cfg, int(cfg.num_envs), int(cfg.seed), learner.nsteps)
+    learner.build(env.task, generator)
+    if cfg.checkpoint:
+        learner.load(Path(cfg.checkpoint))
+    elif cfg.mode == "eval":
+        raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
+    summary: dict = {}
+    if cfg.mode == "train":
+        win = WinCriterion(float(cfg.win.n_win_ticks), int(cfg.win.min_episodes))
+        record = Run(run_dir, env.num_envs, learner.nepisodes, win,
+                     extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet))
+        try:
+            learner.train(env, record)
+        finally:
+            summary = record.close()
+            learner.save(run_dir / "model.pt", meta={
+                "robot": HydraConfig.get().runtime.choices.get("robot"),
+                "task": HydraConfig.get().runtime.choices.get("task"),
+                "config": OmegaConf.to_container(cfg, resolve=True),
+            })
+    env.close()
+    if int(cfg.eval_episodes) > 0:
+        eval_env = build_env(cfg, int(cfg.eval_episodes), int(cfg.seed) + 10_000, learner.nsteps)
+        with learner.greedy():
+            result = evaluate(eval_env, learner.policy)
+        eval_env.close()
+        print(f"greedy evaluation over {result['episodes']} episodes: "
+              f"length {result['mean_length']:.1f} +- {result['std_length']:.1f}, "
+              f"return {result['mean_return']:.1f} +- {result['std_return']:.1f}")
+        (run_dir / "eval.json").write_text(json.dumps(result, indent=1))
+        summary["eval"] = result
+    if cfg.mode == "train":
+        for line in verdict_lines(summary, run_dir):
+            print(line)
+    return summary
+
+
+def _one_line(err: BaseException) -> str:
+    """The innermost message of a config error, without Hydra's wrapping."""
+    while isinstance(err, InstantiationException) and err.__cause__ is not None:
+        err = err.__cause__
+    return str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+
+
+@hydra.main(version_base="1.3", config_path="conf", config_name="config")
+def main(cfg: DictConfig) -> None:
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    try:
+        run(cfg, run_dir)
+    except (ConfigError, CheckpointError, InstantiationException) as err:
+        print(f"error: {_one_line(err)}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()
