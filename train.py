@@ -76,7 +76,8 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         eval_env.close()
         print(f"greedy evaluation over {result['episodes']} episodes: "
               f"length {result['mean_length']:.1f} +- {result['std_length']:.1f}, "
-              f"return {result['mean_return']:.1f} +- {result['std_return']:.1f}")
+              f"return {result['mean_return']:.1f} +- {result['std_return']:.1f}"
+              + "".join(f", {k} {v:.3f}" for k, v in result["info_mean"].items()))
         (run_dir / "eval.json").write_text(json.dumps(result, indent=1))
         summary["eval"] = result
     if cfg.mode == "train":

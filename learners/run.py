@@ -221,11 +221,18 @@ def seed_everything(seed: int) -> torch.Generator:
 
 
 def evaluate(env, policy, max_steps: int | None = None) -> dict:
-    """Runs one episode in each copy of ``env`` with ``policy``; length and return stats."""
+    """Runs one episode in each copy of ``env`` with ``policy``; length and return stats.
+
+    If the task has ``episode_info(physics) -> dict[str, ndarray]`` (one value
+    per copy), each copy's values at its episode end are reported too, with
+    their mean under ``info_mean``.
+    """
     n = env.num_envs
     ret = np.zeros(n)
     length = np.zeros(n, dtype=np.int64)
     alive = np.ones(n, dtype=bool)
+    info_fn = getattr(env.task, "episode_info", None)
+    info: dict[str, np.ndarray] = {}
     td = env.reset()
     steps = 0
     with torch.no_grad():
@@ -234,12 +241,21 @@ def evaluate(env, policy, max_steps: int | None = None) -> dict:
             nxt = td.get("next")
             ret += nxt.get("reward").reshape(n).numpy() * alive
             length += alive
-            alive &= ~nxt.get("done").reshape(n).numpy()
+            ended = alive & nxt.get("done").reshape(n).numpy()
+            if info_fn is not None and ended.any():
+                for key, value in info_fn(env.physics).items():
+                    info.setdefault(key, np.zeros(n))[ended] = np.asarray(value)[ended]
+            alive &= ~ended
             td = nxt.exclude("reward", "done", "terminated", "truncated")
             steps += 1
+    if info_fn is not None and alive.any():  # cut off by max_steps
+        for key, value in info_fn(env.physics).items():
+            info.setdefault(key, np.zeros(n))[alive] = np.asarray(value)[alive]
     return {
         "episodes": n,
         "mean_length": float(length.mean()), "std_length": float(length.std()),
         "mean_return": float(ret.mean()), "std_return": float(ret.std()),
         "lengths": length.tolist(), "returns": ret.tolist(),
+        "info": {k: v.tolist() for k, v in info.items()},
+        "info_mean": {k: float(v.mean()) for k, v in info.items()},
     }
