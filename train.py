@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 import hydra
+import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
@@ -46,6 +47,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict)."""
     if cfg.mode not in ("train", "eval"):
         raise ConfigError(f"mode must be train or eval; got {cfg.mode!r}")
+    torch.set_num_threads(int(cfg.torch_threads))
     generator = seed_everything(int(cfg.seed))
     learner = instantiate(cfg.learner, _convert_="all")
     env = build_env(cfg, int(cfg.num_envs), int(cfg.seed), learner.nsteps)
@@ -69,8 +71,9 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
                 "config": OmegaConf.to_container(cfg, resolve=True),
             })
     env.close()
-    if int(cfg.eval_episodes) > 0:
-        eval_env = build_env(cfg, int(cfg.eval_episodes), int(cfg.seed) + 10_000, learner.nsteps)
+    n_eval = int(getattr(learner, "run_episodes", 0) or cfg.eval_episodes)
+    if n_eval > 0:
+        eval_env = build_env(cfg, n_eval, int(cfg.seed) + 10_000, learner.nsteps)
         with learner.greedy():
             result = evaluate(eval_env, learner.policy)
         eval_env.close()

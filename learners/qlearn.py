@@ -9,7 +9,9 @@ mixed-radix, first entry fastest::
     bin_i  = clip(floor((x_i - low_i) / (high_i - low_i) * splits_i), 0, splits_i - 1)
     index  = bin_0 + splits_0 * (bin_1 + splits_1 * (bin_2 + ...))
 
-The Q-table is a ``[prod(splits), n_actions]`` float64 tensor; unseen pairs are 0.
+The Q-table is a ``[prod(splits), n_actions]`` float64 tensor; unseen pairs hold
+``initial_q`` (0 as in the original; an optimistic value, such as the largest
+return there is, makes the learner try every action before trusting one).
 
 Update, for a batch of transitions at once::
 
@@ -39,7 +41,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from learners.run import Run
+from learners.run import Run, drive
 from tasks.base import Bounds, require
 
 
@@ -141,6 +143,7 @@ class QLearn:
         first_visit_reward: bool = False,
         bootstrap_terminal: bool = False,
         noise_exploration: bool = False,
+        initial_q: float = 0.0,
     ) -> None:
         require(0 < alpha <= 1, "learner.alpha must be in (0, 1]", alpha)
         require(0 <= gamma <= 1, "learner.gamma must be in [0, 1]", gamma)
@@ -162,6 +165,7 @@ class QLearn:
         self.first_visit_reward = bool(first_visit_reward)
         self.bootstrap_terminal = bool(bootstrap_terminal)
         self.noise_exploration = bool(noise_exploration)
+        self.initial_q = float(initial_q)
         self.policy: QTablePolicy | None = None
 
     # -- building ------------------------------------------------------------
@@ -170,6 +174,7 @@ class QLearn:
         discretizer = Discretizer(task.tabular_state, self.number_splits)
         self.policy = QTablePolicy(discretizer, task.n_actions, self.epsilon_start,
                                    self.noise_exploration, generator)
+        self.policy.table.fill_(self.initial_q)
         return self.policy
 
     @property
@@ -218,14 +223,8 @@ class QLearn:
 
     def train(self, env, run: Run) -> None:
         """Runs episodes on ``env`` until ``run`` is done (budget or win)."""
-        td = env.reset()
-        while not run.done:
-            td = self.policy(td)
-            td, td_next = env.step_and_maybe_reset(td)
-            self.update(td)
-            for _ in run.record(td.get("next"), self.stats):
-                self.end_episode()
-            td = td_next
+        drive(env, self.policy, run, self.update, lambda _: self.end_episode(),
+              lambda: self.stats)
 
     # -- persistence ---------------------------------------------------------
     def state_dict(self) -> dict:

@@ -86,7 +86,8 @@ class Run:
         self._ret = np.zeros(num_envs)
         self._len = np.zeros(num_envs, dtype=np.int64)
         self._t0 = time.perf_counter()
-        self._csv_file = open(self.run_dir / "metrics.csv", "w", newline="")
+        # Line-buffered: every finished episode is on disk, even if the run is killed.
+        self._csv_file = open(self.run_dir / "metrics.csv", "w", newline="", buffering=1)
         self._csv = csv.writer(self._csv_file)
         self._csv.writerow(METRIC_FIELDS + self.extra_fields)
         self._bar = tqdm(total=self.max_episodes, unit="ep", disable=quiet, dynamic_ncols=True)
@@ -218,6 +219,23 @@ def seed_everything(seed: int) -> torch.Generator:
     gen = torch.Generator()
     gen.manual_seed(seed)
     return gen
+
+
+def drive(env, policy, run: Run, on_step, on_episode, stats) -> None:
+    """Steps ``env`` with ``policy`` until ``run`` is done.
+
+    ``on_step(td)`` sees each batched transition (``td`` holds ``next``);
+    ``on_episode(episode)`` each finished episode; ``stats()`` gives the
+    learner's numbers for the episode's console line and metrics row.
+    """
+    td = env.reset()
+    while not run.done:
+        td = policy(td)
+        td, td_next = env.step_and_maybe_reset(td)
+        on_step(td)
+        for episode in run.record(td.get("next"), stats()):
+            on_episode(episode)
+        td = td_next
 
 
 def evaluate(env, policy, max_steps: int | None = None) -> dict:

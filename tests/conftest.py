@@ -3,6 +3,9 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest  # noqa: E402
+import torch  # noqa: E402
+
+torch.set_num_threads(1)
 
 from robots.cartpole import CartPole  # noqa: E402
 from tasks.env import RobotTaskEnv  # noqa: E402

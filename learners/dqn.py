@@ -1,0 +1,239 @@
+"""The replay-buffer DQN family as one TorchRL learner; variants are configs.
+
+Parts: an ``MLP`` Q-network in a ``QValueActor``, TorchRL's ``EGreedyModule``
+whose epsilon follows one of :mod:`learners.schedules`, ``DQNLoss`` (MSE or
+Huber, optional double DQN) with a TD(0) value estimator, an optional target
+network kept by ``HardUpdate`` or ``SoftUpdate``, and a ``ReplayBuffer`` over
+``LazyTensorStorage``.
+
+When it trains (``train_every``):
+
+- ``episode``: ``updates`` minibatches after each finished episode (n1try,
+  ruippeixotog);
+- ``step``: ``updates`` minibatches per collected transition (mbalunovic: 1),
+  fractional values allowed, once the buffer holds ``learning_starts``.
+
+``done_episode_reward`` replaces the reward of terminating transitions
+(mbalunovic's -200). ``run_episodes`` greedy episodes follow training
+(ruippeixotog's "run" phase).
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictSequential
+from torch import nn
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.modules import MLP, EGreedyModule, QValueActor
+from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate
+
+from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from learners.run import Run, drive
+from tasks.base import require
+
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
+LOSSES = {"l2": "l2", "mse": "l2", "huber": "smooth_l1", "smooth_l1": "smooth_l1"}
+_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"),
+         ("next", "done"), ("next", "terminated"))
+
+
+class DQN:
+    """A configurable DQN; ``build`` makes its networks for a task, ``train`` runs it."""
+
+    def __init__(
+        self,
+        epsilon,
+        hidden: Sequence[int] = (64, 64),
+        activation: str = "relu",
+        lr: float = 1e-3,
+        lr_decay: float = 0.0,
+        gamma: float = 0.99,
+        loss: str = "huber",
+        double_dqn: bool = True,
+        target_update: int = 0,
+        tau: float = 0.01,
+        buffer_size: int = 50_000,
+        batch_size: int = 64,
+        train_every: str = "step",
+        updates: float = 1.0,
+        learning_starts: int = 0,
+        grad_clip: float = 0.0,
+        done_episode_reward: float | None = None,
+        nepisodes: int = 1000,
+        nsteps: int = 1000,
+        run_episodes: int = 0,
+    ) -> None:
+        require(lr > 0, "learner.lr must be > 0", lr)
+        require(lr_decay >= 0, "learner.lr_decay must be >= 0", lr_decay)
+        require(0 <= gamma <= 1, "learner.gamma must be in [0, 1]", gamma)
+        require(activation in ACTIVATIONS, f"learner.activation must be one of {sorted(ACTIVATIONS)}",
+                activation)
+        require(loss in LOSSES, f"learner.loss must be one of {sorted(LOSSES)}", loss)
+        require(len(hidden) >= 1 and all(int(h) >= 1 for h in hidden),
+                "learner.hidden must list layer widths >= 1", list(hidden))
+        require(target_update >= 0, "learner.target_update must be >= 0 (0 = none)", target_update)
+        require(0 <= tau < 1, "learner.tau must be in [0, 1) (0 = none)", tau)
+        require(not (target_update and tau), "learner.target_update and learner.tau exclude each other",
+                (target_update, tau))
+        require(not double_dqn or target_update or tau,
+                "learner.double_dqn needs a target network (target_update or tau)", double_dqn)
+        require(buffer_size >= batch_size >= 1, "learner.batch_size must be in [1, buffer_size]",
+                (batch_size, buffer_size))
+        require(train_every in ("step", "episode"), "learner.train_every must be step or episode",
+                train_every)
+        require(updates > 0, "learner.updates must be > 0", updates)
+        require(learning_starts >= 0, "learner.learning_starts must be >= 0", learning_starts)
+        require(nepisodes >= 1, "learner.nepisodes must be >= 1", nepisodes)
+        require(nsteps >= 1, "learner.nsteps must be >= 1", nsteps)
+        require(run_episodes >= 0, "learner.run_episodes must be >= 0", run_episodes)
+        self.schedule = epsilon
+        self.hidden = [int(h) for h in hidden]
+        self.activation = activation
+        self.lr, self.lr_decay, self.gamma = float(lr), float(lr_decay), float(gamma)
+        self.loss_function = LOSSES[loss]
+        self.double_dqn = bool(double_dqn)
+        self.target_update, self.tau = int(target_update), float(tau)
+        self.buffer_size, self.batch_size = int(buffer_size), int(batch_size)
+        self.train_every, self.updates = train_every, float(updates)
+        self.learning_starts = int(learning_starts)
+        self.grad_clip = float(grad_clip)
+        self.done_episode_reward = done_episode_reward
+        self.nepisodes, self.nsteps, self.run_episodes = int(nepisodes), int(nsteps), int(run_episodes)
+        self.optimizer_steps = 0
+        self._credit = 0.0
+        self._greedy = False
+        self.last_loss = float("nan")
+
+    # -- building ------------------------------------------------------------
+    def _arch(self) -> dict:
+        return {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
+                "activation": self.activation}
+
+    def build(self, task, generator: torch.Generator | None = None):
+        """Creates network, exploration, loss, target updater, optimiser and buffer."""
+        from torchrl.data import Categorical
+
+        self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
+        spec = Categorical(self.n_actions, dtype=torch.int64)
+        net = MLP(in_features=self.n_obs, out_features=self.n_actions, num_cells=self.hidden,
+                  activation_class=ACTIVATIONS[self.activation])
+        self.actor = QValueActor(net, in_keys=["observation"], spec=spec)
+        self.egreedy = EGreedyModule(spec, eps_init=float(self.schedule.value),
+                                     eps_end=float(self.schedule.value), annealing_num_steps=1)
+        self.explorer = TensorDictSequential(self.actor, self.egreedy)
+        delay = bool(self.target_update or self.tau)
+        self.loss = DQNLoss(self.actor, loss_function=self.loss_function, delay_value=delay,
+                            double_dqn=self.double_dqn, action_space=spec)
+        self.loss.make_value_estimator(gamma=self.gamma)
+        self.updater = None
+        if self.target_update:
+            self.updater = HardUpdate(self.loss, value_network_update_interval=self.target_update)
+        elif self.tau:
+            self.updater = SoftUpdate(self.loss, tau=self.tau)
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=self.lr)
+        decay = self.lr_decay
+        # Keras' legacy Adam ``decay``: lr_k = lr / (1 + decay * k) after k updates.
+        self.lr_schedule = torch.optim.lr_scheduler.LambdaLR(
+            self.optimizer, lambda k: 1.0 / (1.0 + decay * k))
+        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(self.buffer_size),
+                                             batch_size=self.batch_size)
+        return self.actor
+
+    @property
+    def policy(self):
+        """The acting policy: epsilon-greedy while training, greedy inside ``greedy()``."""
+        return self.actor if self._greedy else self.explorer
+
+    @contextmanager
+    def greedy(self) -> Iterator[None]:
+        self._greedy = True
+        try:
+            yield
+        finally:
+            self._greedy = False
+
+    @property
+    def stats(self) -> dict[str, float]:
+        return {"alpha": self.optimizer.param_groups[0]["lr"], "gamma": self.gamma,
+                "epsilon": float(self.schedule.value)}
+
+    # -- learning ------------------------------------------------------------
+    def store(self, tensordict: TensorDictBase) -> None:
+        batch = tensordict.select(*_KEYS).reshape(-1).clone()
+        if self.done_episode_reward is not None:
+            term = batch.get(("next", "terminated"))
+            reward = batch.get(("next", "reward"))
+            batch.set(("next", "reward"),
+                      torch.where(term, torch.full_like(reward, float(self.done_episode_reward)), reward))
+        self.buffer.extend(batch)
+
+    def optimize(self, n: int) -> None:
+        """``n`` gradient steps on minibatches from the replay buffer."""
+        for _ in range(n):
+            sample = self.buffer.sample()
+            loss = self.loss(sample)["loss"]
+            self.optimizer.zero_grad()
+            loss.backward()
+            if self.grad_clip > 0:
+                nn.utils.clip_grad_norm_(self.loss.parameters(), self.grad_clip)
+            self.optimizer.step()
+            self.lr_schedule.step()
+            self.optimizer_steps += 1
+            if self.updater is not None:
+                self.updater.step()
+            self.last_loss = float(loss.detach())
+
+    def _ready(self) -> bool:
+        return len(self.buffer) >= max(self.learning_starts, 1)
+
+    def on_step(self, tensordict: TensorDictBase) -> None:
+        self.store(tensordict)
+        n = tensordict.numel()
+        self.schedule.step(n)
+        if self.train_every == "step" and self._ready():
+            self._credit += self.updates * n
+            whole = int(self._credit)
+            self._credit -= whole
+            self.optimize(whole)
+        self.egreedy.eps.fill_(self.schedule.value)
+
+    def on_episode(self, episode) -> None:
+        self.schedule.episode_end()
+        if self.train_every == "episode" and self._ready():
+            self._credit += self.updates
+            whole = int(self._credit)
+            self._credit -= whole
+            self.optimize(whole)
+        self.egreedy.eps.fill_(self.schedule.value)
+
+    def train(self, env, run: Run) -> None:
+        """Collects from the batched ``env`` and learns until ``run`` is done."""
+        self.egreedy.eps.fill_(self.schedule.value)
+        drive(env, self.explorer, run, self.on_step, self.on_episode, lambda: self.stats)
+
+    # -- persistence ---------------------------------------------------------
+    def save(self, path: Path, meta: dict) -> None:
+        save_checkpoint(path, {
+            "kind": "dqn", "arch": self._arch(), "actor": self.actor.state_dict(),
+            "optimizer": self.optimizer.state_dict(), "schedule": self.schedule.state_dict(),
+            "optimizer_steps": self.optimizer_steps, "meta": meta,
+        })
+
+    def load(self, path: Path) -> None:
+        """Loads saved weights (and optimiser, schedule) into the built learner."""
+        ckpt = load_checkpoint(path, kind="dqn")
+        if ckpt["arch"] != self._arch():
+            raise CheckpointError(
+                f"checkpoint {path} does not fit this run: it has network {ckpt['arch']}, "
+                f"this run builds {self._arch()}")
+        self.actor.load_state_dict(ckpt["actor"])
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self.schedule.load_state_dict(ckpt["schedule"])
+        self.optimizer_steps = int(ckpt["optimizer_steps"])
+        if self.updater is not None:
+            self.updater.init_()

@@ -1,0 +1,187 @@
+"""TurtleBot ``maze``: drive around a looped maze without hitting its walls.
+
+Actions (the original's three): 0 forward (``linear_forward_speed``, no
+turning), 1 turn left (``linear_turn_speed``, +``angular_speed``), 2 turn right
+(``linear_turn_speed``, -``angular_speed``). Each holds for ``running_step``
+seconds of simulated time.
+
+Observation: the laser fan cut into ``n_observations`` equal sectors, right to
+left (``laser_0`` is the rightmost); each sector reports its nearest reading, no
+hit counting as the laser's maximum range, rounded to one decimal.
+
+The episode terminates on a collision: any laser reading below ``min_range``, or
+the base touching a wall. Reward: ``forwards_reward`` for a forward step,
+``turn_reward`` for a turn, -``end_episode_points`` on the colliding step. The
+environment truncates after ``max_episode_steps``.
+
+Episodes start at one of the layout's start cells (chosen by the environment's
+seeded generator), shifted by up to ``start_position_noise`` metres in x and y
+and ``start_yaw_noise`` radians in heading. ``episode_info`` reports the path
+length driven and the laps made around the maze centre.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+from dm_control import mjcf
+
+from robots.physics import BatchedPhysics
+from robots.turtlebot import TurtleBot
+from tasks.base import Bounds, require, substeps_for
+from tasks.maze_arena import Maze, maze_arena
+
+FORWARD, LEFT, RIGHT = 0, 1, 2
+
+
+class MazeTask:
+    """The maze-driving task; it has a :class:`TurtleBot`."""
+
+    def __init__(
+        self,
+        robot: TurtleBot,
+        layout: Sequence[str],
+        cell_size: float = 0.5,
+        wall_height: float = 0.5,
+        n_actions: int = 3,
+        n_observations: int = 6,
+        linear_forward_speed: float = 0.5,
+        linear_turn_speed: float = 0.1,
+        angular_speed: float = 0.3,
+        min_range: float = 0.5,
+        forwards_reward: float = 5.0,
+        turn_reward: float = 1.0,
+        end_episode_points: float = 200.0,
+        running_step: float = 0.2,
+        max_episode_steps: int = 500,
+        physics_timestep: float = 0.01,
+        start_position_noise: float = 0.2,
+        start_yaw_noise: float = 0.3,
+        tabular_state: dict | None = None,
+    ) -> None:
+        require(isinstance(robot, TurtleBot), "task maze needs robot=turtlebot",
+                f"got {type(robot).__name__}")
+        require(n_actions == 3, "task.n_actions must be 3 (forward, left, right)", n_actions)
+        require(n_observations >= 1, "task.n_observations must be >= 1", n_observations)
+        require(min_range > 0, "task.min_range must be > 0", min_range)
+        require(min_range < robot.laser_max_range,
+                f"task.min_range must be below the laser's range ({robot.laser_max_range})",
+                min_range)
+        require(start_position_noise >= 0, "task.start_position_noise must be >= 0",
+                start_position_noise)
+        require(start_yaw_noise >= 0, "task.start_yaw_noise must be >= 0", start_yaw_noise)
+        require(max_episode_steps >= 1, "task.max_episode_steps must be >= 1", max_episode_steps)
+        self.robot = robot
+        self.maze = Maze.parse(layout, cell_size)
+        self.wall_height = float(wall_height)
+        self.n_actions = 3
+        self.n_observations = int(n_observations)
+        self.min_range = float(min_range)
+        self.rewards = np.array([forwards_reward, turn_reward, turn_reward], dtype=float)
+        self.end_episode_points = float(end_episode_points)
+        self.running_step = float(running_step)
+        self.max_episode_steps = int(max_episode_steps)
+        self.physics_timestep = float(physics_timestep)
+        self.n_substeps = substeps_for(running_step, physics_timestep)
+        self.start_position_noise = float(start_position_noise)
+        self.start_yaw_noise = float(start_yaw_noise)
+        # Action -> (linear, angular) velocity command.
+        self.speeds = np.array([[linear_forward_speed, 0.0],
+                                [linear_turn_speed, angular_speed],
+                                [linear_turn_speed, -angular_speed]], dtype=float)
+        # Sector k covers the closed angle interval k of n_observations equal ones, so a ray
+        # on a boundary counts in both neighbours.
+        angles = robot.laser_angles
+        edges = np.linspace(angles[0], angles[-1], self.n_observations + 1)
+        eps = 1e-9
+        self._sectors = (angles[None, :] >= edges[:-1, None] - eps) & (
+            angles[None, :] <= edges[1:, None] + eps)
+        require(bool(self._sectors.any(1).all()),
+                f"task.n_observations must leave at least one laser ray per sector "
+                f"(robot.laser_rays = {robot.n_rays})", n_observations)
+        self.observation_names = tuple(f"laser_{k}" for k in range(self.n_observations))
+        self.tabular_state = Bounds.from_config(
+            tabular_state or {name: [self.min_range, robot.laser_max_range]
+                              for name in self.observation_names},
+            self.observation_names,
+        )
+        n = 0
+        self._action = np.zeros(n, dtype=np.int64)
+        self._prev_xy = np.zeros((n, 2))
+        self._distance = np.zeros(n)
+        self._prev_bearing = np.zeros(n)
+        self._winding = np.zeros(n)
+
+    def build_arena(self) -> mjcf.RootElement:
+        arena = maze_arena("turtlebot_maze", self.maze, self.physics_timestep, self.wall_height)
+        arena.attach(self.robot.mjcf_model)
+        return arena
+
+    def bind(self, physics: BatchedPhysics) -> None:
+        self.robot.bind(physics)
+        n = physics.num_envs
+        self._action = np.zeros(n, dtype=np.int64)
+        self._prev_xy = np.zeros((n, 2))
+        self._distance = np.zeros(n)
+        self._prev_bearing = np.zeros(n)
+        self._winding = np.zeros(n)
+
+    def initialize_episode(
+        self, physics: BatchedPhysics, mask: np.ndarray, rng: np.random.Generator
+    ) -> None:
+        """A random start cell of the layout, with a uniform pose perturbation, at rest."""
+        n = int(mask.sum())
+        starts = self.maze.starts[rng.integers(len(self.maze.starts), size=n)]
+        noise = rng.uniform(-1.0, 1.0, size=(n, 3)) * [
+            self.start_position_noise, self.start_position_noise, self.start_yaw_noise]
+        pose = starts + noise
+        self.robot.set_pose(physics, mask, pose[:, 0], pose[:, 1], pose[:, 2])
+        linear, angular = self.speeds[self._action].T
+        self.robot.command_velocity(physics, np.where(mask, 0.0, linear), np.where(mask, 0.0, angular))
+        self._prev_xy[mask] = pose[:, :2]
+        self._prev_bearing[mask] = np.arctan2(pose[:, 1], pose[:, 0])
+        self._distance[mask] = 0.0
+        self._winding[mask] = 0.0
+
+    def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
+        self._action = np.asarray(action, dtype=np.int64).copy()
+        linear, angular = self.speeds[self._action].T
+        self.robot.command_velocity(physics, linear, angular)
+
+    def scan(self, physics: BatchedPhysics) -> np.ndarray:
+        """Nearest laser reading in each sector, unrounded ``(num_envs, n_observations)``."""
+        ranges = self.robot.laser(physics)
+        if getattr(self, "_stride", False):
+            idx = np.round(np.linspace(0, ranges.shape[1] - 1, self.n_observations)).astype(int)
+            return ranges[:, idx]
+        return np.where(self._sectors[None], ranges[:, None, :], np.inf).min(-1)
+
+    def observation(self, physics: BatchedPhysics) -> np.ndarray:
+        self._track(physics)
+        return np.round(self.scan(physics), 1)
+
+    def terminated(self, physics: BatchedPhysics, observation: np.ndarray) -> np.ndarray:
+        too_close = self.robot.laser(physics).min(-1) < self.min_range
+        return too_close | self.robot.bumper(physics)
+
+    def reward(
+        self, physics: BatchedPhysics, observation: np.ndarray, terminated: np.ndarray
+    ) -> np.ndarray:
+        return np.where(terminated, -self.end_episode_points, self.rewards[self._action])
+
+    def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
+        """Per copy: path length driven (m) and signed laps around the maze centre."""
+        self._track(physics)
+        return {"distance": self._distance.copy(), "laps": self._winding / (2 * math.pi)}
+
+    def _track(self, physics: BatchedPhysics) -> None:
+        """Adds the motion since the last call to each copy's odometer and winding angle."""
+        odom = self.robot.odometry(physics)
+        xy = np.stack([odom.x, odom.y], axis=1)
+        self._distance += np.linalg.norm(xy - self._prev_xy, axis=1)
+        bearing = np.arctan2(xy[:, 1], xy[:, 0])
+        self._winding += np.mod(bearing - self._prev_bearing + math.pi, 2 * math.pi) - math.pi
+        self._prev_xy = xy
+        self._prev_bearing = bearing

@@ -1,0 +1,97 @@
+"""Every config composes and instantiates; the task follows the robot; tuned values follow both."""
+
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
+from omegaconf import OmegaConf
+
+import train
+from tasks.base import ConfigError
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))
+TASKS = sorted(p.stem for p in (CONF / "task").glob("*.yaml"))
+LEARNERS = sorted(p.stem for p in (CONF / "learner").glob("*.yaml"))
+
+
+def compose_cfg(*overrides: str):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides), return_hydra_config=True)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+@pytest.mark.parametrize("learner", LEARNERS)
+def test_every_robot_learner_pair_composes_and_builds(robot, learner):
+    cfg = compose_cfg(f"robot={robot}", f"learner={learner}")
+    OmegaConf.resolve(cfg)
+    env = train.build_env(cfg, num_envs=2, seed=0)
+    try:
+        agent = train.instantiate(cfg.learner, _convert_="all")
+        agent.build(env.task)
+        td = agent.policy(env.reset())
+        assert env.step(td)["next", "observation"].shape[0] == 2
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+@pytest.mark.parametrize("task", TASKS)
+def test_task_fits_robot_or_says_which_robot_it_needs(robot, task):
+    cfg = compose_cfg(f"robot={robot}", f"task={task}")
+    default_task = compose_cfg(f"robot={robot}").hydra.runtime.choices.task
+    if task == default_task:
+        train.build_task(cfg)
+        return
+    try:
+        train.build_task(cfg)
+    except Exception as err:  # noqa: BLE001 - a mismatch must name the robot needed
+        message = train._one_line(err)
+        assert "needs robot=" in message and len(message.splitlines()) == 1
+    # Tasks that happen to fit more than one robot are allowed to build.
+
+
+def test_task_follows_robot_and_can_be_overridden():
+    cfg = compose_cfg("robot=cartpole")
+    assert cfg.hydra.runtime.choices.task == "stay_up"
+    assert cfg.task._target_ == "tasks.stay_up.StayUp"
+    cfg = compose_cfg("robot=cartpole", "task.pos_step=0.5")
+    assert cfg.task.pos_step == 0.5
+
+
+def test_tuned_parameters_follow_robot_and_learner_yet_stay_overridable():
+    base = OmegaConf.load(CONF / "learner" / "qlearn.yaml")
+    tuned = OmegaConf.load(CONF / "tuned" / "cartpole_qlearn.yaml")
+    cfg = compose_cfg("robot=cartpole", "learner=qlearn")
+    for key, value in tuned.learner.items():
+        assert cfg.learner[key] == value
+    assert any(base[k] != v for k, v in tuned.learner.items())  # tuning changes something
+    cfg = compose_cfg("robot=cartpole", "learner=qlearn", "learner.alpha=0.33")
+    assert cfg.learner.alpha == 0.33
+
+
+def test_unknown_option_and_key_fail_with_hydra_message():
+    with pytest.raises(ConfigCompositionException, match="robot"):
+        compose_cfg("robot=submarine")
+    with pytest.raises(ConfigCompositionException, match="no_such_key"):
+        compose_cfg("learner.no_such_key=1")
+
+
+@pytest.mark.parametrize("override, key", [
+    ("learner.alpha=-0.1", "learner.alpha"),
+    ("learner.epsilon=1.5", "learner.epsilon"),
+    ("learner.gamma=2", "learner.gamma"),
+    ("task.n_actions=3", "task.n_actions"),
+    ("task.running_step=0", "task.running_step"),
+    ("learner.number_splits=[3,3]", "learner.number_splits"),
+])
+def test_bad_values_give_one_line_naming_the_key(override, key):
+    cfg = compose_cfg(override)
+    with pytest.raises(Exception) as err:
+        learner = train.instantiate(cfg.learner, _convert_="all")
+        env = train.build_env(cfg, num_envs=1, seed=0)
+        learner.build(env.task)
+    message = train._one_line(err.value)
+    assert key in message and "got" in message, message
+    assert isinstance(err.value, ConfigError) or isinstance(err.value.__cause__, ConfigError)

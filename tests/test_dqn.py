@@ -1,0 +1,147 @@
+"""The DQN family: variants are configs of one learner, and the learner learns."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from learners.checkpoint import CheckpointError
+from learners.dqn import DQN
+from learners.run import Run, WinCriterion, evaluate, seed_everything
+from learners.schedules import LinearEpsilon
+from robots.cartpole import CartPole
+from tasks.env import RobotTaskEnv
+from tasks.stay_up import StayUp
+
+CONF = Path(__file__).resolve().parents[1] / "conf" / "learner"
+
+
+def variant(name: str, **overrides) -> DQN:
+    cfg = OmegaConf.load(CONF / f"{name}.yaml")
+    for key, value in overrides.items():
+        OmegaConf.update(cfg, key, value)
+    return instantiate(cfg, _convert_="all")
+
+
+def test_variants_build_the_networks_of_the_seed_table():
+    task = StayUp(CartPole())
+    expected = {"n1try": ([4, 24, 48, 2], torch.nn.Tanh), "mbalunovic": ([4, 16, 16, 2], torch.nn.ReLU),
+                "ruippeixotog": ([4, 12, 12, 2], torch.nn.ReLU)}
+    for name, (widths, act) in expected.items():
+        learner = variant(name)
+        learner.build(task)
+        linears = [m for m in learner.actor.modules() if isinstance(m, torch.nn.Linear)]
+        assert [linears[0].in_features] + [m.out_features for m in linears] == widths
+        assert any(isinstance(m, act) for m in learner.actor.modules())
+    assert variant("mbalunovic").target_update == 100
+    assert variant("dqn").double_dqn and variant("dqn").loss_function == "smooth_l1"
+    assert variant("ruippeixotog").run_episodes == 500
+
+
+def test_n1try_learning_rate_decays_like_keras():
+    learner = variant("n1try")
+    learner.build(StayUp(CartPole()))
+    env = RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0)
+    td = env.reset()
+    for _ in range(20):
+        td = learner.explorer(td)
+        td, nxt = env.step_and_maybe_reset(td)
+        learner.store(td)
+        td = nxt
+    learner.optimize(10)
+    assert learner.optimizer.param_groups[0]["lr"] == pytest.approx(0.01 / (1 + 0.01 * 10))
+
+
+def test_terminal_reward_replacement_only_on_termination():
+    learner = variant("mbalunovic")
+    learner.build(StayUp(CartPole()))
+    env = RobotTaskEnv(StayUp(CartPole(), max_episode_steps=6), num_envs=8, seed=0)
+    td = env.reset()
+    for _ in range(30):
+        td = learner.explorer(td)
+        td, nxt = env.step_and_maybe_reset(td)
+        learner.store(td)
+        td = nxt
+    data = learner.buffer[: len(learner.buffer)]
+    term = data["next", "terminated"].squeeze(-1)
+
+    reward = data["next", "reward"].squeeze(-1)
+    trunc = data["next", "done"].squeeze(-1) & ~term
+    assert term.any() and trunc.any()
+    assert (reward[term] == -200).all() and (reward[~term] == 1).all()
+
+
+
+def random_baseline(seed: int, episodes: int = 20) -> float:
+    env = RobotTaskEnv(StayUp(CartPole()), num_envs=episodes, seed=seed)
+    gen = torch.Generator().manual_seed(seed)
+
+    def act(td):
+        td["action"] = torch.randint(0, 2, (episodes,), generator=gen)
+        return td
+    return evaluate(env, act)["mean_length"]
+
+
+def train_and_eval(learner: DQN, tmp_path, num_envs: int, seed: int = 0) -> float:
+    gen = seed_everything(seed)
+    task = StayUp(CartPole())
+    env = RobotTaskEnv(task, num_envs=num_envs, seed=seed)
+    learner.build(task, gen)
+    run = Run(tmp_path, num_envs, learner.nepisodes, WinCriterion(), quiet=True,
+              extra_fields=("alpha", "gamma", "epsilon"))
+    learner.train(env, run)
+    run.close()
+    with learner.greedy():
+        return evaluate(RobotTaskEnv(StayUp(CartPole()), num_envs=20, seed=seed + 10_000),
+                        learner.policy)["mean_length"]
+
+
+def test_dqn_learns_cartpole(tmp_path):
+    learner = variant("dqn", nepisodes=250)
+    greedy = train_and_eval(learner, tmp_path, num_envs=8)
+    random = random_baseline(10_000)
+    assert greedy >= 5 * random, (greedy, random)
+
+
+def test_n1try_learns_cartpole(tmp_path):
+    learner = variant("n1try", nepisodes=300)
+    greedy = train_and_eval(learner, tmp_path, num_envs=1)
+    random = random_baseline(10_000)
+    assert greedy >= 5 * random, (greedy, random)
+
+
+def test_checkpoint_rebuilds_the_network_and_rejects_mismatch(tmp_path):
+    task = StayUp(CartPole())
+    a = variant("dqn")
+    a.build(task)
+    a.save(tmp_path / "model.pt", meta={})
+    b = variant("dqn")
+    b.build(task)
+    b.load(tmp_path / "model.pt")
+    obs = torch.randn(5, 4)
+    from tensordict import TensorDict
+    qa = a.actor(TensorDict(observation=obs, batch_size=[5]))["action_value"]
+    qb = b.actor(TensorDict(observation=obs, batch_size=[5]))["action_value"]
+    assert torch.equal(qa, qb)
+    c = variant("n1try")
+    c.build(task)
+    with pytest.raises(CheckpointError, match="does not fit"):
+        c.load(tmp_path / "model.pt")
+    from learners.qlearn import QLearn
+    q = QLearn()
+    q.build(task)
+    with pytest.raises(CheckpointError, match="'dqn' learner"):
+        q.load(tmp_path / "model.pt")
+
+
+def test_bad_dqn_values_are_one_line_errors():
+    from tasks.base import ConfigError
+    for kwargs, key in ((dict(lr=-0.1), "learner.lr"), (dict(gamma=1.5), "learner.gamma"),
+                        (dict(double_dqn=True, target_update=0, tau=0.0), "learner.double_dqn"),
+                        (dict(batch_size=10, buffer_size=5), "learner.batch_size")):
+        with pytest.raises(ConfigError, match=key):
+            DQN(epsilon=LinearEpsilon(), **kwargs)
+

@@ -1,0 +1,162 @@
+"""Tabular Q-learning: the state mapping, the update rule and its options, learning."""
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+
+from learners.checkpoint import CheckpointError
+from learners.qlearn import Discretizer, QLearn
+from learners.run import Run, WinCriterion, evaluate, seed_everything
+from robots.cartpole import CartPole
+from tasks.base import Bounds
+from tasks.env import RobotTaskEnv
+from tasks.stay_up import StayUp
+
+NAMES = ("a", "b", "c")
+
+
+def test_discretizer_is_mixed_radix_over_bins_first_entry_fastest():
+    d = Discretizer(Bounds.from_config({"a": [0, 1], "c": [-2, 2]}, NAMES), [4, 2])
+    obs = torch.tensor([
+        [0.10, 99.0, -1.0],   # a bin 0, c bin 0 -> 0
+        [0.30, 99.0, -1.0],   # a bin 1 -> 1
+        [0.99, 99.0, 1.5],    # a bin 3, c bin 1 -> 3 + 4*1 = 7
+        [-5.0, 0.0, 9.0],     # clipped: a bin 0, c bin 1 -> 4
+    ])
+    assert d(obs).tolist() == [0, 1, 7, 4]
+    assert d.n_states == 8
+
+
+class FakeTask:
+    n_actions = 2
+
+    def __init__(self):
+        self.tabular_state = Bounds.from_config({"a": [0, 4]}, NAMES)
+
+
+def transition(state_obs, action, reward, next_obs, terminated):
+    n = len(action)
+    return TensorDict({
+        "observation": torch.tensor(state_obs, dtype=torch.float32).reshape(n, 3),
+        "action": torch.tensor(action),
+        ("next", "observation"): torch.tensor(next_obs, dtype=torch.float32).reshape(n, 3),
+        ("next", "reward"): torch.tensor(reward, dtype=torch.float32).reshape(n, 1),
+        ("next", "terminated"): torch.tensor(terminated).reshape(n, 1),
+    }, batch_size=[n])
+
+
+def learner(**kw):
+    q = QLearn(alpha=0.5, gamma=0.9, epsilon=0.0, number_splits=4, **kw)
+    q.build(FakeTask())
+    return q
+
+
+def apply(q, *args):
+    td = transition(*args)
+    q.policy(td.select("observation").update({"action": td["action"]}))
+    td["state_index"] = q.policy.discretizer(td["observation"])
+    q.update(td)
+
+
+def test_update_bootstraps_from_the_best_next_action():
+    q = learner()
+    q.policy.table[2] = torch.tensor([3.0, 5.0])
+    apply(q, [[0.5, 0, 0]], [1], [1.0], [[2.5, 0, 0]], [False])
+    assert q.policy.table[0, 1].item() == pytest.approx(0.5 * (1.0 + 0.9 * 5.0))
+    assert q.policy.table[0, 0].item() == 0.0
+
+
+def test_no_bootstrap_through_terminal_unless_asked():
+    for flag, expected in ((False, 0.5 * 1.0), (True, 0.5 * (1.0 + 0.9 * 5.0))):
+        q = learner(bootstrap_terminal=flag)
+        q.policy.table[2] = torch.tensor([3.0, 5.0])
+        apply(q, [[0.5, 0, 0]], [1], [1.0], [[2.5, 0, 0]], [True])
+        assert q.policy.table[0, 1].item() == pytest.approx(expected)
+
+
+def test_first_visit_sets_q_to_reward_when_asked():
+    q = learner(first_visit_reward=True)
+    q.policy.table[2] = torch.tensor([3.0, 5.0])
+    apply(q, [[0.5, 0, 0]], [1], [7.0], [[2.5, 0, 0]], [False])
+    assert q.policy.table[0, 1].item() == 7.0
+    apply(q, [[0.5, 0, 0]], [1], [7.0], [[2.5, 0, 0]], [False])
+    assert q.policy.table[0, 1].item() == pytest.approx(7.0 + 0.5 * (7.0 + 4.5 - 7.0))
+
+
+def test_duplicate_pairs_in_a_batch_average_their_increments():
+    q = learner()
+    apply(q, [[0.5, 0, 0], [0.6, 0, 0]], [1, 1], [2.0, 4.0], [[3.5, 0, 0], [3.5, 0, 0]], [True, True])
+    assert q.policy.table[0, 1].item() == pytest.approx(0.5 * 3.0)
+
+
+def test_greedy_action_and_epsilon_decay_with_floor():
+    q = learner(epsilon_discount=0.5, epsilon_min=0.2)
+    q.policy.table[1] = torch.tensor([0.0, 1.0])
+    td = TensorDict({"observation": torch.tensor([[1.5, 0, 0]] * 50)}, batch_size=[50])
+    assert (q.policy(td)["action"] == 1).all()
+    q.policy.epsilon = 0.9
+    for expected in (0.45, 0.225, 0.1125, 0.1125):
+        q.end_episode()
+        assert q.policy.epsilon == pytest.approx(expected)
+
+
+def test_epsilon_one_explores_uniformly_and_noise_option_too():
+    for noise in (False, True):
+        q = learner(noise_exploration=noise)
+        q.policy.table[1] = torch.tensor([0.0, 1.0])
+        q.policy.epsilon = 1.0
+        td = TensorDict({"observation": torch.tensor([[1.5, 0, 0]] * 2000)}, batch_size=[2000])
+        share = q.policy(td)["action"].float().mean().item()
+        # Plain epsilon: uniform (0.5). Noise of the Q magnitude: still favours the best action.
+        assert (0.45 < share < 0.55) if not noise else (0.6 < share < 0.9), share
+
+
+def test_checkpoint_roundtrip_and_clear_errors(tmp_path):
+    q = learner()
+    q.policy.table.uniform_()
+    q.save(tmp_path / "model.pt", meta={})
+    q2 = learner()
+    q2.load(tmp_path / "model.pt")
+    assert torch.equal(q2.policy.table, q.policy.table)
+    with pytest.raises(CheckpointError, match="does not exist"):
+        q2.load(tmp_path / "missing.pt")
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="not a readable checkpoint"):
+        q2.load(tmp_path / "bad.pt")
+    other = QLearn(number_splits=3)
+    other.build(FakeTask())
+    with pytest.raises(CheckpointError, match="does not fit"):
+        other.load(tmp_path / "model.pt")
+
+
+def random_policy(n_actions, seed):
+    gen = torch.Generator().manual_seed(seed)
+
+    def act(td):
+        td["action"] = torch.randint(0, n_actions, td.batch_size, generator=gen)
+        return td
+    return act
+
+
+def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
+    from hydra import compose, initialize_config_dir
+    from hydra.utils import instantiate
+    from pathlib import Path
+
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["learner.nepisodes=200"])
+    seed = 0
+    gen = seed_everything(seed)
+    task = instantiate(cfg.task, robot=instantiate(cfg.robot), _convert_="all")
+    env = RobotTaskEnv(task, num_envs=1, seed=seed)
+    q = instantiate(cfg.learner, _convert_="all")
+    q.build(task, gen)
+    run = Run(tmp_path, 1, q.nepisodes, WinCriterion(), quiet=True, extra_fields=tuple(q.stats))
+    q.train(env, run)
+    run.close()
+    trained = np.mean(run.lengths[-50:])
+    random_env = RobotTaskEnv(StayUp(CartPole()), num_envs=50, seed=seed)
+    random = evaluate(random_env, random_policy(2, seed))["mean_length"]
+    assert trained >= 3 * random, (trained, random)

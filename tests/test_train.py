@@ -1,0 +1,87 @@
+"""train.py end to end: run folder, verdict line, loading a model, one-line errors."""
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def train(tmp_path: Path, *overrides: str, name: str = "run") -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "train.py", f"hydra.run.dir={tmp_path / name}", "quiet=true", *overrides]
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)
+
+
+def verdict(stdout: str) -> dict:
+    last = stdout.strip().splitlines()[-1]
+    assert last.startswith("VERDICT "), last
+    return dict(field.split("=", 1) for field in last.split()[1:])
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("train")
+    proc = train(tmp, "learner.nepisodes=30", "eval_episodes=3", "seed=1")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return tmp, proc
+
+
+def test_run_folder_and_verdict(short_run):
+    tmp, proc = short_run
+    run_dir = tmp / "run"
+    v = verdict(proc.stdout)
+    assert v["solved"] == "false" and v["episodes"] == "30"
+    assert Path(v["run_dir"]) == run_dir
+    assert "not solved after 30 episodes" in proc.stdout
+    for name in ("config.yaml", "metrics.csv", "reward_curve.png", "model.pt", "eval.json"):
+        assert (run_dir / name).stat().st_size > 0, name
+    rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
+    assert [int(r["episode"]) for r in rows] == list(range(1, 31))
+    assert {"alpha", "gamma", "epsilon", "reward", "length"} <= set(rows[0])
+    assert (run_dir / "reward_curve.png").read_bytes()[:4] == b"\x89PNG"
+    assert "learner:" in (run_dir / "config.yaml").read_text()
+
+
+def test_saved_model_loads_for_eval_and_training(short_run):
+    tmp, _ = short_run
+    model = tmp / "run" / "model.pt"
+    proc = train(tmp, "mode=eval", f"checkpoint={model}", "eval_episodes=2", name="eval")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "greedy evaluation over 2 episodes" in proc.stdout
+    proc = train(tmp, f"checkpoint={model}", "learner.nepisodes=5", "eval_episodes=0", name="more")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert verdict(proc.stdout)["episodes"] == "5"
+
+
+@pytest.mark.parametrize("overrides, expected", [
+    (["learner.alpha=-0.5"], "learner.alpha must be in (0, 1]; got -0.5"),
+    (["mode=eval"], "mode=eval needs checkpoint="),
+    (["checkpoint=/nonexistent/model.pt"], "checkpoint /nonexistent/model.pt does not exist"),
+    (["mode=fly"], "mode must be train or eval"),
+    (["learner=dqn", "learner.lr=-1"], "learner.lr must be > 0; got -1"),
+])
+def test_bad_input_is_one_clear_line(tmp_path, overrides, expected):
+    proc = train(tmp_path, "learner.nepisodes=2", *overrides)
+    assert proc.returncode == 2
+    lines = [line for line in proc.stderr.strip().splitlines() if line.startswith("error:")]
+    assert len(lines) == 1 and expected in lines[0], proc.stderr[-1500:]
+    assert "Traceback" not in proc.stderr
+
+
+def test_corrupt_checkpoint_is_one_clear_line(tmp_path):
+    bad = tmp_path / "model.pt"
+    bad.write_bytes(b"\x00garbage")
+    proc = train(tmp_path, f"checkpoint={bad}", "learner.nepisodes=2")
+    assert proc.returncode == 2 and "not a readable checkpoint" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_unknown_robot_is_hydras_clear_message(tmp_path):
+    proc = train(tmp_path, "robot=submarine")
+    assert proc.returncode != 0
+    assert "submarine" in proc.stderr and "Available options" in proc.stderr
