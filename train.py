@@ -66,8 +66,7 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
         finally:
             summary = record.close()
             learner.save(run_dir / "model.pt", meta={
-                "robot": HydraConfig.get().runtime.choices.get("robot"),
-                "task": HydraConfig.get().runtime.choices.get("task"),
+                "choices": json.loads((run_dir / "run.json").read_text()),
                 "config": OmegaConf.to_container(cfg, resolve=True),
             })
     env.close()
@@ -101,6 +100,10 @@ def main(cfg: DictConfig) -> None:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    choices = HydraConfig.get().runtime.choices
+    (run_dir / "run.json").write_text(json.dumps(
+        {group: choices.get(group) for group in ("robot", "task", "learner", "tuned")}
+        | {"seed": int(cfg.seed), "overrides": list(HydraConfig.get().overrides.task)}, indent=1))
     try:
         run(cfg, run_dir)
     except (ConfigError, CheckpointError, InstantiationException) as err:

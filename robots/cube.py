@@ -48,6 +48,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 from dm_control import mjcf
+from numpy.typing import ArrayLike
 
 from robots.binding import JointHandle, actuator_id
 from robots.physics import BatchedPhysics
@@ -88,8 +89,10 @@ class FreeJointHandle:
         """Angular velocity in the body's own frame."""
         return physics.qvel[:, self.dof_adr + 3 : self.dof_adr + 6].copy()
 
-    def set(self, physics: BatchedPhysics, mask: np.ndarray, position, quaternion,
-            linear_velocity=0.0, angular_velocity=0.0) -> None:
+    def set(self, physics: BatchedPhysics, mask: np.ndarray, position: ArrayLike,
+            quaternion: ArrayLike, linear_velocity: ArrayLike = 0.0,
+            angular_velocity: ArrayLike = 0.0) -> None:
+        """Places the masked copies at ``position`` and ``quaternion`` with the given velocities."""
         physics.qpos[mask, self.qpos_adr : self.qpos_adr + 3] = position
         physics.qpos[mask, self.qpos_adr + 3 : self.qpos_adr + 7] = quaternion
         physics.qvel[mask, self.dof_adr : self.dof_adr + 3] = linear_velocity
@@ -106,7 +109,7 @@ def quat_to_rpy(quat: np.ndarray) -> np.ndarray:
     return np.stack([roll, pitch, yaw], axis=-1)
 
 
-def rpy_to_quat(rpy: np.ndarray) -> np.ndarray:
+def rpy_to_quat(rpy: ArrayLike) -> np.ndarray:
     """Inverse of :func:`quat_to_rpy`: ``(..., 3)`` angles to ``(..., 4)`` quaternions."""
     half = np.asarray(rpy, dtype=float) / 2
     cr, cp, cy = np.cos(half[..., 0]), np.cos(half[..., 1]), np.cos(half[..., 2])
@@ -174,7 +177,7 @@ class Cube:
         self._wheel = JointHandle.of(physics.model, self.mjcf_model.find("joint", "wheel"))
         self._act_id = actuator_id(physics.model, self._actuator)
 
-    def command_wheel_speed(self, physics: BatchedPhysics, speed: np.ndarray | float) -> None:
+    def command_wheel_speed(self, physics: BatchedPhysics, speed: ArrayLike) -> None:
         """Sets the wheel speed command (rad/s, relative to the cube) of every copy."""
         physics.ctrl[:, self._act_id] = np.clip(speed, -self.speed_limit, self.speed_limit)
 
@@ -206,9 +209,9 @@ class Cube:
         self,
         physics: BatchedPhysics,
         mask: np.ndarray,
-        position: np.ndarray,
-        rpy: np.ndarray,
-        wheel_speed: np.ndarray | float = 0.0,
+        position: ArrayLike,
+        rpy: ArrayLike,
+        wheel_speed: ArrayLike = 0.0,
     ) -> None:
         """Places the masked copies at rest at ``position`` with orientation ``rpy``,
         the wheel spinning at ``wheel_speed`` (and commanded to keep it)."""

@@ -24,7 +24,7 @@ a negative weight makes walking towards -y pay (the course's exercise).
 
 The original's defects are fixed: a pitch failure is no longer cleared by the
 yaw check; the unused roll reward term is gone; ``n_actions`` must be 5; the
-ending step costs ``-end_episode_points`` with ``end_episode_points`` > 0.
+ending step costs ``-end_episode_points`` (so ``end_episode_points`` >= 0).
 Reward and termination use the exact pose and velocity, not the rounded
 observation (rounding is only what the learner sees). ``max_distance`` and
 ``max_y_linear_speed`` are, as in the original, only the declared observation

@@ -47,7 +47,7 @@ class StayUp:
         tabular_state: dict | None = None,
     ) -> None:
         require(isinstance(robot, CartPole), "task stay_up needs robot=cartpole",
-                f"got {type(robot).__name__}")
+                type(robot).__name__)
         require(n_actions in (2, 4), "task.n_actions must be 2 or 4", n_actions)
         require(min_pole_angle < max_pole_angle, "task.min_pole_angle must be < max_pole_angle",
                 (min_pole_angle, max_pole_angle))
