@@ -84,7 +84,7 @@ class StayUp:
 
     def build_arena(self) -> mjcf.RootElement:
         arena = floor_arena("cartpole_stay_up", self.physics_timestep)
-        arena.worldbody.add("camera", name="side", pos=[0, -3.2, 1.0], xyaxes=[1, 0, 0, 0, 0.3, 1])
+        arena.worldbody.add("camera", name="side", pos=[0, -3.0, 1.2], xyaxes=[1, 0, 0, 0, 0.12, 1])
         arena.attach(self.robot.mjcf_model)
         return arena
 

@@ -1,0 +1,127 @@
+"""Environment throughput against the raw-MuJoCo limit, side by side (run by hand).
+
+    python bench/env_throughput.py [--seconds 2] [--robots cartpole cube ...]
+
+For each robot with its default task, in one run:
+  (a) the physics limit: ``mujoco.mj_step`` in a Python loop over N ``MjData``
+      copies of the same compiled model, with the task's substeps per control
+      step (one thread), N = 1, 16, 64, 256;
+  (a') the same physics through ``mujoco.rollout``'s thread pool (what our env uses);
+  (b) our ``RobotTaskEnv`` at num_envs = N with uniform random actions, through
+      TorchRL's ``step_and_maybe_reset`` (auto-resets included);
+  (c) transitions/s of each and the ratio (b)/(a).
+Torch is pinned to one thread. The last lines are machine-readable:
+``RATIO <robot>/<task> num_envs=64 <ours/limit>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from hydra import compose, initialize_config_dir  # noqa: E402
+from mujoco import rollout  # noqa: E402
+
+import train  # noqa: E402
+from robots.physics import default_threads  # noqa: E402
+
+SIZES = (1, 16, 64, 256)
+
+
+def timed(fn, seconds: float) -> float:
+    """Calls ``fn`` repeatedly for about ``seconds``; returns calls per second."""
+    fn()  # warm-up
+    calls, start = 0, time.perf_counter()
+    while (elapsed := time.perf_counter() - start) < seconds:
+        fn()
+        calls += 1
+    return calls / elapsed
+
+
+def raw_loop(model: mujoco.MjModel, n: int, substeps: int, seconds: float) -> float:
+    datas = [mujoco.MjData(model) for _ in range(n)]
+    for d in datas:
+        d.ctrl[:] = 0.1 if model.nu else 0.0
+
+    def control_step():
+        for d in datas:
+            for _ in range(substeps):
+                mujoco.mj_step(model, d)
+    return timed(control_step, seconds) * n
+
+
+def raw_rollout(model: mujoco.MjModel, n: int, substeps: int, seconds: float) -> float:
+    nthread = min(default_threads(), n)
+    datas = [mujoco.MjData(model) for _ in range(nthread)]
+    mujoco.mj_forward(model, datas[0])
+    state = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(model, datas[0], state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    states = np.tile(state, (n, 1))
+    control = np.full((n, substeps, model.nu), 0.1)
+    with rollout.Rollout(nthread=nthread if nthread > 1 else 0) as pool:
+        def control_step():
+            out, _ = pool.rollout([model] * n, datas, states, control, nstep=substeps)
+            states[:] = out[:, -1]
+        return timed(control_step, seconds) * n
+
+
+def ours(cfg, n: int, seconds: float) -> float:
+    env = train.build_env(cfg, n, seed=0)
+    gen = torch.Generator().manual_seed(0)
+    td = env.reset()
+    holder = {"td": td}
+
+    def control_step():
+        td = holder["td"]
+        td["action"] = torch.randint(0, env.task.n_actions, (n,), generator=gen)
+        _, holder["td"] = env.step_and_maybe_reset(td)
+    rate = timed(control_step, seconds) * n
+    env.close()
+    return rate
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=2.0, help="per measurement")
+    parser.add_argument("--robots", nargs="+",
+                        default=sorted(p.stem for p in (ROOT / "conf" / "robot").glob("*.yaml")))
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    print(f"torch threads: {torch.get_num_threads()}; rollout threads: {default_threads()}; "
+          f"cores: {os.cpu_count()}; {args.seconds:.1f} s per measurement")
+    ratios = []
+    for robot in args.robots:
+        with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=[f"robot={robot}"], return_hydra_config=True)
+        task_name = cfg.hydra.runtime.choices.task
+        probe = train.build_env(cfg, 1, seed=0)
+        model, substeps = probe.model, probe.task.n_substeps
+        probe.close()
+        print(f"\n{robot}/{task_name}: {substeps} substeps of {model.opt.timestep * 1e3:.1f} ms "
+              f"per control step")
+        print(f"{'num_envs':>8s} {'raw mj_step/s':>14s} {'raw rollout/s':>14s} {'ours/s':>10s} "
+              f"{'ours/raw':>9s} {'ours/rollout':>12s}   (transitions per second)")
+        for n in SIZES:
+            a = raw_loop(model, n, substeps, args.seconds)
+            a2 = raw_rollout(model, n, substeps, args.seconds)
+            b = ours(cfg, n, args.seconds)
+            print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {b / a:9.2f} {b / a2:12.2f}", flush=True)
+            if n == 64:
+                ratios.append((robot, task_name, b / a))
+    print()
+    for robot, task_name, ratio in ratios:
+        print(f"RATIO {robot}/{task_name} num_envs=64 {ratio:.2f}")
+
+
+if __name__ == "__main__":
+    main()

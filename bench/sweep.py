@@ -1,0 +1,27 @@
+"""Run a Hydra multirun of train.py and read back each job's summary (for the benchmarks)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from learners.summary import summarize_run  # noqa: E402
+
+
+def run_sweep(name: str, overrides: list[str]) -> tuple[Path, list[dict]]:
+    """``train.py -m <overrides>`` into ``multirun/<name>_<time>``; one summary per job."""
+    sweep_dir = ROOT / "multirun" / f"{name}_{time.strftime('%Y%m%d-%H%M%S')}"
+    cmd = [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep_dir}", *overrides]
+    print("running:", " ".join(cmd), flush=True)
+    subprocess.run(cmd, cwd=ROOT, check=False)
+    jobs = sorted((p for p in sweep_dir.iterdir() if p.is_dir()), key=lambda p: int(p.name.split("_")[0]))
+    return sweep_dir, [summarize_run(d) for d in jobs]
+
+
+def fmt(value, spec: str = ".0f") -> str:
+    return "-" if value is None else format(value, spec)
