@@ -85,3 +85,25 @@ def test_unknown_robot_is_hydras_clear_message(tmp_path):
     proc = train(tmp_path, "robot=submarine")
     assert proc.returncode != 0
     assert "submarine" in proc.stderr and "Available options" in proc.stderr
+
+
+def _metrics_without_time(run_dir: Path) -> list[dict]:
+    rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
+    for row in rows:
+        row.pop("wall_s")
+    return rows
+
+
+@pytest.mark.parametrize("overrides", [
+    ["learner=qlearn", "learner.nepisodes=40"],
+    ["learner=qlearn", "learner.nepisodes=40", "num_envs=6"],
+    ["learner=dqn", "learner.nepisodes=30", "num_envs=1", "learner.learning_starts=64"],
+    ["learner=dqn", "learner.nepisodes=30", "num_envs=4", "learner.learning_starts=64"],
+])
+def test_same_config_and_seed_give_identical_metrics(tmp_path, overrides):
+    a = train(tmp_path, *overrides, "eval_episodes=0", "seed=5", name="a")
+    b = train(tmp_path, *overrides, "eval_episodes=0", "seed=5", name="b")
+    c = train(tmp_path, *overrides, "eval_episodes=0", "seed=6", name="c")
+    assert a.returncode == b.returncode == c.returncode == 0, a.stderr[-1500:]
+    assert _metrics_without_time(tmp_path / "a") == _metrics_without_time(tmp_path / "b")
+    assert _metrics_without_time(tmp_path / "a") != _metrics_without_time(tmp_path / "c")
