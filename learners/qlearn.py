@@ -1,10 +1,12 @@
 """Tabular Q-learning over a discretised observation.
 
 State -> index mapping (:class:`Discretizer`): the task names which
-observation entries form the tabular state and the range ``[low, high]`` of
-each (``task.tabular_state``); entry ``i`` is cut into ``splits[i]`` equal bins
-over its range (values outside fall into the end bins), and the bins combine
-mixed-radix, first entry fastest::
+observation entries may form the tabular state and the range ``[low, high]``
+of each (``task.tabular_state``); the learner's ``number_splits`` says how many
+equal bins each gets: one int for all, or a mapping from entry name to bins
+(entries it leaves out get 1 bin, i.e. are ignored), or a list in
+``tabular_state`` order. Values outside a range fall into the end bins, and
+the bins combine mixed-radix, first entry fastest::
 
     bin_i  = clip(floor((x_i - low_i) / (high_i - low_i) * splits_i), 0, splits_i - 1)
     index  = bin_0 + splits_0 * (bin_1 + splits_1 * (bin_2 + ...))
@@ -33,7 +35,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -48,9 +50,14 @@ from tasks.base import Bounds, require
 class Discretizer:
     """Maps observations to tabular state indices (see the module docstring)."""
 
-    def __init__(self, bounds: Bounds, splits: int | Sequence[int]) -> None:
+    def __init__(self, bounds: Bounds, splits: int | Sequence[int] | Mapping[str, int]) -> None:
         n = len(bounds.names)
-        if isinstance(splits, int):
+        if isinstance(splits, Mapping):
+            unknown = sorted(set(splits) - set(bounds.names))
+            require(not unknown, f"learner.number_splits names must be among {list(bounds.names)}",
+                    unknown)
+            splits = [splits.get(name, 1) for name in bounds.names]
+        elif isinstance(splits, (int, np.integer)):
             splits = [splits] * n
         splits = [int(s) for s in splits]
         require(len(splits) == n,
@@ -139,7 +146,7 @@ class QLearn:
         epsilon_min: float = 0.05,
         nepisodes: int = 500,
         nsteps: int = 1000,
-        number_splits: int | Sequence[int] = 10,
+        number_splits: int | Sequence[int] | Mapping[str, int] = 10,
         first_visit_reward: bool = False,
         bootstrap_terminal: bool = False,
         noise_exploration: bool = False,
@@ -159,9 +166,12 @@ class QLearn:
         self.epsilon_min = float(epsilon_min)
         self.nepisodes = int(nepisodes)
         self.nsteps = int(nsteps)
-        self.number_splits = (
-            int(number_splits) if isinstance(number_splits, (int, np.integer)) else list(number_splits)
-        )
+        if isinstance(number_splits, Mapping):
+            self.number_splits = {str(k): int(v) for k, v in number_splits.items()}
+        elif isinstance(number_splits, (int, np.integer)):
+            self.number_splits = int(number_splits)
+        else:
+            self.number_splits = [int(v) for v in number_splits]
         self.first_visit_reward = bool(first_visit_reward)
         self.bootstrap_terminal = bool(bootstrap_terminal)
         self.noise_exploration = bool(noise_exploration)

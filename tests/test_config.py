@@ -84,7 +84,8 @@ def test_unknown_option_and_key_fail_with_hydra_message():
     ("learner.gamma=2", "learner.gamma"),
     ("task.n_actions=3", "task.n_actions"),
     ("task.running_step=0", "task.running_step"),
-    ("learner.number_splits=[3,3]", "learner.number_splits"),
+    ("learner.number_splits.cart_pos=0", "learner.number_splits"),
+    ("+learner.number_splits.wheel=3", "learner.number_splits"),
 ])
 def test_bad_values_give_one_line_naming_the_key(override, key):
     cfg = compose_cfg(override)

@@ -26,6 +26,10 @@ def test_discretizer_is_mixed_radix_over_bins_first_entry_fastest():
     ])
     assert d(obs).tolist() == [0, 1, 7, 4]
     assert d.n_states == 8
+    by_name = Discretizer(Bounds.from_config({"a": [0, 1], "c": [-2, 2]}, NAMES), {"c": 2, "a": 4})
+    assert by_name(obs).tolist() == [0, 1, 7, 4]
+    ignored = Discretizer(Bounds.from_config({"a": [0, 1], "c": [-2, 2]}, NAMES), {"c": 2})
+    assert ignored(obs).tolist() == [0, 0, 1, 1] and ignored.n_states == 2
 
 
 class FakeTask:
