@@ -337,7 +337,7 @@ def test_hydra_composes_cube_with_its_task_and_tuned_learner():
     assert cfg.task._target_ == "tasks.one_disk_walk.OneDiskWalk"
     assert cfg.task.running_step == 0.06 and cfg.task.end_episode_points == 1000
     assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (0.1, 0.7, 0.9)
-    assert list(cfg.learner.number_splits) == [21, 5, 3]
+    assert dict(cfg.learner.number_splits) == {"wheel_speed": 21, "y_speed": 5, "yaw": 3}
     robot = instantiate(cfg.robot, _convert_="all")
     task = instantiate(cfg.task, robot=robot, _convert_="all")
     assert task.tabular_state.names == ("wheel_speed", "y_speed", "yaw")
