@@ -43,6 +43,9 @@ def compare(sweep_dir: Path) -> list[dict]:
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in runs:
         groups[(f"{r.get('robot')}/{r.get('task')}", str(r.get("learner")))].append(r)
+    for r in runs:
+        if r["status"] == "failed":
+            print(f"failed: {r['run_dir']}: {r.get('error', 'no metrics')}")
     rows = []
     for (pair, learner), rs in sorted(groups.items()):
         ok = [r for r in rs if r["status"] == "ok"]

@@ -14,17 +14,20 @@ from __future__ import annotations
 
 import json
 import sys
+import traceback
 from pathlib import Path
 
 import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
+from hydra.types import RunMode
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from learners.checkpoint import CheckpointError
+from learners.loggers import make_logger
 from learners.run import Run, WinCriterion, evaluate, seed_everything, verdict_lines
 from tasks.base import ConfigError
 from tasks.env import RobotTaskEnv
@@ -59,8 +62,10 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     summary: dict = {}
     if cfg.mode == "train":
         win = WinCriterion(float(cfg.win.n_win_ticks), int(cfg.win.min_episodes))
+        logger = make_logger(cfg.logger.kind, run_dir, exp_name=run_dir.name,
+                             **{k: v for k, v in cfg.logger.items() if k != "kind"})
         record = Run(run_dir, env.num_envs, learner.nepisodes, win,
-                     extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet))
+                     extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), logger=logger)
         try:
             learner.train(env, record)
         finally:
@@ -104,11 +109,22 @@ def main(cfg: DictConfig) -> None:
     (run_dir / "run.json").write_text(json.dumps(
         {group: choices.get(group) for group in ("robot", "task", "learner", "tuned")}
         | {"seed": int(cfg.seed), "overrides": list(HydraConfig.get().overrides.task)}, indent=1))
+    in_sweep = HydraConfig.get().mode == RunMode.MULTIRUN
     try:
         run(cfg, run_dir)
     except (ConfigError, CheckpointError, InstantiationException) as err:
-        print(f"error: {_one_line(err)}", file=sys.stderr)
-        sys.exit(2)
+        message = f"error: {_one_line(err)}"
+        print(message, file=sys.stderr)
+        if not in_sweep:
+            sys.exit(2)
+        (run_dir / "error.txt").write_text(message + "\n")
+    except Exception:
+        if not in_sweep:
+            raise
+        # One broken job must not cost the sweep its other jobs: keep the trace, go on.
+        trace = traceback.format_exc()
+        print(trace, file=sys.stderr)
+        (run_dir / "error.txt").write_text(trace)
 
 
 if __name__ == "__main__":

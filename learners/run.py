@@ -71,6 +71,7 @@ class Run:
         win: WinCriterion,
         extra_fields: tuple[str, ...] = (),
         quiet: bool = False,
+        logger=None,
     ) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -79,6 +80,7 @@ class Run:
         self.win = win
         self.extra_fields = tuple(extra_fields)
         self.quiet = quiet
+        self.logger = logger
         self.episodes: list[Episode] = []
         self.lengths: list[int] = []
         self.env_steps = 0
@@ -136,6 +138,11 @@ class Run:
         row += [ep.extra.get(k, "") for k in self.extra_fields]
         self._csv.writerow(row)
         self._bar.update(1)
+        if self.logger is not None:
+            scalars = {"reward": ep.reward, "length": ep.length, "mean100": ep.mean100,
+                       "env_steps": ep.env_steps, **ep.extra}
+            for key, value in scalars.items():
+                self.logger.log_scalar(f"episode/{key}", float(value), step=ep.episode)
         if not self.quiet:
             stats = " ".join(f"{k}={v:.4g}" for k, v in ep.extra.items())
             self._bar.write(
@@ -160,6 +167,11 @@ class Run:
         """Flushes metrics, draws the reward curve and returns the summary."""
         self._bar.close()
         self._csv_file.close()
+        if self.logger is not None:
+            summary = self.summary()
+            for key in ("score", "best100", "env_steps", "wall_s"):
+                self.logger.log_scalar(f"run/{key}", float(summary[key]), step=len(self.episodes))
+            self.logger.close()
         plot_reward_curve(self.run_dir / "metrics.csv", self.run_dir / "reward_curve.png",
                           self.win.n_win_ticks)
         return self.summary()

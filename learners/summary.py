@@ -30,6 +30,10 @@ def summarize_run(run_dir: Path | str) -> dict:
     if names.is_file():
         chosen = json.loads(names.read_text())
         out.update({k: chosen.get(k) for k in ("robot", "task", "learner", "seed")})
+    error = run_dir / "error.txt"
+    if error.is_file():
+        out["error"] = error.read_text().strip().splitlines()[-1]
+        return out
     metrics = run_dir / "metrics.csv"
     if not metrics.is_file():
         return out

@@ -1,0 +1,91 @@
+"""Loggers chosen from Hydra, sweeps through Hydra launchers, and the sweep comparison."""
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(args: list[str], timeout: int = 600) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=timeout, env=env)
+
+
+def test_tensorboard_logger_writes_event_files_with_the_episode_scalars(tmp_path):
+    proc = run(["train.py", f"hydra.run.dir={tmp_path}", "quiet=true", "logger=tensorboard",
+                "learner.nepisodes=12", "eval_episodes=0"])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    events = list((tmp_path / "logs").rglob("events.out.tfevents.*"))
+    assert events
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    acc = EventAccumulator(str(events[0].parent))
+    acc.Reload()
+    lengths = acc.Scalars("episode/length")
+    assert [e.step for e in lengths] == list(range(1, 13))
+    rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    assert [e.value for e in lengths] == [float(r["length"]) for r in rows]
+
+
+def test_csv_logger_is_the_default(tmp_path):
+    proc = run(["train.py", f"hydra.run.dir={tmp_path}", "quiet=true", "learner.nepisodes=3",
+                "eval_episodes=0"])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert list((tmp_path / "logs").rglob("episode/length.csv")) or \
+        list((tmp_path / "logs").rglob("*length*.csv"))
+
+
+def test_missing_logger_backend_is_a_one_line_error(tmp_path, monkeypatch):
+    from learners.loggers import make_logger
+    from tasks.base import ConfigError
+    import importlib.util
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "mlflow" else real(name, *a))
+    with pytest.raises(ConfigError, match=r"logger=mlflow needs the mlflow package.*\[mlflow\]"):
+        make_logger("mlflow", tmp_path, "x")
+    with pytest.raises(ConfigError, match="logger must be one of"):
+        make_logger("papyrus", tmp_path, "x")
+
+
+@pytest.mark.parametrize("launcher", ["joblib", "submitit_local"])
+def test_two_job_sweep_through_a_launcher_then_compare(tmp_path, launcher):
+    sweep = tmp_path / "sweep"
+    proc = run(["train.py", "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={sweep}",
+                "learner=qlearn", "seed=0,1", "learner.nepisodes=8", "eval_episodes=0",
+                "quiet=true"], timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and (p / "metrics.csv").exists())
+    assert len(jobs) == 2
+    proc = run(["compare.py", str(sweep)])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "cartpole/stay_up" in proc.stdout and "qlearn" in proc.stdout
+    rows = list(csv.DictReader(open(sweep / "comparison.csv")))
+    assert len(rows) == 1 and rows[0]["seeds"] == "2" and rows[0]["solved"] == "0/2"
+    assert (sweep / "comparison.png").read_bytes()[:4] == b"\x89PNG"
+    assert "| cartpole/stay_up | qlearn |" in (sweep / "comparison.md").read_text()
+
+
+def test_a_failing_job_does_not_cost_the_sweep_and_compare_reports_it(tmp_path):
+    sweep = tmp_path / "sweep"
+    proc = run(["train.py", "-m", f"hydra.sweep.dir={sweep}", "learner=qlearn",
+                "learner.alpha=-1,0.5", "learner.nepisodes=5", "eval_episodes=0", "quiet=true"])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    jobs = sorted(p for p in sweep.iterdir() if p.is_dir())
+    assert len(jobs) == 2
+    assert "learner.alpha must be in (0, 1]" in (jobs[0] / "error.txt").read_text()
+    assert (jobs[1] / "metrics.csv").exists() and (jobs[1] / "model.pt").exists()
+    proc = run(["compare.py", str(sweep)])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = list(csv.DictReader(open(sweep / "comparison.csv")))
+    assert sum(int(r["failed"]) for r in rows) == 1
+    assert "failed:" in proc.stdout and "learner.alpha" in proc.stdout
+
+
+def test_compare_rejects_a_folder_that_is_not_a_sweep(tmp_path):
+    proc = run(["compare.py", str(tmp_path / "nope")])
+    assert proc.returncode == 2 and "is not a folder" in proc.stderr
