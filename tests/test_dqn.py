@@ -100,7 +100,7 @@ def train_and_eval(learner: DQN, tmp_path, num_envs: int, seed: int = 0) -> floa
 
 
 def test_dqn_learns_cartpole(tmp_path):
-    learner = variant("dqn", nepisodes=250)
+    learner = variant("dqn", nepisodes=400)
     greedy = train_and_eval(learner, tmp_path, num_envs=8)
     random = random_baseline(10_000)
     assert greedy >= 5 * random, (greedy, random)
