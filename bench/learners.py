@@ -1,6 +1,8 @@
 """Every learner on cartpole/stay_up over 3 seeds, side by side (run by hand).
 
-    python bench/learners.py [--seeds 0 1 2] [--learners qlearn n1try ...] [extra overrides]
+    python bench/learners.py [--seeds 0 1 2] [--learners qlearn n1try ...] [-- extra overrides]
+
+e.g. ``-- hydra/launcher=joblib hydra.launcher.n_jobs=2`` runs two jobs at a time.
 
 Runs one Hydra multirun of train.py and prints, per learner and seed, episodes,
 env steps and wall-clock seconds to the win criterion and the final greedy

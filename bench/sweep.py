@@ -18,7 +18,9 @@ def run_sweep(name: str, overrides: list[str]) -> tuple[Path, list[dict]]:
     sweep_dir = ROOT / "multirun" / f"{name}_{time.strftime('%Y%m%d-%H%M%S')}"
     cmd = [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep_dir}", *overrides]
     print("running:", " ".join(cmd), flush=True)
-    subprocess.run(cmd, cwd=ROOT, check=False)
+    proc = subprocess.run(cmd, cwd=ROOT, check=False)
+    if not sweep_dir.is_dir():
+        sys.exit(f"error: the sweep did not start (train.py exit code {proc.returncode})")
     jobs = sorted((p for p in sweep_dir.iterdir() if p.is_dir()), key=lambda p: int(p.name.split("_")[0]))
     return sweep_dir, [summarize_run(d) for d in jobs]
 
