@@ -6,7 +6,8 @@
     python train.py mode=eval checkpoint=outputs/.../model.pt
 
 The run folder (printed at the end) holds config.yaml (resolved), metrics.csv,
-reward_curve.png and model.pt. The last line printed is machine-readable:
+reward_curve.png, model.pt and, with ``video=true``, policy.mp4. The last line
+printed is machine-readable:
 ``VERDICT solved=<true|false> episodes=<n> best100=<v> wall_s=<v> run_dir=<path>``.
 """
 
@@ -29,6 +30,7 @@ import robots  # noqa: F401  (sets a headless GL backend before dm_control loads
 from learners.checkpoint import CheckpointError
 from learners.loggers import make_logger
 from learners.run import Run, WinCriterion, evaluate, seed_everything, verdict_lines
+from learners.video import record_video
 from tasks.base import ConfigError
 from tasks.env import RobotTaskEnv
 
@@ -87,6 +89,12 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
               + "".join(f", {k} {v:.3f}" for k, v in result["info_mean"].items()))
         (run_dir / "eval.json").write_text(json.dumps(result, indent=1))
         summary["eval"] = result
+    if cfg.video:  # the greedy policy on a fresh one-copy env
+        video_env = build_env(cfg, 1, int(cfg.seed) + 20_000, learner.nsteps)
+        with learner.greedy():
+            record_video(video_env, learner.policy, run_dir / "policy.mp4", n_steps=int(cfg.video_steps))
+        video_env.close()
+        print(f"policy video in {run_dir / 'policy.mp4'}")
     if cfg.mode == "train":
         for line in verdict_lines(summary, run_dir):
             print(line)

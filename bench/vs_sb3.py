@@ -113,6 +113,29 @@ def run_ours(seed: int) -> dict:
             "best100": float(s["final_mean_length"]), "run_dir": str(run_dir)}
 
 
+def report(ours: dict, sb3: dict, seed: int, cap: int, win: WinCriterion) -> None:
+    """Prints the table and, last, the ``VS_SB3`` line."""
+    print(f"\ncartpole/stay_up, seed {seed}, win: mean length of last 100 >= "
+          f"{win.n_win_ticks:g} after >= {win.min_episodes} episodes (SB3 cap {cap} steps)")
+    print(f"| {'learner':15s} | solved | episodes | env steps | wall s | steps/s |")
+    print("|" + "|".join("-" * w for w in (17, 8, 10, 11, 8, 9)) + "|")
+    for r in (ours, sb3):
+        print(f"| {r['learner']:15s} | {str(r['solved']).lower():6s} | {r['episodes']:8d} | "
+              f"{r['env_steps']:9d} | {r['wall_s']:6.1f} | {r['env_steps'] / r['wall_s']:7.0f} |")
+    wall = ours["wall_s"] / sb3["wall_s"]
+    steps = ours["env_steps"] / sb3["env_steps"]
+    if not ours["solved"]:
+        print(f"ours did not reach the criterion; last-100 mean length {ours['best100']:.1f}")
+    if not sb3["solved"]:
+        print(f"SB3 did not reach the criterion within {cap} steps; "
+              f"its best 100-episode mean length was {sb3['best100']:.1f}")
+        if ours["solved"]:
+            print(f"so ours/sb3 is at most: wall {wall:.3f}, steps {steps:.3f}")
+    if not (ours["solved"] and sb3["solved"]):
+        wall = steps = math.nan
+    print(f"VS_SB3 wall_ratio={wall:.3f} steps_ratio={steps:.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
@@ -122,22 +145,7 @@ def main() -> None:
     win = WinCriterion(float(cfg.win.n_win_ticks), int(cfg.win.min_episodes))
     ours = run_ours(args.seed)
     sb3 = run_sb3(args.seed, args.cap, win)
-    print(f"\ncartpole/stay_up, seed {args.seed}, win: mean length of last 100 >= "
-          f"{win.n_win_ticks:g} after >= {win.min_episodes} episodes (SB3 cap {args.cap} steps)")
-    print(f"| {'learner':15s} | solved | episodes | env steps | wall s | steps/s |")
-    print("|" + "|".join("-" * w for w in (17, 8, 10, 11, 8, 9)) + "|")
-    for r in (ours, sb3):
-        print(f"| {r['learner']:15s} | {str(r['solved']).lower():6s} | {r['episodes']:8d} | "
-              f"{r['env_steps']:9d} | {r['wall_s']:6.1f} | {r['env_steps'] / r['wall_s']:7.0f} |")
-    if not sb3["solved"]:
-        print(f"SB3 did not reach the criterion within {args.cap} steps; "
-              f"its best 100-episode mean length was {sb3['best100']:.1f}")
-    if not ours["solved"]:
-        print(f"ours did not reach the criterion; last-100 mean length {ours['best100']:.1f}")
-    both = ours["solved"] and sb3["solved"]
-    wall = ours["wall_s"] / sb3["wall_s"] if both else math.nan
-    steps = ours["env_steps"] / sb3["env_steps"] if both else math.nan
-    print(f"VS_SB3 wall_ratio={wall:.3f} steps_ratio={steps:.3f}")
+    report(ours, sb3, args.seed, args.cap, win)
 
 
 if __name__ == "__main__":

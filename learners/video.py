@@ -1,0 +1,130 @@
+"""Videos of a policy: MP4 files of copy 0 of a ``RobotTaskEnv``, rendered headless.
+
+    python -m learners.video <run_dir> [--steps N]     # writes <run_dir>/policy.mp4
+
+The CLI rebuilds the run's task and learner from ``<run_dir>/config.yaml`` and
+loads ``<run_dir>/model.pt``; the video shows the greedy policy. Frames are
+encoded with imageio's FFMPEG plugin (H.264, yuv420p), whose ``imageio-ffmpeg``
+wheel carries its own ffmpeg binary: no system ffmpeg needed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+from typing import Callable
+
+import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
+import imageio.v2 as imageio
+import torch
+from omegaconf import OmegaConf
+from tensordict import TensorDictBase
+from torchrl.envs.utils import step_mdp
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def record_video(
+    env,
+    policy: Callable[[TensorDictBase], TensorDictBase],
+    path: Path | str,
+    n_steps: int = 500,
+    fps: float | None = None,
+    camera: str | int | None = None,
+    width: int = 480,
+    height: int = 360,
+) -> int:
+    """Writes an MP4 of ``policy`` acting in ``env`` (copy 0); returns the frame count.
+
+    The video shows the reset state and then each of ``n_steps`` steps
+    (``n_steps + 1`` frames); an episode's last state is shown before the copy
+    resets. ``fps`` defaults to real time (one frame per ``task.running_step``),
+    ``camera`` to the task's first camera. Width and height must be even.
+    """
+    if n_steps < 0:
+        raise ValueError(f"n_steps must be >= 0; got {n_steps}")
+    if width % 2 or height % 2 or width < 2 or height < 2:
+        raise ValueError(f"width and height must be even and >= 2 (H.264 yuv420p); got {width}x{height}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fps = float(fps) if fps else 1.0 / float(env.task.running_step)
+    if camera is None:
+        camera = 0 if env.model.ncam else -1
+    frames = 0
+    writer = imageio.get_writer(path, format="FFMPEG", mode="I", fps=fps, codec="libx264",
+                                pixelformat="yuv420p", macro_block_size=2, ffmpeg_log_level="error")
+    try:
+        with torch.no_grad():
+            td = env.reset()
+            writer.append_data(env.render(width, height, camera, 0))
+            frames += 1
+            for _ in range(n_steps):
+                td = env.step(policy(td))
+                writer.append_data(env.render(width, height, camera, 0))
+                frames += 1
+                td = env.maybe_reset(step_mdp(td))
+    finally:
+        writer.close()
+    return frames
+
+
+def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None = None,
+                 **kwargs) -> Path:
+    """Rebuilds a finished run's env (one copy, seed ``seed + 20000``) and learner from
+    its folder and writes the greedy policy's video (default ``<run_dir>/policy.mp4``);
+    ``kwargs`` go to :func:`record_video`. Returns the path."""
+    from hydra.utils import instantiate
+
+    run_dir = Path(run_dir)
+    for name in ("config.yaml", "model.pt"):
+        if not (run_dir / name).is_file():
+            raise FileNotFoundError(f"{run_dir} is not a run folder: it has no {name}")
+    cfg = OmegaConf.load(run_dir / "config.yaml")
+    learner = instantiate(cfg.learner, _convert_="all")
+    env = _train_module().build_env(cfg, 1, int(cfg.seed) + 20_000, learner.nsteps)
+    try:
+        learner.build(env.task)
+        with warnings.catch_warnings():  # torchrl's target updater notes it is re-initialised
+            warnings.filterwarnings("ignore", message="Updated already initialized")
+            learner.load(run_dir / "model.pt")
+        out = Path(out) if out else run_dir / "policy.mp4"
+        with learner.greedy():
+            record_video(env, learner.policy, out, n_steps=n_steps, **kwargs)
+    finally:
+        env.close()
+    return out
+
+
+def _train_module():
+    """``train.py`` (repo root), for ``build_task``/``build_env``."""
+    if str(ROOT) not in sys.path and (ROOT / "train.py").is_file():
+        sys.path.insert(0, str(ROOT))
+    import train
+
+    return train
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Write <run_dir>/policy.mp4 of a trained run's greedy policy.")
+    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("--steps", type=int, default=500, help="env steps to record (default 500)")
+    parser.add_argument("--out", type=Path, default=None, help="default <run_dir>/policy.mp4")
+    parser.add_argument("--width", type=int, default=480)
+    parser.add_argument("--height", type=int, default=360)
+    parser.add_argument("--camera", default=None, help="camera name (default: the task's first)")
+    parser.add_argument("--fps", type=float, default=None, help="default: real time")
+    args = parser.parse_args(argv)
+    camera = int(args.camera) if args.camera and args.camera.lstrip("-").isdigit() else args.camera
+    try:
+        out = video_of_run(args.run_dir, args.steps, args.out, width=args.width,
+                           height=args.height, camera=camera, fps=args.fps)
+    except (FileNotFoundError, ValueError) as err:  # CheckpointError is a ValueError
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    print(f"video in {out}")
+
+
+if __name__ == "__main__":
+    main()
