@@ -1,5 +1,8 @@
 """TurtleBot ``maze``: drive around a looped maze without hitting its walls.
 
+The maze is a round loop (``ring``) or a grid of wall cells (``layout``); see
+tasks/maze_arena.py.
+
 Actions (the original's three): 0 forward (``linear_forward_speed``, no
 turning), 1 turn left (``linear_turn_speed``, +``angular_speed``), 2 turn right
 (``linear_turn_speed``, -``angular_speed``). Each holds for ``running_step``
@@ -14,16 +17,16 @@ the base touching a wall. Reward: ``forwards_reward`` for a forward step,
 ``turn_reward`` for a turn, -``end_episode_points`` on the colliding step. The
 environment truncates after ``max_episode_steps``.
 
-Episodes start at one of the layout's start cells (chosen by the environment's
+Episodes start at one of the maze's start poses (chosen by the environment's
 seeded generator), shifted by up to ``start_position_noise`` metres in x and y
 and ``start_yaw_noise`` radians in heading. ``episode_info`` reports the path
-length driven and the laps made around the maze centre.
+length driven and the progress made around the maze centre.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 from dm_control import mjcf
@@ -42,7 +45,8 @@ class MazeTask:
     def __init__(
         self,
         robot: TurtleBot,
-        layout: Sequence[str],
+        ring: Mapping[str, float] | None = None,
+        layout: Sequence[str] | None = None,
         cell_size: float = 0.5,
         wall_height: float = 0.5,
         n_actions: int = 3,
@@ -54,15 +58,15 @@ class MazeTask:
         forwards_reward: float = 5.0,
         turn_reward: float = 1.0,
         end_episode_points: float = 200.0,
-        running_step: float = 0.2,
+        running_step: float = 0.5,
         max_episode_steps: int = 500,
-        physics_timestep: float = 0.01,
+        physics_timestep: float = 0.02,
         start_position_noise: float = 0.2,
         start_yaw_noise: float = 0.3,
-        tabular_state: dict | None = None,
+        tabular_state: Mapping[str, Sequence[float]] | None = None,
     ) -> None:
         require(isinstance(robot, TurtleBot), "task maze needs robot=turtlebot",
-                f"got {type(robot).__name__}")
+                type(robot).__name__)
         require(n_actions == 3, "task.n_actions must be 3 (forward, left, right)", n_actions)
         require(n_observations >= 1, "task.n_observations must be >= 1", n_observations)
         require(min_range > 0, "task.min_range must be > 0", min_range)
@@ -73,8 +77,11 @@ class MazeTask:
                 start_position_noise)
         require(start_yaw_noise >= 0, "task.start_yaw_noise must be >= 0", start_yaw_noise)
         require(max_episode_steps >= 1, "task.max_episode_steps must be >= 1", max_episode_steps)
+        require((ring is None) != (layout is None),
+                "task maze needs exactly one of task.ring and task.layout",
+                {"ring": ring, "layout": layout})
         self.robot = robot
-        self.maze = Maze.parse(layout, cell_size)
+        self.maze = Maze.ring(**ring) if ring is not None else Maze.grid(layout, cell_size)
         self.wall_height = float(wall_height)
         self.n_actions = 3
         self.n_observations = int(n_observations)
@@ -107,12 +114,7 @@ class MazeTask:
                               for name in self.observation_names},
             self.observation_names,
         )
-        n = 0
-        self._action = np.zeros(n, dtype=np.int64)
-        self._prev_xy = np.zeros((n, 2))
-        self._distance = np.zeros(n)
-        self._prev_bearing = np.zeros(n)
-        self._winding = np.zeros(n)
+        self._allocate(0)
 
     def build_arena(self) -> mjcf.RootElement:
         arena = maze_arena("turtlebot_maze", self.maze, self.physics_timestep, self.wall_height)
@@ -121,17 +123,20 @@ class MazeTask:
 
     def bind(self, physics: BatchedPhysics) -> None:
         self.robot.bind(physics)
-        n = physics.num_envs
+        self._allocate(physics.num_envs)
+
+    def _allocate(self, n: int) -> None:
+        """Per-copy state: last action, and the odometer and loop progress of the episode."""
         self._action = np.zeros(n, dtype=np.int64)
         self._prev_xy = np.zeros((n, 2))
         self._distance = np.zeros(n)
-        self._prev_bearing = np.zeros(n)
         self._winding = np.zeros(n)
+        self._along = np.zeros(n)
 
     def initialize_episode(
         self, physics: BatchedPhysics, mask: np.ndarray, rng: np.random.Generator
     ) -> None:
-        """A random start cell of the layout, with a uniform pose perturbation, at rest."""
+        """A random start pose of the maze, uniformly perturbed, at rest."""
         n = int(mask.sum())
         starts = self.maze.starts[rng.integers(len(self.maze.starts), size=n)]
         noise = rng.uniform(-1.0, 1.0, size=(n, 3)) * [
@@ -139,11 +144,12 @@ class MazeTask:
         pose = starts + noise
         self.robot.set_pose(physics, mask, pose[:, 0], pose[:, 1], pose[:, 2])
         linear, angular = self.speeds[self._action].T
-        self.robot.command_velocity(physics, np.where(mask, 0.0, linear), np.where(mask, 0.0, angular))
+        self.robot.command_velocity(physics, np.where(mask, 0.0, linear),
+                                    np.where(mask, 0.0, angular))
         self._prev_xy[mask] = pose[:, :2]
-        self._prev_bearing[mask] = np.arctan2(pose[:, 1], pose[:, 0])
         self._distance[mask] = 0.0
         self._winding[mask] = 0.0
+        self._along[mask] = 0.0
 
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
         self._action = np.asarray(action, dtype=np.int64).copy()
@@ -153,9 +159,6 @@ class MazeTask:
     def scan(self, physics: BatchedPhysics) -> np.ndarray:
         """Nearest laser reading in each sector, unrounded ``(num_envs, n_observations)``."""
         ranges = self.robot.laser(physics)
-        if getattr(self, "_stride", False):
-            idx = np.round(np.linspace(0, ranges.shape[1] - 1, self.n_observations)).astype(int)
-            return ranges[:, idx]
         return np.where(self._sectors[None], ranges[:, None, :], np.inf).min(-1)
 
     def observation(self, physics: BatchedPhysics) -> np.ndarray:
@@ -172,16 +175,22 @@ class MazeTask:
         return np.where(terminated, -self.end_episode_points, self.rewards[self._action])
 
     def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
-        """Per copy: path length driven (m) and signed laps around the maze centre."""
+        """Per copy, since the episode began: ``distance``, the path length driven (m);
+        ``loop_distance``, the net distance driven around the maze centre (m, either
+        way round); ``laps``, the net number of times round it."""
         self._track(physics)
-        return {"distance": self._distance.copy(), "laps": self._winding / (2 * math.pi)}
+        return {"distance": self._distance.copy(), "loop_distance": np.abs(self._along),
+                "laps": np.abs(self._winding) / (2 * math.pi)}
 
     def _track(self, physics: BatchedPhysics) -> None:
-        """Adds the motion since the last call to each copy's odometer and winding angle."""
+        """Adds the motion since the last call to each copy's path length and its
+        progress around the maze centre (angle, and arc length r * d(angle))."""
         odom = self.robot.odometry(physics)
         xy = np.stack([odom.x, odom.y], axis=1)
         self._distance += np.linalg.norm(xy - self._prev_xy, axis=1)
-        bearing = np.arctan2(xy[:, 1], xy[:, 0])
-        self._winding += np.mod(bearing - self._prev_bearing + math.pi, 2 * math.pi) - math.pi
+        now, before = xy[:, 0] + 1j * xy[:, 1], self._prev_xy[:, 0] + 1j * self._prev_xy[:, 1]
+        turned = np.angle(now * np.conj(before))
+        radius = (np.abs(now) + np.abs(before)) / 2
+        self._winding += turned
+        self._along += radius * turned
         self._prev_xy = xy
-        self._prev_bearing = bearing

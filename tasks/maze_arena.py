@@ -1,15 +1,17 @@
-"""A maze of walls drawn as a grid of characters, and the arena built from it.
+"""Mazes of brick walls, and the arena built around one.
 
-Each string of ``layout`` is one row of square cells of ``cell_size`` metres,
-the first row northmost (+y), the maze centred on the origin:
+Two ways to describe a maze, both centred on the origin:
 
-- ``#`` a wall cell;
-- ``.`` or a space: free floor;
-- ``>`` ``^`` ``<`` ``v``: free floor where an episode may start, heading east
-  (+x), north (+y), west or south.
+- :meth:`Maze.ring`: a round loop, the corridor between two circles of wall
+  (each a polygon of ``segments`` boxes); ``starts`` start poses evenly spaced on
+  the corridor's centre line, alternately heading anticlockwise and clockwise.
+- :meth:`Maze.grid`: a grid of characters, one string per row of square cells of
+  ``cell_size`` metres, the first row northmost (+y): ``#`` wall, ``.`` or a space
+  free floor, ``>`` ``^`` ``<`` ``v`` free floor where an episode may start,
+  heading east (+x), north (+y), west or south. Wall cells merge into as few
+  boxes as a greedy scan finds (fewer geoms, cheaper laser rays).
 
-Wall cells merge into as few boxes as a greedy scan finds (fewer geoms, cheaper
-laser rays). The arena adds a top-down camera, ``top``, that sees the whole maze.
+:func:`maze_arena` adds the walls to a floor with a top-down camera, ``top``.
 """
 
 from __future__ import annotations
@@ -30,15 +32,37 @@ _FREE = {".", " "} | set(_HEADINGS)
 
 @dataclass(frozen=True)
 class Maze:
-    """A parsed layout: wall boxes and start poses, in metres."""
+    """Wall boxes and start poses, in metres and radians."""
 
-    walls: tuple[tuple[float, float, float, float], ...]  # (x, y, half_x, half_y)
+    walls: tuple[tuple[float, float, float, float, float], ...]  # x, y, half_x, half_y, yaw
     starts: np.ndarray  # (n, 3): x, y, yaw
-    width: float  # x extent
-    depth: float  # y extent
+    half_extent: float  # the maze fits in [-half_extent, half_extent]^2
 
     @classmethod
-    def parse(cls, layout: Sequence[str], cell_size: float) -> "Maze":
+    def ring(cls, inner_radius: float, outer_radius: float, segments: int = 24,
+             starts: int = 8, wall_thickness: float = 0.2) -> "Maze":
+        require(0 < inner_radius < outer_radius,
+                "task.ring needs 0 < inner_radius < outer_radius", (inner_radius, outer_radius))
+        require(segments >= 8, "task.ring.segments must be >= 8", segments)
+        require(starts >= 1, "task.ring.starts must be >= 1", starts)
+        require(wall_thickness > 0, "task.ring.wall_thickness must be > 0", wall_thickness)
+        walls = []
+        for radius, outward in ((inner_radius, -1.0), (outer_radius, 1.0)):
+            # Each box's face towards the corridor lies on the polygon's edge at ``radius``.
+            half_length = radius * math.tan(math.pi / segments) + 0.01
+            centre = radius + outward * wall_thickness / 2
+            for i in range(segments):
+                a = 2 * math.pi * (i + 0.5) / segments
+                walls.append((centre * math.cos(a), centre * math.sin(a),
+                              wall_thickness / 2, half_length, a))
+        mid = (inner_radius + outer_radius) / 2
+        angles = 2 * math.pi * np.arange(starts) / starts
+        turn = np.where(np.arange(starts) % 2 == 0, math.pi / 2, -math.pi / 2)
+        poses = np.stack([mid * np.cos(angles), mid * np.sin(angles), angles + turn], axis=1)
+        return cls(tuple(walls), poses, outer_radius + wall_thickness)
+
+    @classmethod
+    def grid(cls, layout: Sequence[str], cell_size: float) -> "Maze":
         require(cell_size > 0, "task.cell_size must be > 0", cell_size)
         rows = [str(r) for r in layout]
         require(len(rows) > 0 and all(len(r) == len(rows[0]) > 0 for r in rows),
@@ -65,26 +89,30 @@ class Maze:
                 while c1 + 1 < nc and wall[r, c1 + 1] and not taken[r, c1 + 1]:
                     c1 += 1
                 r1 = r
-                while r1 + 1 < nr and wall[r1 + 1, c:c1 + 1].all() and not taken[r1 + 1, c:c1 + 1].any():
+                while (r1 + 1 < nr and wall[r1 + 1, c:c1 + 1].all()
+                       and not taken[r1 + 1, c:c1 + 1].any()):
                     r1 += 1
                 taken[r:r1 + 1, c:c1 + 1] = True
                 x, y = centre((r + r1) / 2, (c + c1) / 2)
-                boxes.append((x, y, (c1 - c + 1) * cell_size / 2, (r1 - r + 1) * cell_size / 2))
-        return cls(tuple(boxes), np.array(starts), nc * cell_size, nr * cell_size)
+                half_x, half_y = (c1 - c + 1) * cell_size / 2, (r1 - r + 1) * cell_size / 2
+                boxes.append((x, y, half_x, half_y, 0.0))
+        return cls(tuple(boxes), np.array(starts), max(nr, nc) * cell_size / 2)
 
 
-def maze_arena(name: str, maze: Maze, timestep: float, wall_height: float = 0.5) -> mjcf.RootElement:
+def maze_arena(name: str, maze: Maze, timestep: float,
+               wall_height: float = 0.5) -> mjcf.RootElement:
     """A floor with ``maze``'s walls (brick red) and a top-down camera ``top``."""
     require(wall_height > 0, "task.wall_height must be > 0", wall_height)
-    arena = floor_arena(name, timestep, size=max(maze.width, maze.depth) / 2 + 1.0)
+    arena = floor_arena(name, timestep, size=maze.half_extent + 1.0)
+    offscreen = getattr(arena.visual, "global")  # room for frames up to 1280 x 960
+    offscreen.offwidth, offscreen.offheight = 1280, 960
     arena.asset.add("material", name="brick", rgba=[0.7, 0.33, 0.22, 1])
-    for i, (x, y, hx, hy) in enumerate(maze.walls):
+    for i, (x, y, hx, hy, yaw) in enumerate(maze.walls):
         arena.worldbody.add("geom", name=f"wall_{i}", type="box", pos=[x, y, wall_height / 2],
-                            size=[hx, hy, wall_height / 2], material="brick")
-    # Looking straight down, +x to the right; frames the maze at a 4:3 aspect.
+                            size=[hx, hy, wall_height / 2], euler=[0, 0, yaw], material="brick")
+    # Looking straight down with +x to the right, the whole maze in view.
     fovy = 45.0
-    half = max(maze.depth / 2, maze.width / 2 / (4 / 3)) * 1.08
-    height = half / math.tan(math.radians(fovy / 2)) + wall_height
+    height = maze.half_extent * 1.08 / math.tan(math.radians(fovy / 2)) + wall_height
     arena.worldbody.add("camera", name="top", pos=[0, 0, height], xyaxes=[1, 0, 0, 0, 1, 0],
                         fovy=fovy)
     return arena
