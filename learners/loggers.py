@@ -2,8 +2,8 @@
 
 The heavy backends are optional extras (``pip install -e '.[tensorboard]'``
 and so on); choosing one that is not installed is a one-line error.
-W&B runs offline by default (no network needed); MLflow writes a local file
-store. Everything lands in the run folder under ``logs/``.
+W&B runs offline by default (no network needed); MLflow writes a local SQLite
+store (``logs/mlflow.db``). Everything lands in the run folder under ``logs/``.
 """
 
 from __future__ import annotations
@@ -39,5 +39,10 @@ def make_logger(kind: str | None, run_dir: Path, exp_name: str, offline: bool = 
     if kind == "wandb":
         if offline:
             os.environ.setdefault("WANDB_MODE", "offline")
-        kwargs["wandb_kwargs"] = {"offline": offline, "project": project, "save_dir": str(log_dir)}
+        kwargs["wandb_kwargs"] = {"offline": offline, "project": project}
+    if kind == "mlflow":
+        # MLflow 3 retired the plain directory store; a SQLite file is its local store.
+        from torchrl.record.loggers.mlflow import MLFlowLogger
+
+        return MLFlowLogger(exp_name=exp_name, tracking_uri=f"sqlite:///{log_dir / 'mlflow.db'}")
     return get_logger(kind, logger_name=str(log_dir), experiment_name=exp_name, **kwargs)

@@ -89,3 +89,20 @@ def test_a_failing_job_does_not_cost_the_sweep_and_compare_reports_it(tmp_path):
 def test_compare_rejects_a_folder_that_is_not_a_sweep(tmp_path):
     proc = run(["compare.py", str(tmp_path / "nope")])
     assert proc.returncode == 2 and "is not a folder" in proc.stderr
+
+
+@pytest.mark.parametrize("kind", ["wandb", "mlflow"])
+def test_optional_loggers_record_episode_lengths(tmp_path, kind):
+    pytest.importorskip(kind)  # extras: pip install -e ".[wandb]" / ".[mlflow]"
+    proc = run(["train.py", f"hydra.run.dir={tmp_path}", "quiet=true", f"logger={kind}",
+                "learner.nepisodes=6", "eval_episodes=0"])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lengths = [float(r["length"]) for r in csv.DictReader(open(tmp_path / "metrics.csv"))]
+    if kind == "wandb":
+        assert list((tmp_path / "logs" / "wandb").glob("offline-run-*/run-*.wandb"))
+    else:
+        import mlflow
+        mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'logs' / 'mlflow.db'}")
+        run_id = mlflow.search_runs(search_all_experiments=True).run_id[0]
+        history = mlflow.MlflowClient().get_metric_history(run_id, "episode/length")
+        assert [m.value for m in history] == lengths
