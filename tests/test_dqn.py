@@ -41,16 +41,20 @@ def test_variants_build_the_networks_of_the_seed_table():
     assert variant("ruippeixotog").run_episodes == 500
 
 
+def fill_buffer(learner: DQN, env: RobotTaskEnv, steps: int) -> None:
+    """Acts with the learner's exploration policy and stores every transition."""
+    td = env.reset()
+    for _ in range(steps):
+        td, nxt = env.step_and_maybe_reset(learner.explorer(td))
+        learner.store(td)
+        td = nxt
+
+
 def test_n1try_learning_rate_decays_like_keras():
     learner = variant("n1try")
     learner.build(StayUp(CartPole()))
     env = RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0)
-    td = env.reset()
-    for _ in range(20):
-        td = learner.explorer(td)
-        td, nxt = env.step_and_maybe_reset(td)
-        learner.store(td)
-        td = nxt
+    fill_buffer(learner, env, steps=20)
     learner.optimize(10)
     assert learner.optimizer.param_groups[0]["lr"] == pytest.approx(0.01 / (1 + 0.01 * 10))
 
@@ -59,15 +63,9 @@ def test_terminal_reward_replacement_only_on_termination():
     learner = variant("mbalunovic")
     learner.build(StayUp(CartPole()))
     env = RobotTaskEnv(StayUp(CartPole(), max_episode_steps=6), num_envs=8, seed=0)
-    td = env.reset()
-    for _ in range(30):
-        td = learner.explorer(td)
-        td, nxt = env.step_and_maybe_reset(td)
-        learner.store(td)
-        td = nxt
+    fill_buffer(learner, env, steps=30)
     data = learner.buffer[: len(learner.buffer)]
     term = data["next", "terminated"].squeeze(-1)
-
     reward = data["next", "reward"].squeeze(-1)
     trunc = data["next", "done"].squeeze(-1) & ~term
     assert term.any() and trunc.any()
