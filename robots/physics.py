@@ -6,10 +6,27 @@ The whole batch's physics state lives in one ``(num_envs, nstate)`` array
 ``mujoco.rollout``, whose C thread pool does the work: no per-copy Python.
 Robots and tasks read and write the batch through the named views ``qpos``,
 ``qvel``, ``ctrl`` and ``sensordata``.
+
+Divergence. When MuJoCo finds a copy unstable during a substep (a NaN, an
+infinity or a value beyond ``mjMAXVAL`` in its positions, velocities,
+accelerations or controls) it issues a warning and, for positions, velocities
+and accelerations, resets that copy's data to the model's initial state;
+``mujoco.rollout`` then stops stepping that copy (on any warning, also a full
+contact buffer) and repeats its last state for the remaining substeps. Either
+way the copy's clock does not read ``time + nsubsteps * timestep`` at the end
+of the step. ``step`` checks exactly that, and that the final state and
+sensor readings are finite and within ``mjMAXVAL`` (MuJoCo only checks a
+state at the start of the next substep), all vectorised over the batch.
+Copies that fail are rolled back to their state before the step and flagged
+in ``diverged``; the caller (``tasks.env.RobotTaskEnv``) ends their episodes.
+MuJoCo's own instability warnings go to this module's logger at DEBUG level
+(the env reports each divergence with its copy and step instead).
 """
 
 from __future__ import annotations
 
+import logging
+import math
 import os
 
 import mujoco
@@ -17,6 +34,25 @@ import numpy as np
 from mujoco import rollout
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_MAXVAL = float(mujoco.mjMAXVAL)  # MuJoCo's own "huge value" threshold
+_log = logging.getLogger(__name__)
+
+
+def _mujoco_warning(message: str) -> None:
+    """MuJoCo's warning handler: instability messages are DEBUG (the caller of
+    ``BatchedPhysics.step`` reports each divergence); anything else a WARNING."""
+    if "simulation is unstable" in message:
+        _log.debug("MuJoCo: %s", message)
+    else:
+        _log.warning("MuJoCo: %s", message)
+
+
+def route_mujoco_warnings() -> None:
+    """Sends MuJoCo's warnings (process-wide) to Python logging via this module's
+    logger, instead of stdout and ``MUJOCO_LOG.TXT`` or dm_control's absl line
+    per event (one per diverged copy: thousands on an unstable model)."""
+    if mujoco.get_mju_user_warning() is not _mujoco_warning:
+        mujoco.set_mju_user_warning(_mujoco_warning)
 
 
 def default_threads() -> int:
@@ -34,6 +70,8 @@ class BatchedPhysics:
     Sensor readings (``sensordata``) are the ones MuJoCo computed at the start
     of the last substep of a ``step`` (one ``timestep`` old), and exact after a
     ``reset``.  Joint positions and velocities (``qpos``, ``qvel``) are exact.
+    ``diverged`` (bool, ``(num_envs,)``) marks the copies whose last ``step``
+    diverged; they hold their state from before that step.
     """
 
     def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int | None = None):
@@ -66,13 +104,21 @@ class BatchedPhysics:
         self._out_state: np.ndarray | None = None
         self._out_sensor: np.ndarray | None = None
         self._control: np.ndarray | None = None
+        self._none_diverged = np.zeros(num_envs, dtype=bool)
+        self._none_diverged.flags.writeable = False
+        self.diverged = self._none_diverged
+        route_mujoco_warnings()
 
     @property
     def timestep(self) -> float:
         return float(self.model.opt.timestep)
 
     def step(self, nsubsteps: int) -> None:
-        """Advances every copy by ``nsubsteps`` physics steps with ``ctrl`` held."""
+        """Advances every copy by ``nsubsteps`` physics steps with ``ctrl`` held.
+
+        Copies that diverge are flagged in ``diverged`` and keep their state
+        and sensor readings from before the step (see the module docstring).
+        """
         if self._out_state is None or self._out_state.shape[1] != nsubsteps:
             shape = (self.num_envs, nsubsteps)
             self._out_state = np.empty(shape + (self.nstate,))
@@ -91,9 +137,38 @@ class BatchedPhysics:
             sensordata=self._out_sensor,
             skip_checks=True,
         )
-        self.state[:] = self._out_state[:, -1]
-        if self.model.nsensordata:
-            self.sensordata[:] = self._out_sensor[:, -1]
+        last = self._out_state[:, -1]
+        sensor = self._out_sensor[:, -1] if self.model.nsensordata else None
+        # MuJoCo adds the timestep once per substep: a copy whose clock moved by half
+        # a timestep more or less was reset or stopped by a warning. NaN fails every
+        # comparison, so the fast path below (a few reductions) only passes when
+        # every copy is fine.
+        elapsed = last[:, 0] - self.time
+        timestep = self.model.opt.timestep
+        lo, hi = (nsubsteps - 0.5) * timestep, (nsubsteps + 0.5) * timestep
+        if (elapsed.min() >= lo and elapsed.max() <= hi
+                and -_MAXVAL <= last.min() and last.max() <= _MAXVAL
+                and (sensor is None or math.isfinite(sensor.min() + sensor.max()))):
+            self.diverged = self._none_diverged
+            self.state[:] = last
+            if sensor is not None:
+                self.sensordata[:] = sensor
+            return
+        diverged = (elapsed < lo) | (elapsed > hi)
+        diverged |= ~(np.abs(last) <= _MAXVAL).all(axis=1)
+        if sensor is not None:
+            diverged |= ~np.isfinite(sensor).all(axis=1)
+        self.diverged = diverged
+        # The good copies take the step's results; the diverged ones keep their
+        # state from before it (or the initial state if even that was bad).
+        ok = ~diverged
+        self.state[ok] = last[ok]
+        if sensor is not None:
+            self.sensordata[ok] = sensor[ok]
+        bad = diverged & ~(np.abs(self.state) <= _MAXVAL).all(axis=1)
+        bad |= diverged & ~np.isfinite(self.sensordata).all(axis=1)
+        if bad.any():
+            self.reset(bad)
 
     def reset(self, mask: np.ndarray) -> None:
         """Puts the copies where ``mask`` is true back to the model's initial state."""

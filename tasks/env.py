@@ -11,10 +11,18 @@ of it per call (``batch_size=[num_envs]``). Keys:
 
 A ``_reset`` mask resets only the marked copies. All randomness comes from one
 ``numpy.random.Generator`` seeded by ``set_seed``: same seed, same rollouts.
+
+A copy whose physics diverges during a step (MuJoCo found it unstable: see
+``robots.physics``) ends its episode there as truncated (``terminated`` false,
+``done`` true) with reward 0 and, as next observation, its observation before
+the step; ``step_and_maybe_reset`` then resets that copy only. ``divergences``
+counts these events since construction, and each is logged once (logger
+``tasks.env``, WARNING).
 """
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 import mujoco
@@ -25,6 +33,8 @@ from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from robots.physics import BatchedPhysics
+
+_log = logging.getLogger(__name__)
 
 
 def compile_model(arena) -> mujoco.MjModel:
@@ -58,6 +68,7 @@ class RobotTaskEnv(EnvBase):
             shape=(n,),
         )
         self.elapsed_steps = np.zeros(n, dtype=np.int64)
+        self.divergences = 0  # diverged steps (ended episodes) since construction
         self._rng = np.random.default_rng(seed)
         self._renderer: mujoco.Renderer | None = None
         self._render_data: mujoco.MjData | None = None
@@ -89,8 +100,15 @@ class RobotTaskEnv(EnvBase):
         self.elapsed_steps += 1
         obs = self.task.observation(self.physics)
         terminated = np.asarray(self.task.terminated(self.physics, obs), dtype=bool)
+        diverged = self.physics.diverged
+        if diverged.any():
+            terminated = terminated & ~diverged
         truncated = (self.elapsed_steps >= self.task.max_episode_steps) & ~terminated
         reward = self.task.reward(self.physics, obs, terminated)
+        if diverged.any():
+            truncated |= diverged
+            reward = np.where(diverged, 0.0, reward)
+            self._report_divergences(diverged)
         terminated_t = torch.as_tensor(terminated).unsqueeze(-1)
         truncated_t = torch.as_tensor(truncated).unsqueeze(-1)
         return TensorDict(
@@ -101,6 +119,15 @@ class RobotTaskEnv(EnvBase):
             truncated=truncated_t,
             batch_size=self.batch_size,
         )
+
+    def _report_divergences(self, diverged: np.ndarray) -> None:
+        for i in np.flatnonzero(diverged):
+            self.divergences += 1
+            _log.warning(
+                "physics diverged in env copy %d at step %d of its episode; episode "
+                "truncated (%d divergences so far)",
+                i, self.elapsed_steps[i], self.divergences,
+            )
 
     # -- extras -----------------------------------------------------------------
     def render(self, width: int = 480, height: int = 360, camera: str | int = -1,
