@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import math
 
-from tasks.base import require
+from tasks.base import finite, require, whole
 
 
 def _check(epsilon: float, epsilon_min: float) -> None:
-    require(0 <= epsilon <= 1, "learner.epsilon.epsilon must be in [0, 1]", epsilon)
-    require(0 <= epsilon_min <= epsilon, "learner.epsilon.epsilon_min must be in [0, epsilon]",
-            epsilon_min)
+    require(finite(epsilon) and 0 <= epsilon <= 1, "learner.epsilon.epsilon must be in [0, 1]",
+            epsilon)
+    require(finite(epsilon_min) and 0 <= epsilon_min <= epsilon,
+            f"learner.epsilon.epsilon_min must be in [0, epsilon] = [0, {epsilon}]", epsilon_min)
 
 
 class LogEpisodeEpsilon:
@@ -25,7 +26,8 @@ class LogEpisodeEpsilon:
     def __init__(self, epsilon: float = 1.0, epsilon_min: float = 0.01,
                  epsilon_decay: float = 0.995) -> None:
         _check(epsilon, epsilon_min)
-        require(0 < epsilon_decay <= 1, "learner.epsilon.epsilon_decay must be in (0, 1]", epsilon_decay)
+        require(finite(epsilon_decay) and 0 < epsilon_decay <= 1,
+                "learner.epsilon.epsilon_decay must be in (0, 1]", epsilon_decay)
         self.cap, self.epsilon_min, self.decay = float(epsilon), float(epsilon_min), float(epsilon_decay)
         self.episode = 0
 
@@ -56,7 +58,7 @@ class MultiplicativeEpsilon:
     def __init__(self, epsilon: float = 1.0, epsilon_min: float = 0.1, decay: float = 0.99,
                  per: str = "episode") -> None:
         _check(epsilon, epsilon_min)
-        require(0 < decay <= 1, "learner.epsilon.decay must be in (0, 1]", decay)
+        require(finite(decay) and 0 < decay <= 1, "learner.epsilon.decay must be in (0, 1]", decay)
         require(per in ("step", "episode"), "learner.epsilon.per must be step or episode", per)
         self.value, self.epsilon_min, self.decay, self.per = (
             float(epsilon), float(epsilon_min), float(decay), per)
@@ -84,7 +86,7 @@ class LinearEpsilon:
 
     def __init__(self, epsilon: float = 1.0, epsilon_min: float = 0.05, steps: int = 10_000) -> None:
         _check(epsilon, epsilon_min)
-        require(steps >= 1, "learner.epsilon.steps must be >= 1", steps)
+        require(whole(steps) and steps >= 1, "learner.epsilon.steps must be an integer >= 1", steps)
         self.start, self.epsilon_min, self.steps = float(epsilon), float(epsilon_min), int(steps)
         self.done_steps = 0
 

@@ -27,6 +27,7 @@ from dm_control import mjcf
 
 from robots.physics import BatchedPhysics
 from robots.binding import JointHandle, actuator_id
+from tasks.base import finite, require
 
 CONTROL_TYPES = ("velocity", "position", "effort")
 _XML = Path(__file__).with_suffix(".xml")
@@ -53,10 +54,9 @@ class CartPole:
         control_type: str = "velocity",
     ) -> None:
         for name, value in (("velocity_gain", velocity_gain), ("position_gain", position_gain)):
-            if not value > 0:
-                raise ValueError(f"robot.{name} must be > 0, got {value}")
-        if force_limit < 0:
-            raise ValueError(f"robot.force_limit must be >= 0 (0 = unlimited), got {force_limit}")
+            require(finite(value) and value > 0, f"robot.{name} must be a finite number > 0", value)
+        require(finite(force_limit) and force_limit >= 0,
+                "robot.force_limit must be a finite number >= 0 (0 = unlimited)", force_limit)
         self.velocity_gain = float(velocity_gain)
         self.position_gain = float(position_gain)
         self.force_limit = float(force_limit)

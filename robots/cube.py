@@ -52,6 +52,7 @@ from numpy.typing import ArrayLike
 
 from robots.binding import JointHandle, actuator_id
 from robots.physics import BatchedPhysics
+from tasks.base import finite, require
 
 _XML = Path(__file__).with_suffix(".xml")
 
@@ -148,8 +149,7 @@ class Cube:
     ) -> None:
         for name, value in (("velocity_gain", velocity_gain), ("torque_limit", torque_limit),
                             ("speed_limit", speed_limit)):
-            if not value > 0:
-                raise ValueError(f"robot.{name} must be > 0, got {value}")
+            require(finite(value) and value > 0, f"robot.{name} must be a finite number > 0", value)
         self.velocity_gain = float(velocity_gain)
         self.torque_limit = float(torque_limit)
         self.speed_limit = float(speed_limit)

@@ -32,6 +32,7 @@ from dm_control import mjcf
 
 from robots.binding import JointHandle, actuator_id, sensor_slice
 from robots.physics import BatchedPhysics
+from tasks.base import finite, require, whole
 
 _XML = Path(__file__).with_suffix(".xml")
 
@@ -65,16 +66,15 @@ class TurtleBot:
         max_linear_speed: float = 0.7,
         max_angular_speed: float = math.pi,
     ) -> None:
-        if int(laser_rays) < 1:
-            raise ValueError(f"robot.laser_rays must be >= 1, got {laser_rays}")
-        if not 0 < laser_fov <= 2 * math.pi:
-            raise ValueError(f"robot.laser_fov must be in (0, 2 pi], got {laser_fov}")
+        require(whole(laser_rays) and laser_rays >= 1, "robot.laser_rays must be an integer >= 1",
+                laser_rays)
+        require(finite(laser_fov) and 0 < laser_fov <= 2 * math.pi,
+                "robot.laser_fov must be in (0, 2 pi] radians", laser_fov)
         for name, value in (("laser_max_range", laser_max_range), ("laser_height", laser_height),
                             ("linear_gain", linear_gain), ("angular_gain", angular_gain),
                             ("max_linear_speed", max_linear_speed),
                             ("max_angular_speed", max_angular_speed)):
-            if not value > 0:
-                raise ValueError(f"robot.{name} must be > 0, got {value}")
+            require(finite(value) and value > 0, f"robot.{name} must be a finite number > 0", value)
         self.laser_max_range = float(laser_max_range)
         self.max_linear_speed = float(max_linear_speed)
         self.max_angular_speed = float(max_angular_speed)

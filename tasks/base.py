@@ -11,6 +11,8 @@ A task is a plain class that *has* a robot and provides:
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
@@ -27,10 +29,22 @@ def require(condition: bool, what: str, got: Any) -> None:
         raise ConfigError(f"{what}; got {got!r}")
 
 
+def finite(value: Any) -> bool:
+    """Whether ``value`` is a real number (not a bool), neither NaN nor infinite."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def whole(value: Any) -> bool:
+    """Whether ``value`` is a finite number with an integer value (``3`` or ``3.0``)."""
+    return finite(value) and float(value).is_integer()
+
+
 def substeps_for(running_step: float, timestep: float) -> int:
     """How many physics steps of ``timestep`` make one control step."""
-    require(running_step > 0, "task.running_step must be > 0", running_step)
-    require(timestep > 0, "task.physics_timestep must be > 0", timestep)
+    require(finite(running_step) and running_step > 0,
+            "task.running_step must be a finite number > 0", running_step)
+    require(finite(timestep) and timestep > 0,
+            "task.physics_timestep must be a finite number > 0", timestep)
     n = round(running_step / timestep)
     require(
         n >= 1 and abs(n * timestep - running_step) < 1e-9,
@@ -51,14 +65,21 @@ class Bounds:
 
     @classmethod
     def from_config(cls, spec: Mapping[str, Sequence[float]], observation_names: Sequence[str]):
+        require(isinstance(spec, Mapping),
+                "task.tabular_state must map observation names to [low, high]", spec)
         names, indices, low, high = [], [], [], []
-        for name, (lo, hi) in spec.items():
+        for name, pair in spec.items():
             require(name in observation_names,
-                    f"tabular_state entries must be among {list(observation_names)}", name)
-            require(lo < hi, f"tabular_state.{name} must be [low, high] with low < high", [lo, hi])
+                    f"task.tabular_state entries must be among {list(observation_names)}", name)
+            require(isinstance(pair, (Sequence, np.ndarray)) and not isinstance(pair, str)
+                    and len(pair) == 2 and all(finite(v) for v in pair),
+                    f"task.tabular_state.{name} must be [low, high], two finite numbers", pair)
+            lo, hi = pair
+            require(lo < hi, f"task.tabular_state.{name} must be [low, high] with low < high",
+                    [lo, hi])
             names.append(name)
             indices.append(list(observation_names).index(name))
             low.append(float(lo))
             high.append(float(hi))
-        require(len(names) > 0, "tabular_state must name at least one observation", dict(spec))
+        require(len(names) > 0, "task.tabular_state must name at least one observation", dict(spec))
         return cls(tuple(names), tuple(indices), np.asarray(low), np.asarray(high))

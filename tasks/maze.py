@@ -33,7 +33,7 @@ from dm_control import mjcf
 
 from robots.physics import BatchedPhysics
 from robots.turtlebot import TurtleBot
-from tasks.base import Bounds, require, substeps_for
+from tasks.base import Bounds, finite, require, substeps_for, whole
 from tasks.maze_arena import Maze, maze_arena
 
 FORWARD, LEFT, RIGHT = 0, 1, 2
@@ -68,18 +68,49 @@ class MazeTask:
         require(isinstance(robot, TurtleBot), "task maze needs robot=turtlebot",
                 type(robot).__name__)
         require(n_actions == 3, "task.n_actions must be 3 (forward, left, right)", n_actions)
-        require(n_observations >= 1, "task.n_observations must be >= 1", n_observations)
-        require(min_range > 0, "task.min_range must be > 0", min_range)
+        require(whole(n_observations) and n_observations >= 1,
+                "task.n_observations must be an integer >= 1", n_observations)
+        require(finite(min_range) and min_range > 0, "task.min_range must be a finite number > 0",
+                min_range)
         require(min_range < robot.laser_max_range,
                 f"task.min_range must be below the laser's range ({robot.laser_max_range})",
                 min_range)
-        require(start_position_noise >= 0, "task.start_position_noise must be >= 0",
-                start_position_noise)
-        require(start_yaw_noise >= 0, "task.start_yaw_noise must be >= 0", start_yaw_noise)
-        require(max_episode_steps >= 1, "task.max_episode_steps must be >= 1", max_episode_steps)
+        # Speeds the robot can drive: its servos clip commands to its limits.
+        v_max, w_max = robot.max_linear_speed, robot.max_angular_speed
+        require(finite(linear_forward_speed) and 0 < linear_forward_speed <= v_max,
+                f"task.linear_forward_speed must be in (0, {v_max}] m/s (robot.max_linear_speed)",
+                linear_forward_speed)
+        require(finite(linear_turn_speed) and abs(linear_turn_speed) <= v_max,
+                f"task.linear_turn_speed must be in [-{v_max}, {v_max}] m/s (robot.max_linear_speed)",
+                linear_turn_speed)
+        require(finite(angular_speed) and 0 < angular_speed <= w_max,
+                f"task.angular_speed must be in (0, {w_max}] rad/s (robot.max_angular_speed)",
+                angular_speed)
+        for name, value in (("forwards_reward", forwards_reward), ("turn_reward", turn_reward)):
+            require(finite(value), f"task.{name} must be a finite number", value)
+        require(finite(end_episode_points) and end_episode_points >= 0,
+                "task.end_episode_points must be a finite number >= 0 (it is subtracted)",
+                end_episode_points)
+        require(finite(start_position_noise) and start_position_noise >= 0,
+                "task.start_position_noise must be a finite number >= 0", start_position_noise)
+        require(finite(start_yaw_noise) and start_yaw_noise >= 0,
+                "task.start_yaw_noise must be a finite number >= 0", start_yaw_noise)
+        require(whole(max_episode_steps) and max_episode_steps >= 1,
+                "task.max_episode_steps must be an integer >= 1", max_episode_steps)
+        require(finite(wall_height) and wall_height > 0, "task.wall_height must be a finite number > 0",
+                wall_height)
         require((ring is None) != (layout is None),
                 "task maze needs exactly one of task.ring and task.layout",
-                {"ring": ring, "layout": layout})
+                "neither" if ring is None else "both")
+        ring_keys = ("inner_radius", "outer_radius", "segments", "starts", "wall_thickness")
+        require(ring is None or isinstance(ring, Mapping),
+                f"task.ring must be a mapping of {', '.join(ring_keys)}", ring)
+        unknown = sorted(set(ring or ()) - set(ring_keys))
+        require(not unknown, f"task.ring entries must be among {', '.join(ring_keys)}",
+                ", ".join(map(str, unknown)))
+        require(layout is None or (isinstance(layout, Sequence) and not isinstance(layout, str)
+                                   and all(isinstance(row, str) for row in layout)),
+                "task.layout must be a list of strings (rows of the grid)", layout)
         self.robot = robot
         self.maze = Maze.ring(**ring) if ring is not None else Maze.grid(layout, cell_size)
         self.wall_height = float(wall_height)

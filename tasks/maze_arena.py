@@ -24,7 +24,7 @@ import numpy as np
 from dm_control import mjcf
 
 from tasks.arena import floor_arena
-from tasks.base import require
+from tasks.base import finite, require, whole
 
 _HEADINGS = {">": 0.0, "^": math.pi / 2, "<": math.pi, "v": -math.pi / 2}
 _FREE = {".", " "} | set(_HEADINGS)
@@ -41,11 +41,18 @@ class Maze:
     @classmethod
     def ring(cls, inner_radius: float, outer_radius: float, segments: int = 24,
              starts: int = 8, wall_thickness: float = 0.2) -> "Maze":
-        require(0 < inner_radius < outer_radius,
-                "task.ring needs 0 < inner_radius < outer_radius", (inner_radius, outer_radius))
-        require(segments >= 8, "task.ring.segments must be >= 8", segments)
-        require(starts >= 1, "task.ring.starts must be >= 1", starts)
-        require(wall_thickness > 0, "task.ring.wall_thickness must be > 0", wall_thickness)
+        require(finite(inner_radius) and inner_radius > 0,
+                "task.ring.inner_radius must be a finite number > 0", inner_radius)
+        require(finite(outer_radius), "task.ring.outer_radius must be a finite number", outer_radius)
+        require(inner_radius < outer_radius,
+                f"task.ring.outer_radius must be > task.ring.inner_radius ({inner_radius}): "
+                f"the ring needs 0 < inner_radius < outer_radius", outer_radius)
+        require(whole(segments) and segments >= 8, "task.ring.segments must be an integer >= 8",
+                segments)
+        require(whole(starts) and starts >= 1, "task.ring.starts must be an integer >= 1", starts)
+        require(finite(wall_thickness) and wall_thickness > 0,
+                "task.ring.wall_thickness must be a finite number > 0", wall_thickness)
+        segments, starts = int(segments), int(starts)
         walls = []
         for radius, outward in ((inner_radius, -1.0), (outer_radius, 1.0)):
             # Each box's face towards the corridor lies on the polygon's edge at ``radius``.
@@ -63,7 +70,8 @@ class Maze:
 
     @classmethod
     def grid(cls, layout: Sequence[str], cell_size: float) -> "Maze":
-        require(cell_size > 0, "task.cell_size must be > 0", cell_size)
+        require(finite(cell_size) and cell_size > 0, "task.cell_size must be a finite number > 0",
+                cell_size)
         rows = [str(r) for r in layout]
         require(len(rows) > 0 and all(len(r) == len(rows[0]) > 0 for r in rows),
                 "task.layout must be a non-empty list of strings of equal length", rows)

@@ -47,7 +47,7 @@ from dm_control import mjcf
 from robots.cube import Cube
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, require, substeps_for
+from tasks.base import Bounds, finite, require, substeps_for, whole
 
 # The five actions on the wheel-speed command.
 WHEEL_FORWARD, WHEEL_BACKWARD, WHEEL_STOP, SPEED_UP, SPEED_DOWN = range(5)
@@ -83,24 +83,35 @@ class OneDiskWalk:
         require(isinstance(robot, Cube), "task one_disk_walk needs robot=cube",
                 type(robot).__name__)
         require(n_actions == 5, "task.n_actions must be 5 (the five wheel actions)", n_actions)
-        require(roll_speed_fixed_value > 0, "task.roll_speed_fixed_value must be > 0",
-                roll_speed_fixed_value)
+        require(finite(roll_speed_fixed_value) and roll_speed_fixed_value > 0,
+                "task.roll_speed_fixed_value must be a finite number > 0", roll_speed_fixed_value)
         require(roll_speed_fixed_value <= robot.speed_limit,
                 f"task.roll_speed_fixed_value must be <= robot.speed_limit ({robot.speed_limit})",
                 roll_speed_fixed_value)
-        require(roll_speed_increment_value > 0, "task.roll_speed_increment_value must be > 0",
+        require(finite(roll_speed_increment_value) and roll_speed_increment_value > 0,
+                "task.roll_speed_increment_value must be a finite number > 0",
                 roll_speed_increment_value)
-        require(abs(init_roll_vel) <= roll_speed_fixed_value,
-                "task.init_roll_vel must be within +-roll_speed_fixed_value", init_roll_vel)
-        require(max_pitch_angle > 0, "task.max_pitch_angle must be > 0", max_pitch_angle)
-        require(max_yaw_angle > 0, "task.max_yaw_angle must be > 0", max_yaw_angle)
-        require(max_distance > 0, "task.max_distance must be > 0", max_distance)
-        require(max_y_linear_speed > 0, "task.max_y_linear_speed must be > 0", max_y_linear_speed)
-        require(len(init_cube_pose) == 3, "task.init_cube_pose must be [x, y, z]", init_cube_pose)
-        require(end_episode_points >= 0, "task.end_episode_points must be >= 0 (it is subtracted)",
+        require(finite(init_roll_vel) and abs(init_roll_vel) <= roll_speed_fixed_value,
+                f"task.init_roll_vel must be within +-roll_speed_fixed_value "
+                f"({roll_speed_fixed_value})", init_roll_vel)
+        for name, value in (("max_pitch_angle", max_pitch_angle), ("max_yaw_angle", max_yaw_angle),
+                            ("max_distance", max_distance),
+                            ("max_y_linear_speed", max_y_linear_speed)):
+            require(finite(value) and value > 0, f"task.{name} must be a finite number > 0", value)
+        require(isinstance(init_cube_pose, (Sequence, np.ndarray)) and not isinstance(init_cube_pose, str)
+                and len(init_cube_pose) == 3 and all(finite(v) for v in init_cube_pose),
+                "task.init_cube_pose must be [x, y, z], three finite numbers", init_cube_pose)
+        require(finite(end_episode_points) and end_episode_points >= 0,
+                "task.end_episode_points must be a finite number >= 0 (it is subtracted)",
                 end_episode_points)
-        require(reset_noise >= 0, "task.reset_noise must be >= 0", reset_noise)
-        require(max_episode_steps >= 1, "task.max_episode_steps must be >= 1", max_episode_steps)
+        for name, value in (("move_distance_reward_weight", move_distance_reward_weight),
+                            ("y_linear_speed_reward_weight", y_linear_speed_reward_weight),
+                            ("y_axis_angle_reward_weight", y_axis_angle_reward_weight)):
+            require(finite(value), f"task.{name} must be a finite number", value)
+        require(finite(reset_noise) and reset_noise >= 0,
+                "task.reset_noise must be a finite number >= 0", reset_noise)
+        require(whole(max_episode_steps) and max_episode_steps >= 1,
+                "task.max_episode_steps must be an integer >= 1", max_episode_steps)
         self.robot = robot
         self.n_actions = int(n_actions)
         self.running_step = float(running_step)

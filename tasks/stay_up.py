@@ -17,10 +17,10 @@ from __future__ import annotations
 from dm_control import mjcf
 import numpy as np
 
-from robots.cartpole import CartPole
+from robots.cartpole import CONTROL_TYPES, CartPole
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, require, substeps_for
+from tasks.base import Bounds, finite, require, substeps_for, whole
 
 
 class StayUp:
@@ -49,14 +49,40 @@ class StayUp:
         require(isinstance(robot, CartPole), "task stay_up needs robot=cartpole",
                 type(robot).__name__)
         require(n_actions in (2, 4), "task.n_actions must be 2 or 4", n_actions)
-        require(min_pole_angle < max_pole_angle, "task.min_pole_angle must be < max_pole_angle",
-                (min_pole_angle, max_pole_angle))
+        # Limits the robot can reach: within the hinge's and the rail's travel.
+        hinge = float(robot.mjcf_model.find("joint", "hinge").range[1])
+        rail = robot.rail_limit
+        require(finite(min_pole_angle) and min_pole_angle >= -hinge,
+                f"task.min_pole_angle must be a number >= -{hinge} (the hinge's limit)",
+                min_pole_angle)
+        require(finite(max_pole_angle) and max_pole_angle <= hinge,
+                f"task.max_pole_angle must be a number <= {hinge} (the hinge's limit)",
+                max_pole_angle)
+        require(min_pole_angle < max_pole_angle,
+                f"task.min_pole_angle must be < task.max_pole_angle ({max_pole_angle})",
+                min_pole_angle)
+        require(finite(min_base_pose_x) and min_base_pose_x >= -rail,
+                f"task.min_base_pose_x must be a number >= -{rail} (the rail's end)",
+                min_base_pose_x)
+        require(finite(max_base_pose_x) and max_base_pose_x <= rail,
+                f"task.max_base_pose_x must be a number <= {rail} (the rail's end)",
+                max_base_pose_x)
         require(min_base_pose_x < max_base_pose_x,
-                "task.min_base_pose_x must be < max_base_pose_x", (min_base_pose_x, max_base_pose_x))
-        require(pos_step > 0, "task.pos_step must be > 0", pos_step)
-        require(max_base_velocity > 0, "task.max_base_velocity must be > 0", max_base_velocity)
-        require(reset_noise >= 0, "task.reset_noise must be >= 0", reset_noise)
-        require(max_episode_steps >= 1, "task.max_episode_steps must be >= 1", max_episode_steps)
+                f"task.min_base_pose_x must be < task.max_base_pose_x ({max_base_pose_x})",
+                min_base_pose_x)
+        require(finite(init_pos) and min_base_pose_x < init_pos < max_base_pose_x,
+                f"task.init_pos must be within (min_base_pose_x, max_base_pose_x) = "
+                f"({min_base_pose_x}, {max_base_pose_x})", init_pos)
+        require(finite(pos_step) and pos_step > 0, "task.pos_step must be a finite number > 0",
+                pos_step)
+        require(finite(max_base_velocity) and max_base_velocity > 0,
+                "task.max_base_velocity must be a finite number > 0", max_base_velocity)
+        require(control_type in CONTROL_TYPES,
+                f"task.control_type must be one of {', '.join(CONTROL_TYPES)}", control_type)
+        require(finite(reset_noise) and reset_noise >= 0,
+                "task.reset_noise must be a finite number >= 0", reset_noise)
+        require(whole(max_episode_steps) and max_episode_steps >= 1,
+                "task.max_episode_steps must be an integer >= 1", max_episode_steps)
         self.robot = robot
         self.n_actions = int(n_actions)
         self.pole_angle_limits = (float(min_pole_angle), float(max_pole_angle))

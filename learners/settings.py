@@ -1,0 +1,279 @@
+"""Config validation before anything is built: one line naming key, value and what is allowed.
+
+:func:`check_run_config` checks a composed run config:
+
+- the top-level keys of ``conf/config.yaml`` (``seed``, ``num_envs``, ``mode``,
+  ``checkpoint``, ``checkpoint_every``, ``resume``, ``eval_episodes``,
+  ``win.*``, ``quiet``, ``video``, ``video_steps``, ``torch_threads``) and
+  ``logger``, by hand;
+- the ``robot``, ``task`` and ``learner`` nodes (and nested ``_target_`` nodes
+  such as ``learner.epsilon``) against the signature of the class their
+  ``_target_`` names: every key must be a parameter, and every value must have
+  the parameter's annotated type (a float must be a finite number, an int a
+  whole number, a bool ``true``/``false``, a list a list, ...). String
+  parameters are choices, which their constructors check and list.
+
+Ranges that depend on the parameter (``learner.lr > 0``, ``epsilon`` in [0, 1],
+``n_actions`` the task can honour, a task that does not fit the robot) are
+checked by the constructors themselves with :func:`tasks.base.require`, so a
+value is checked once for its type here and once for its range there, and both
+say ``"<key> must be <allowed>; got <value>"``.
+
+Why not Hydra structured configs (dataclasses in the ConfigStore)? Hydra
+reports a type mismatch as a five-line composition error outside the run's
+error handling (``Error merging override num_envs=abc`` / ``Value 'abc' of type
+'str' could not be converted to Integer`` / ``full_key: ...`` / ...), and it
+has no ranges: ``num_envs=-3`` and ``lr=nan`` pass. The constructors'
+signatures are the schema here, so no second copy of every default can drift.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import inspect
+import math
+import types
+import typing
+from collections.abc import Mapping as AbcMapping, Sequence as AbcSequence
+from typing import Any, Callable
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from tasks.base import ConfigError
+
+MODES = ("train", "eval")
+LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
+SEED_LIMIT = 2**63
+
+
+def check_run_config(cfg: DictConfig) -> None:
+    """Raises :class:`ConfigError` (one line) for the first bad value in ``cfg``."""
+    try:  # Hydra's own node (present with return_hydra_config) is Hydra's business
+        conf = OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]),
+                                      resolve=True)
+    except OmegaConfBaseException as err:
+        raise ConfigError(f"config does not resolve: {_first_line(err)}") from None
+    _check_top_level(conf)
+    for node in ("robot", "task", "learner"):
+        if node not in conf or not isinstance(conf[node], dict):
+            raise ConfigError(f"{node} must be a config group with a _target_; got {conf.get(node)!r}")
+        check_params(conf[node], node, skip=("robot",) if node == "task" else ())
+
+
+# -- top level ---------------------------------------------------------------
+def _check_top_level(conf: dict) -> None:
+    _integer(conf, "seed", 0, SEED_LIMIT, "an integer in [0, 2**63)")
+    _integer(conf, "num_envs", 1)
+    mode = conf.get("mode")
+    if mode not in MODES:
+        raise ConfigError(f"mode must be train or eval; got {mode!r}")
+    # Whether the file exists and fits is load_checkpoint's (it says so in one line).
+    checkpoint = conf.get("checkpoint")
+    if checkpoint is not None and not isinstance(checkpoint, str):
+        raise ConfigError(f"checkpoint must be null or the path of a saved model.pt; got {checkpoint!r}")
+    if not checkpoint and mode == "eval":
+        raise ConfigError("mode=eval needs checkpoint=<path to a saved model.pt>")
+    if "checkpoint_every" in conf:
+        _integer(conf, "checkpoint_every", 0, allowed="an integer >= 0 (0 = only at the end)")
+    resume = conf.get("resume")
+    if resume is not None and not isinstance(resume, str):
+        raise ConfigError(f"resume must be null or the path of a run folder; got {resume!r}")
+    _integer(conf, "eval_episodes", 0)
+    win = conf.get("win")
+    if not isinstance(win, dict):
+        raise ConfigError(f"win must hold n_win_ticks and min_episodes; got {win!r}")
+    ticks = win.get("n_win_ticks")
+    if not _is_number(ticks) or math.isnan(ticks) or not ticks > 0:
+        raise ConfigError(f"win.n_win_ticks must be a number > 0 (mean episode length); got {ticks!r}")
+    _integer(win, "min_episodes", 0, name="win.min_episodes")
+    for key in ("quiet", "video"):
+        if not isinstance(conf.get(key), bool):
+            raise ConfigError(f"{key} must be true or false; got {conf.get(key)!r}")
+    _integer(conf, "video_steps", 0)
+    _integer(conf, "torch_threads", 1)
+    _check_logger(conf.get("logger"))
+
+
+def _check_logger(logger: Any) -> None:
+    if not isinstance(logger, dict):
+        raise ConfigError(f"logger must be one of {', '.join(LOGGERS)}; got {logger!r}")
+    kind = logger.get("kind")
+    if kind not in LOGGERS:
+        raise ConfigError(f"logger.kind must be one of {', '.join(LOGGERS)}; got {kind!r}")
+    from learners.loggers import NEEDS, make_logger
+
+    package = NEEDS.get(kind)
+    if package is not None and importlib.util.find_spec(package) is None:
+        raise ConfigError(
+            f"logger={kind} needs the {package} package, which is not installed; "
+            f"install it with: pip install -e '.[{kind}]'")
+    options = {k: v for k, v in logger.items() if k != "kind"}
+    _check_against(make_logger, options, "logger",
+                   skip=("kind", "run_dir", "exp_name"), what="make_logger")
+
+
+def _integer(conf: dict, key: str, low: int, high: float = math.inf, allowed: str | None = None,
+             name: str | None = None) -> None:
+    name = name or key
+    value = conf.get(key)
+    if not (_is_integer(value) and low <= value < high):
+        allowed = allowed or f"an integer >= {low}"
+        raise ConfigError(f"{name} must be {allowed}; got {value!r}")
+
+
+# -- robot, task, learner: the target's signature is the schema --------------
+def check_params(node: dict, prefix: str, skip: tuple[str, ...] = ()) -> None:
+    """Checks a plain-dict config ``node`` with a ``_target_`` against its target's signature."""
+    target = node.get("_target_")
+    if not isinstance(target, str) or not target:
+        raise ConfigError(f"{prefix}._target_ must name a class to build; got {target!r}")
+    try:
+        from hydra.utils import get_object
+
+        obj = get_object(target)
+    except Exception:  # noqa: BLE001 - any import failure is the same config mistake
+        raise ConfigError(f"{prefix}._target_ must name an importable class; got {target!r}") from None
+    params = {k: v for k, v in node.items() if not k.startswith("_")}
+    _check_against(obj, params, prefix, skip=skip, what=target, check_str=False)
+
+
+def _check_against(obj: Callable, params: dict, prefix: str, skip: tuple[str, ...], what: str,
+                   check_str: bool = True) -> None:
+    init = obj.__init__ if inspect.isclass(obj) else obj
+    signature = inspect.signature(init)
+    try:
+        hints = typing.get_type_hints(init)
+    except Exception:  # noqa: BLE001 - unresolvable annotations: check names only
+        hints = {}
+    accepted = [n for n, p in signature.parameters.items()
+                if n not in ("self", *skip) and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    takes_any = any(p.kind is p.VAR_KEYWORD for p in signature.parameters.values())
+    for key, value in params.items():
+        if key in skip:
+            continue
+        if key not in accepted and not takes_any:
+            raise ConfigError(f"{prefix}.{key} is not a parameter of {what}; allowed: "
+                              f"{', '.join(accepted)}; got {prefix}.{key}={value!r}")
+    for name in accepted:
+        parameter = signature.parameters[name]
+        if name not in params:
+            if parameter.default is inspect.Parameter.empty:
+                raise ConfigError(f"{prefix}.{name} is missing; {what} needs it")
+            continue
+        value = params[name]
+        if isinstance(value, dict) and "_target_" in value:
+            check_params(value, f"{prefix}.{name}")
+            continue
+        hint = hints.get(name, Any)
+        if hint is str and not check_str:
+            continue  # the constructor checks its choices and says which are allowed
+        bad = _mismatch(value, hint, f"{prefix}.{name}")
+        if bad is not None:
+            key, hint, got = bad
+            raise ConfigError(f"{key} must be {_describe(hint)}; got {got!r}")
+
+
+# -- types --------------------------------------------------------------------
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_integer(value: Any) -> bool:
+    """An int, or a float with a whole value (``1e5`` on the command line); not a bool."""
+    if isinstance(value, bool):
+        return False
+    if isinstance(value, int):
+        return True
+    return isinstance(value, float) and math.isfinite(value) and value.is_integer()
+
+
+def _union_args(hint: Any) -> tuple | None:
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return typing.get_args(hint)
+    return None
+
+
+def _fits(value: Any, hint: Any) -> bool:
+    if hint is Any or hint is inspect.Parameter.empty:
+        return True
+    members = _union_args(hint)
+    if members is not None:
+        return any(_fits(value, m) for m in members)
+    if hint is type(None) or hint is None:
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return _is_integer(value)
+    if hint is float:
+        return _is_number(value) and math.isfinite(value)
+    if hint is str:
+        return isinstance(value, str)
+    origin = typing.get_origin(hint) or hint
+    args = typing.get_args(hint)
+    if origin in (list, tuple, AbcSequence):
+        if not isinstance(value, (list, tuple)):
+            return False
+        return not args or all(_fits(v, args[0]) for v in value)
+    if origin in (dict, AbcMapping):
+        if not isinstance(value, dict):
+            return False
+        return len(args) != 2 or all(_fits(k, args[0]) and _fits(v, args[1]) for k, v in value.items())
+    if inspect.isclass(origin):
+        return isinstance(value, origin)
+    return True
+
+
+def _mismatch(value: Any, hint: Any, key: str) -> tuple[str, Any, Any] | None:
+    """``None`` if ``value`` fits ``hint``; else the innermost (key, hint, value) that does not:
+    an entry of a mapping is named by its own key (``task.ring.segments``)."""
+    if _fits(value, hint):
+        return None
+    if isinstance(value, dict):
+        for member in _union_args(hint) or (hint,):
+            args = typing.get_args(member)
+            if (typing.get_origin(member) or member) in (dict, AbcMapping) and len(args) == 2:
+                for k, v in value.items():
+                    if not _fits(v, args[1]):
+                        return _mismatch(v, args[1], f"{key}.{k}")
+    return key, hint, value
+
+
+def _describe(hint: Any) -> str:
+    members = _union_args(hint)
+    if members is not None:
+        words = [_describe(m) for m in members]
+        return ", ".join(words[:-1]) + " or " + words[-1] if len(words) > 1 else words[0]
+    if hint is type(None) or hint is None:
+        return "null"
+    if hint is bool:
+        return "true or false"
+    if hint is int:
+        return "an integer"
+    if hint is float:
+        return "a finite number"
+    if hint is str:
+        return "a string"
+    origin = typing.get_origin(hint) or hint
+    args = typing.get_args(hint)
+    if origin in (list, tuple, AbcSequence):
+        return f"a list of {_plural(args[0])}" if args else "a list"
+    if origin in (dict, AbcMapping):
+        return f"a mapping of names to {_plural(args[1])}" if len(args) == 2 else "a mapping"
+    return f"a {getattr(origin, '__name__', origin)}"
+
+
+def _plural(hint: Any) -> str:
+    plain = {int: "integers", float: "finite numbers", str: "strings", bool: "booleans"}
+    if hint in plain:
+        return plain[hint]
+    origin, args = typing.get_origin(hint) or hint, typing.get_args(hint)
+    if origin in (list, tuple, AbcSequence) and args:
+        return f"lists of {_plural(args[0])}"
+    return f"values that are {_describe(hint)}"
+
+
+def _first_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
