@@ -143,3 +143,30 @@ def test_bad_dqn_values_are_one_line_errors():
         with pytest.raises(ConfigError, match=key):
             DQN(epsilon=LinearEpsilon(), **kwargs)
 
+
+
+@pytest.mark.parametrize("loss,double,tau", [("huber", True, 0.01), ("l2", False, 0.01), ("l2", False, 0.0)])
+def test_td_loss_equals_torchrl_dqnloss(loss, double, tau):
+    """The plain-tensor TD loss computes what TorchRL's DQNLoss + TD(0) computes."""
+    from torchrl.objectives import DQNLoss
+
+    from learners.dqn import td_loss
+
+    torch.manual_seed(0)
+    learner = variant("dqn", loss=loss, double_dqn=double, tau=tau)
+    learner.build(StayUp(CartPole()))
+    env = RobotTaskEnv(StayUp(CartPole()), num_envs=8, seed=0)
+    fill_buffer(learner, env, steps=40)  # 320 transitions, some terminated
+    with torch.no_grad():  # make online and target networks differ
+        for p in learner.target_net.parameters() if tau else ():
+            p.add_(0.1 * torch.randn_like(p))
+    reference = DQNLoss(learner.actor, loss_function=learner.loss_function, delay_value=bool(tau),
+                        double_dqn=double, action_space=learner.actor.spec)
+    reference.make_value_estimator(gamma=learner.gamma)
+    for name, p in learner.target_net.named_parameters() if tau else ():
+        reference.target_value_network_params["module", "0", "module", *name.split(".")].data.copy_(p)
+    batch = learner.buffer.storage[:320]
+    assert batch.get(("next", "terminated")).any()
+    ours = td_loss(learner.net, learner.target_net, batch, learner.gamma, double, learner.loss_function)
+    theirs = reference(batch)["loss"]
+    torch.testing.assert_close(ours, theirs)
