@@ -4,19 +4,27 @@
     python train.py robot=cube learner=qlearn        # the robot's default task follows
     python train.py -m learner=qlearn seed=0,1,2     # a sweep
     python train.py mode=eval checkpoint=outputs/.../model.pt
+    python train.py resume=outputs/...               # continue a stopped or killed run
 
 The run folder (printed at the end) holds config.yaml (resolved), metrics.csv,
-reward_curve.png, model.pt and, with ``video=true``, policy.mp4. The last line
-printed is machine-readable:
+timing.csv, reward_curve.png, model.pt, checkpoint.pt (the whole training
+state, every ``checkpoint_every`` episodes and at the end) and, with
+``video=true``, policy.mp4. Ctrl-C (or SIGTERM) stops at the next step, saves
+checkpoint.pt and prints the resume command. The last line printed is
+machine-readable:
 ``VERDICT solved=<true|false> episodes=<n> best100=<v> wall_s=<v> run_dir=<path>``.
 """
 
 from __future__ import annotations
 
 import json
+import signal
 import sys
+import threading
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 import hydra
 import torch
@@ -29,10 +37,17 @@ from omegaconf import DictConfig, OmegaConf
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from learners.checkpoint import CheckpointError
 from learners.loggers import make_logger
+from learners.resume import load_training_state, save_training_state
 from learners.run import Run, WinCriterion, evaluate, seed_everything, verdict_lines
 from learners.video import record_video
 from tasks.base import ConfigError
 from tasks.env import RobotTaskEnv
+
+# ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml).
+OmegaConf.register_new_resolver("pick", lambda cond, yes, no: yes if cond else no, replace=True)
+INTERRUPTED = 130  # exit code of a run stopped by Ctrl-C, as shells report SIGINT
+# Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
+RESUME_OVERRIDES = ("resume", "quiet", "torch_threads", "video", "video_steps", "eval_episodes")
 
 
 def build_task(cfg: DictConfig):
@@ -48,8 +63,33 @@ def build_env(cfg: DictConfig, num_envs: int, seed: int, max_episode_steps: int 
     return RobotTaskEnv(task, num_envs=num_envs, seed=seed)
 
 
-def run(cfg: DictConfig, run_dir: Path) -> dict:
-    """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict)."""
+@contextmanager
+def stop_on_signals(record: Run) -> Iterator[None]:
+    """Ctrl-C / SIGTERM ask ``record`` to stop after the current step; a second Ctrl-C aborts."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers live in the main thread only (e.g. joblib workers)
+        return
+
+    def handler(signum, frame):
+        if record.stop_requested and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        record.request_stop()
+        print(f"\n{signal.Signals(signum).name}: stopping after this step and saving a checkpoint "
+              "(Ctrl-C again aborts without saving)", file=sys.stderr)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
+    """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict).
+
+    ``resume``: continue the run in ``run_dir`` from its ``checkpoint.pt``.
+    """
     if cfg.mode not in ("train", "eval"):
         raise ConfigError(f"mode must be train or eval; got {cfg.mode!r}")
     torch.set_num_threads(int(cfg.torch_threads))
@@ -57,25 +97,42 @@ def run(cfg: DictConfig, run_dir: Path) -> dict:
     learner = instantiate(cfg.learner, _convert_="all")
     env = build_env(cfg, int(cfg.num_envs), int(cfg.seed), learner.nsteps)
     learner.build(env.task, generator)
-    if cfg.checkpoint:
+    if cfg.checkpoint and not resume:
         learner.load(Path(cfg.checkpoint))
     elif cfg.mode == "eval":
         raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
     summary: dict = {}
     if cfg.mode == "train":
         win = WinCriterion(float(cfg.win.n_win_ticks), int(cfg.win.min_episodes))
-        logger = make_logger(cfg.logger.kind, run_dir, exp_name=run_dir.name,
-                             **{k: v for k, v in cfg.logger.items() if k != "kind"})
-        record = Run(run_dir, env.num_envs, learner.nepisodes, win,
-                     extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), logger=logger)
+        state_path = run_dir / "checkpoint.pt"
+        record = Run(run_dir, env.num_envs, learner.nepisodes, win, extra_fields=tuple(learner.stats),
+                     quiet=bool(cfg.quiet), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
+                     resume=resume)
+        if resume:
+            record.resume_td = load_training_state(state_path, learner, env, record)
+            print(f"resuming {run_dir} after episode {record.n_episodes} ({record.env_steps} env steps)")
+        record.logger = make_logger(cfg.logger.kind, run_dir, exp_name=run_dir.name,
+                                    **{k: v for k, v in cfg.logger.items() if k != "kind"})
+        record.checkpoint = lambda td: save_training_state(state_path, learner, env, record, td)
+        finished = False
         try:
-            learner.train(env, record)
+            with stop_on_signals(record):
+                learner.train(env, record)
+            finished = True
         finally:
+            if finished:  # at a step boundary: the whole state is consistent
+                record.checkpoint(record.last_td)
             summary = record.close()
             learner.save(run_dir / "model.pt", meta={
                 "choices": json.loads((run_dir / "run.json").read_text()),
                 "config": OmegaConf.to_container(cfg, resolve=True),
             })
+        if record.stop_requested:
+            env.close()
+            print(f"stopped after episode {record.n_episodes}; the whole training state is in "
+                  f"{state_path}\nresume with: python train.py resume={run_dir}")
+            summary["interrupted"] = True
+            return summary
     env.close()
     n_eval = int(getattr(learner, "run_episodes", 0) or cfg.eval_episodes)
     if n_eval > 0:
@@ -108,24 +165,49 @@ def _one_line(err: BaseException) -> str:
     return str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
 
 
+def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, Path]:
+    """The config of the run folder ``cfg.resume``, with the few overrides a resume accepts."""
+    run_dir = Path(cfg.resume)
+    if not (run_dir / "config.yaml").is_file() or not (run_dir / "run.json").is_file():
+        raise CheckpointError(f"resume={run_dir} is not a run folder (it needs config.yaml and run.json)")
+    if not (run_dir / "checkpoint.pt").is_file():
+        raise CheckpointError(f"resume={run_dir} has no checkpoint.pt to continue from "
+                              "(it was run with checkpoint_every=0, or stopped before its first one)")
+    others = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in RESUME_OVERRIDES]
+    if others:
+        raise ConfigError(f"resume= continues a run with its own config; drop {' '.join(others)} "
+                          f"(allowed with resume: {', '.join(RESUME_OVERRIDES[1:])})")
+    saved = OmegaConf.load(run_dir / "config.yaml")
+    for key in RESUME_OVERRIDES[1:]:
+        if any(o.startswith(f"{key}=") for o in overrides):
+            saved[key] = cfg[key]
+    return saved, run_dir
+
+
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> None:
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-    choices = HydraConfig.get().runtime.choices
-    (run_dir / "run.json").write_text(json.dumps(
-        {group: choices.get(group) for group in ("robot", "task", "learner", "tuned")}
-        | {"seed": int(cfg.seed), "overrides": list(HydraConfig.get().overrides.task)}, indent=1))
     in_sweep = HydraConfig.get().mode == RunMode.MULTIRUN
+    overrides = list(HydraConfig.get().overrides.task)
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    resume = bool(cfg.get("resume"))
     try:
-        run(cfg, run_dir)
+        if resume:
+            cfg, run_dir = resumed_config(cfg, overrides)
+        else:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+            choices = HydraConfig.get().runtime.choices
+            (run_dir / "run.json").write_text(json.dumps(
+                {group: choices.get(group) for group in ("robot", "task", "learner", "tuned")}
+                | {"seed": int(cfg.seed), "overrides": overrides}, indent=1))
+        summary = run(cfg, run_dir, resume=resume)
     except (ConfigError, CheckpointError, InstantiationException) as err:
         message = f"error: {_one_line(err)}"
         print(message, file=sys.stderr)
         if not in_sweep:
             sys.exit(2)
         (run_dir / "error.txt").write_text(message + "\n")
+        return
     except Exception:
         if not in_sweep:
             raise
@@ -133,6 +215,9 @@ def main(cfg: DictConfig) -> None:
         trace = traceback.format_exc()
         print(trace, file=sys.stderr)
         (run_dir / "error.txt").write_text(trace)
+        return
+    if summary.get("interrupted") and not in_sweep:
+        sys.exit(INTERRUPTED)
 
 
 if __name__ == "__main__":

@@ -237,6 +237,17 @@ class QLearn:
               lambda: self.stats)
 
     # -- persistence ---------------------------------------------------------
+    kind = "qlearn"
+
+    def training_state(self) -> dict:
+        """Everything the next update depends on (for resuming a run)."""
+        return {**self.state_dict(), "generator": self.policy.generator.get_state()}
+
+    def load_training_state(self, state: dict) -> None:
+        self._load(state, "the training checkpoint")
+        self.policy.epsilon = float(state["epsilon"])
+        self.policy.generator.set_state(state["generator"])
+
     def state_dict(self) -> dict:
         return {
             "kind": "qlearn",
@@ -252,7 +263,9 @@ class QLearn:
 
     def load(self, path: Path) -> None:
         """Loads a saved Q-table into the built policy, checking it fits."""
-        ckpt = load_checkpoint(path, kind="qlearn")
+        self._load(load_checkpoint(path, kind="qlearn"), path)
+
+    def _load(self, ckpt: dict, path) -> None:
         mine = self.policy.discretizer.describe()
         if ckpt["discretizer"] != mine or ckpt["n_actions"] != self.policy.n_actions:
             raise CheckpointError(

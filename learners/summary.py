@@ -14,7 +14,7 @@ def summarize_run(run_dir: Path | str) -> dict:
     """Solved or not, episodes/steps/seconds to solve, final scores, of one run folder.
 
     Reads ``run.json`` (robot, task, learner names, seed), ``config.yaml`` (win
-    criterion), ``metrics.csv`` and, if present, ``eval.json``. A folder without metrics is reported as
+    criterion), ``metrics.csv``, ``timing.csv`` and, if present, ``eval.json``. A folder without metrics is reported as
     ``status: failed``.
     """
     run_dir = Path(run_dir)
@@ -41,6 +41,12 @@ def summarize_run(run_dir: Path | str) -> dict:
         rows = list(csv.DictReader(f))
     if not rows:
         return out
+    timing = run_dir / "timing.csv"
+    wall = [0.0] * len(rows)
+    if timing.is_file():
+        with open(timing) as f:
+            wall = [float(r["wall_s"]) for r in csv.DictReader(f)][: len(rows)]
+        wall += [float("nan")] * (len(rows) - len(wall))
     lengths = np.array([float(r["length"]) for r in rows])
     rewards = np.array([float(r["reward"]) for r in rows])
     mean100 = np.array([float(r["mean100"]) for r in rows])
@@ -52,10 +58,10 @@ def summarize_run(run_dir: Path | str) -> dict:
         solved=solved_at is not None,
         episodes_to_solve=solved_at + 1 if solved_at is not None else None,
         steps_to_solve=int(rows[solved_at]["env_steps"]) if solved_at is not None else None,
-        wall_to_solve=float(rows[solved_at]["wall_s"]) if solved_at is not None else None,
+        wall_to_solve=wall[solved_at] if solved_at is not None else None,
         final_mean_length=float(lengths[-100:].mean()),
         final_mean_return=float(rewards[-100:].mean()),
-        wall_s=float(rows[-1]["wall_s"]),
+        wall_s=wall[-1],
         env_steps=int(rows[-1]["env_steps"]),
     )
     eval_path = run_dir / "eval.json"

@@ -1,0 +1,126 @@
+"""Checkpoints and resume: a stopped or killed run continues to the same end as an uninterrupted one."""
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+QLEARN = ["learner=qlearn", "learner.nepisodes=160", "checkpoint_every=20"]
+DQN = ["learner=dqn", "num_envs=4", "learner.nepisodes=150", "learner.learning_starts=64",
+       "checkpoint_every=20"]
+
+
+def start(run_dir: Path, *overrides: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "train.py", "quiet=true", "eval_episodes=0", "seed=3",
+         f"hydra.run.dir={run_dir}", *overrides],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def finish(proc: subprocess.Popen) -> tuple[int, str, str]:
+    out, err = proc.communicate(timeout=600)
+    return proc.returncode, out, err
+
+
+def wait_for_rows(proc: subprocess.Popen, run_dir: Path, rows: int) -> None:
+    """Blocks until metrics.csv has ``rows`` episodes (the run is mid-training)."""
+    metrics = run_dir / "metrics.csv"
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        if metrics.is_file() and len(metrics.read_text().splitlines()) > rows:
+            return
+        if proc.poll() is not None:
+            pytest.fail(f"run ended before {rows} episodes: {proc.stderr.read()[-1500:]}")
+        time.sleep(0.05)
+    pytest.fail("run did not reach the episodes to interrupt at")
+
+
+def resume(run_dir: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "train.py", f"resume={run_dir}", *extra],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+
+
+def weights(run_dir: Path) -> dict[str, torch.Tensor]:
+    model = torch.load(run_dir / "model.pt", weights_only=True)
+    return {"table": model["table"]} if model["kind"] == "qlearn" else model["actor"]
+
+
+def assert_same_end(a: Path, b: Path) -> None:
+    assert (a / "metrics.csv").read_bytes() == (b / "metrics.csv").read_bytes()
+    wa, wb = weights(a), weights(b)
+    assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> dict[str, Path]:
+    """Reference runs, never stopped."""
+    base = tmp_path_factory.mktemp("uninterrupted")
+    procs = {name: start(base / name, *overrides) for name, overrides in (("qlearn", QLEARN), ("dqn", DQN))}
+    for name, proc in procs.items():
+        code, _, err = finish(proc)
+        assert code == 0, err[-1500:]
+    return {name: base / name for name in procs}
+
+
+@pytest.mark.parametrize("learner,overrides", [("qlearn", QLEARN), ("dqn", DQN)])
+def test_ctrl_c_saves_and_resume_ends_like_an_uninterrupted_run(tmp_path, uninterrupted, learner, overrides):
+    run_dir = tmp_path / "run"
+    proc = start(run_dir, *overrides)
+    wait_for_rows(proc, run_dir, 50)
+    proc.send_signal(signal.SIGINT)
+    code, out, err = finish(proc)
+    assert code == 130, err[-1500:]
+    assert f"resume with: python train.py resume={run_dir}" in out
+    stopped_at = len((run_dir / "metrics.csv").read_text().splitlines()) - 1
+    assert 50 <= stopped_at < 150  # it stopped mid-run, not at the end
+    done = resume(run_dir)
+    assert done.returncode == 0, done.stderr[-1500:]
+    assert f"resuming {run_dir} after episode {stopped_at}" in done.stdout
+    assert_same_end(uninterrupted[learner], run_dir)
+    timing = (run_dir / "timing.csv").read_text().splitlines()
+    assert [int(r.split(",")[0]) for r in timing[1:]] == list(range(1, len(timing)))
+
+
+def test_sigkill_leaves_complete_checkpoints_and_resumes(tmp_path, uninterrupted):
+    run_dir = tmp_path / "run"
+    proc = start(run_dir, *QLEARN)
+    wait_for_rows(proc, run_dir, 75)  # past three periodic checkpoints
+    proc.kill()
+    proc.wait()
+    checkpoints = sorted(run_dir.glob("*.pt*"))
+    assert [p.name for p in checkpoints] == ["checkpoint.pt"]  # no model.pt yet, no temp files
+    state = torch.load(run_dir / "checkpoint.pt", weights_only=True)  # complete, readable
+    rows = len((run_dir / "metrics.csv").read_text().splitlines()) - 1
+    assert state["run"]["n_episodes"] % 20 == 0 and state["run"]["n_episodes"] <= rows
+    done = resume(run_dir)
+    assert done.returncode == 0, done.stderr[-1500:]
+    # Episodes after the last checkpoint were run again, and recorded once.
+    assert_same_end(uninterrupted["qlearn"], run_dir)
+
+
+def test_resume_mistakes_are_one_clear_line(tmp_path, uninterrupted):
+    cases = [
+        (resume(tmp_path / "nowhere"), "is not a run folder"),
+        (resume(uninterrupted["qlearn"], "learner.alpha=0.5"), "drop learner.alpha=0.5"),
+    ]
+    damaged = tmp_path / "damaged"
+    damaged.mkdir()
+    for name in ("config.yaml", "run.json", "metrics.csv", "timing.csv"):
+        (damaged / name).write_bytes((uninterrupted["qlearn"] / name).read_bytes())
+    (damaged / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    cases.append((resume(damaged), "is not a readable checkpoint"))
+    other = tmp_path / "other"  # a dqn checkpoint in a qlearn run's folder
+    other.mkdir()
+    for name in ("config.yaml", "run.json", "metrics.csv", "timing.csv"):
+        (other / name).write_bytes((uninterrupted["qlearn"] / name).read_bytes())
+    (other / "checkpoint.pt").write_bytes((uninterrupted["dqn"] / "checkpoint.pt").read_bytes())
+    cases.append((resume(other), "holds a 'dqn' learner"))
+    for proc, expected in cases:
+        assert proc.returncode == 2
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error:") and expected in lines[0], proc.stderr[-800:]
