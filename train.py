@@ -39,6 +39,7 @@ from learners.checkpoint import CheckpointError
 from learners.loggers import make_logger
 from learners.resume import load_training_state, save_training_state
 from learners.run import Run, WinCriterion, evaluate, seed_everything, verdict_lines
+from learners.settings import check_run_config
 from learners.video import record_video
 from tasks.base import ConfigError
 from tasks.env import RobotTaskEnv
@@ -90,8 +91,7 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
 
     ``resume``: continue the run in ``run_dir`` from its ``checkpoint.pt``.
     """
-    if cfg.mode not in ("train", "eval"):
-        raise ConfigError(f"mode must be train or eval; got {cfg.mode!r}")
+    check_run_config(cfg)  # every key, one line, before anything is built
     torch.set_num_threads(int(cfg.torch_threads))
     generator = seed_everything(int(cfg.seed))
     learner = instantiate(cfg.learner, _convert_="all")

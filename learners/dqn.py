@@ -118,6 +118,13 @@ class DQN:
         require(nepisodes >= 1, "learner.nepisodes must be >= 1", nepisodes)
         require(nsteps >= 1, "learner.nsteps must be >= 1", nsteps)
         require(run_episodes >= 0, "learner.run_episodes must be >= 0", run_episodes)
+        require(learning_starts <= buffer_size,
+                f"learner.learning_starts must be <= learner.buffer_size ({buffer_size}), "
+                "else it never trains", learning_starts)
+        require(grad_clip >= 0, "learner.grad_clip must be >= 0 (0 = no clipping)", grad_clip)
+        require(all(hasattr(epsilon, k) for k in ("value", "step", "episode_end")),
+                "learner.epsilon must be a schedule node (_target_: learners.schedules."
+                "LinearEpsilon, MultiplicativeEpsilon or LogEpisodeEpsilon)", epsilon)
         self.schedule = epsilon
         self.hidden = [int(h) for h in hidden]
         self.activation = activation

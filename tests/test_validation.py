@@ -31,9 +31,6 @@ ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))
 LEARNERS = sorted(p.stem for p in (CONF / "learner").glob("*.yaml"))
-NEEDS_DQN_PATCH = pytest.mark.xfail(
-    reason="needs the learners/dqn.py checks (learning_starts, grad_clip, epsilon schedule)",
-    strict=False)
 
 
 @lru_cache(maxsize=None)
@@ -204,12 +201,9 @@ CASES = [
     (["learner=mbalunovic", "learner.epsilon.decay=0"], "learner.epsilon.decay", "0"),
     (["learner=mbalunovic", "learner.epsilon.per=run"], "learner.epsilon.per", "'run'"),
     (["learner=n1try", "learner.epsilon.epsilon_decay=1.5"], "learner.epsilon.epsilon_decay", "1.5"),
-    pytest.param(["learner=dqn", "learner.learning_starts=100000"], "learner.learning_starts",
-                 "100000", marks=NEEDS_DQN_PATCH),
-    pytest.param(["learner=dqn", "learner.grad_clip=-1"], "learner.grad_clip", "-1",
-                 marks=NEEDS_DQN_PATCH),
-    pytest.param(["learner=dqn", "learner.epsilon=0.5"], "learner.epsilon", "0.5",
-                 marks=NEEDS_DQN_PATCH),
+    (["learner=dqn", "learner.learning_starts=100000"], "learner.learning_starts", "100000"),
+    (["learner=dqn", "learner.grad_clip=-1"], "learner.grad_clip", "-1"),
+    (["learner=dqn", "learner.epsilon=0.5"], "learner.epsilon", "0.5"),
 ]
 
 
@@ -306,15 +300,12 @@ def _train(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
 
 
-NEEDS_TRAIN_WIRING = pytest.mark.xfail(
-    reason="needs train.run to call learners.settings.check_run_config first", strict=False)
 
 
 @pytest.mark.parametrize("overrides, line", [
     (["task.pos_step=-1"], "error: task.pos_step must be a finite number > 0; got -1"),
     (["robot=cube", "task=stay_up"], "error: task stay_up needs robot=cartpole; got 'Cube'"),
-    pytest.param(["num_envs=-3"], "error: num_envs must be an integer >= 1; got -3",
-                 marks=NEEDS_TRAIN_WIRING),
+    (["num_envs=-3"], "error: num_envs must be an integer >= 1; got -3"),
 ])
 def test_command_line_prints_one_error_line_and_exits_2(tmp_path, overrides, line):
     proc = _train(tmp_path, *overrides)
