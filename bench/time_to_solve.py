@@ -1,7 +1,7 @@
 """Wall-clock and env steps for dqn and qlearn to reach the win criterion on
 cartpole/stay_up, over 3 seeds (run by hand).
 
-    python bench/time_to_solve.py [--seeds 0 1 2] [--num-envs-dqn 8] [--num-envs-qlearn 1]
+    python bench/time_to_solve.py [--seeds 0 1 2] [--num-envs-dqn 16] [--num-envs-qlearn 1]
 
 Last lines: ``SOLVE <learner> cartpole/stay_up median_wall_s=<v> solved=<k>/3``
 (the median over the seeds that solved; ``nan`` if none did).
@@ -18,7 +18,7 @@ from sweep import fmt, run_sweep
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--num-envs-dqn", type=int, default=8)
+    parser.add_argument("--num-envs-dqn", type=int, default=16)
     parser.add_argument("--num-envs-qlearn", type=int, default=1)
     args = parser.parse_args()
     seeds = ",".join(map(str, args.seeds))
