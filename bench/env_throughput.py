@@ -9,7 +9,9 @@ For each robot with its default task, in one run:
   (a') the same physics through ``mujoco.rollout``'s thread pool (what our env uses);
   (b) our ``RobotTaskEnv`` at num_envs = N with uniform random actions, through
       TorchRL's ``step_and_maybe_reset`` (auto-resets included);
-  (c) transitions/s of each and the ratio (b)/(a).
+  (c) transitions/s of each and the ratio of (b) to the physics limit, the
+      faster of (a) and (a'): a one-thread ``mj_step`` loop is no limit for an
+      env that steps its copies on every core, so the ratio is not flattered.
 Torch is pinned to one thread. The last lines are machine-readable:
 ``RATIO <robot>/<task> num_envs=64 <ours/limit>``.
 """
@@ -110,14 +112,15 @@ def main() -> None:
         print(f"\n{robot}/{task_name}: {substeps} substeps of {model.opt.timestep * 1e3:.1f} ms "
               f"per control step")
         print(f"{'num_envs':>8s} {'raw mj_step/s':>14s} {'raw rollout/s':>14s} {'ours/s':>10s} "
-              f"{'ours/raw':>9s} {'ours/rollout':>12s}   (transitions per second)")
+              f"{'ours/mj_step':>12s} {'ours/limit':>10s}   (transitions per second)")
         for n in SIZES:
             a = raw_loop(model, n, substeps, args.seconds)
             a2 = raw_rollout(model, n, substeps, args.seconds)
             b = ours(cfg, n, args.seconds)
-            print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {b / a:9.2f} {b / a2:12.2f}", flush=True)
+            limit = max(a, a2)
+            print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {b / a:12.2f} {b / limit:10.2f}", flush=True)
             if n == 64:
-                ratios.append((robot, task_name, b / a))
+                ratios.append((robot, task_name, b / limit))
     print()
     for robot, task_name, ratio in ratios:
         print(f"RATIO {robot}/{task_name} num_envs=64 {ratio:.2f}")
