@@ -44,8 +44,16 @@ from learners.video import record_video
 from tasks.base import ConfigError
 from tasks.env import RobotTaskEnv
 
-# ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml).
-OmegaConf.register_new_resolver("pick", lambda cond, yes, no: yes if cond else no, replace=True)
+
+
+def _if_run_folder(path, yes, no):
+    """``yes`` if ``path`` is a run folder (has config.yaml), else ``no``."""
+    return yes if path and (Path(str(path)) / "config.yaml").is_file() else no
+
+
+# ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
+# a wrong path gets a fresh folder and the one-line error from ``resumed_config``.
+OmegaConf.register_new_resolver("if_run_folder", _if_run_folder, replace=True)
 INTERRUPTED = 130  # exit code of a run stopped by Ctrl-C, as shells report SIGINT
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
 RESUME_OVERRIDES = ("resume", "quiet", "torch_threads", "video", "video_steps", "eval_episodes")
@@ -216,7 +224,7 @@ def main(cfg: DictConfig) -> None:
         print(trace, file=sys.stderr)
         (run_dir / "error.txt").write_text(trace)
         return
-    if summary.get("interrupted") and not in_sweep:
+    if summary.get("interrupted"):  # in a sweep too: Ctrl-C stops the sweep, not just this job
         sys.exit(INTERRUPTED)
 
 

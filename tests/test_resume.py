@@ -41,7 +41,10 @@ def wait_for_rows(proc: subprocess.Popen, run_dir: Path, rows: int) -> None:
 
 
 def resume(run_dir: Path, *extra: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "train.py", f"resume={run_dir}", *extra],
+    """``train.py resume=<run_dir>``; a path that is no run folder would get a fresh
+    outputs/ folder, so those go below the test's tmp folder."""
+    where = [] if (run_dir / "config.yaml").is_file() else [f"hydra.run.dir={run_dir.parent / 'fresh'}"]
+    return subprocess.run([sys.executable, "train.py", f"resume={run_dir}", *where, *extra],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
 
 
@@ -81,6 +84,7 @@ def test_ctrl_c_saves_and_resume_ends_like_an_uninterrupted_run(tmp_path, uninte
     done = resume(run_dir)
     assert done.returncode == 0, done.stderr[-1500:]
     assert f"resuming {run_dir} after episode {stopped_at}" in done.stdout
+    assert (run_dir / ".hydra-resume").is_dir()  # Hydra wrote into the run's own folder
     assert_same_end(uninterrupted[learner], run_dir)
     timing = (run_dir / "timing.csv").read_text().splitlines()
     assert [int(r.split(",")[0]) for r in timing[1:]] == list(range(1, len(timing)))
