@@ -63,7 +63,8 @@ class Discretizer:
         require(len(splits) == n,
                 f"learner.number_splits must be one int or one per tabular_state entry {list(bounds.names)}",
                 splits)
-        require(all(s >= 1 for s in splits), "learner.number_splits must be >= 1", splits)
+        for name, s in zip(bounds.names, splits):
+            require(s >= 1, f"learner.number_splits.{name} must be an integer >= 1 (1 = ignored)", s)
         self.bounds = bounds
         self.splits = splits
         self.n_states = int(np.prod(splits))

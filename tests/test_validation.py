@@ -176,6 +176,7 @@ CASES = [
     (["learner.initial_q=inf"], "learner.initial_q", "inf"),
     (["learner.first_visit_reward=abc"], "learner.first_visit_reward", "'abc'"),
     (["learner.number_splits.cart_pos=2.5"], "learner.number_splits.cart_pos", "2.5"),
+    (["learner.number_splits.cart_pos=0"], "learner.number_splits.cart_pos", "0"),
     (["+learner.number_splits.bogus=3"], "learner.number_splits", "['bogus']"),
     (["+learner.bogus=1"], "learner.bogus", "learner.bogus=1"),
     # learners: the DQN family and its epsilon schedules
