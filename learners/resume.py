@@ -111,7 +111,13 @@ def save_training_state(path: Path, learner, env, run, td: TensorDictBase) -> No
 
 
 def load_training_state(path: Path, learner, env, run) -> TensorDictBase:
-    """Restores what :func:`save_training_state` wrote; returns the next step's input."""
+    """Restores what :func:`save_training_state` wrote; returns the next step's input.
+
+    A temporary file left by a save that a kill interrupted is removed: the
+    rename never happened, so ``path`` is the last complete checkpoint.
+    """
+    for leftover in Path(path).parent.glob(Path(path).name + ".*.tmp"):
+        leftover.unlink(missing_ok=True)
     state = load_checkpoint(path, kind="training_state")
     if state.get("format") != FORMAT:
         raise CheckpointError(f"checkpoint {path} has format {state.get('format')}, this code reads {FORMAT}")

@@ -96,13 +96,15 @@ def test_sigkill_leaves_complete_checkpoints_and_resumes(tmp_path, uninterrupted
     wait_for_rows(proc, run_dir, 75)  # past three periodic checkpoints
     proc.kill()
     proc.wait()
-    checkpoints = sorted(run_dir.glob("*.pt*"))
-    assert [p.name for p in checkpoints] == ["checkpoint.pt"]  # no model.pt yet, no temp files
+    assert [p.name for p in run_dir.glob("*.pt")] == ["checkpoint.pt"]  # no model.pt yet
     state = torch.load(run_dir / "checkpoint.pt", weights_only=True)  # complete, readable
     rows = len((run_dir / "metrics.csv").read_text().splitlines()) - 1
     assert state["run"]["n_episodes"] % 20 == 0 and state["run"]["n_episodes"] <= rows
+    # What a kill during a save leaves: a half-written temp file, never renamed.
+    (run_dir / "checkpoint.pt.k1ll3d.tmp").write_bytes(b"half a checkp")
     done = resume(run_dir)
     assert done.returncode == 0, done.stderr[-1500:]
+    assert not list(run_dir.glob("*.tmp"))
     # Episodes after the last checkpoint were run again, and recorded once.
     assert_same_end(uninterrupted["qlearn"], run_dir)
 
