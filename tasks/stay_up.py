@@ -52,24 +52,15 @@ class StayUp:
         # Limits the robot can reach: within the hinge's and the rail's travel.
         hinge = float(robot.mjcf_model.find("joint", "hinge").range[1])
         rail = robot.rail_limit
-        require(finite(min_pole_angle) and min_pole_angle >= -hinge,
-                f"task.min_pole_angle must be a number >= -{hinge} (the hinge's limit)",
-                min_pole_angle)
-        require(finite(max_pole_angle) and max_pole_angle <= hinge,
-                f"task.max_pole_angle must be a number <= {hinge} (the hinge's limit)",
-                max_pole_angle)
-        require(min_pole_angle < max_pole_angle,
-                f"task.min_pole_angle must be < task.max_pole_angle ({max_pole_angle})",
-                min_pole_angle)
-        require(finite(min_base_pose_x) and min_base_pose_x >= -rail,
-                f"task.min_base_pose_x must be a number >= -{rail} (the rail's end)",
-                min_base_pose_x)
-        require(finite(max_base_pose_x) and max_base_pose_x <= rail,
-                f"task.max_base_pose_x must be a number <= {rail} (the rail's end)",
-                max_base_pose_x)
-        require(min_base_pose_x < max_base_pose_x,
-                f"task.min_base_pose_x must be < task.max_base_pose_x ({max_base_pose_x})",
-                min_base_pose_x)
+        for key, low, high, limit, what in (
+            ("pole_angle", min_pole_angle, max_pole_angle, hinge, "the hinge's limit"),
+            ("base_pose_x", min_base_pose_x, max_base_pose_x, rail, "the rail's end"),
+        ):
+            require(finite(low) and low >= -limit,
+                    f"task.min_{key} must be a number >= -{limit} ({what})", low)
+            require(finite(high) and high <= limit,
+                    f"task.max_{key} must be a number <= {limit} ({what})", high)
+            require(low < high, f"task.min_{key} must be < task.max_{key} ({high})", low)
         require(finite(init_pos) and min_base_pose_x < init_pos < max_base_pose_x,
                 f"task.init_pos must be within (min_base_pose_x, max_base_pose_x) = "
                 f"({min_base_pose_x}, {max_base_pose_x})", init_pos)
