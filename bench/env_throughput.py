@@ -3,12 +3,14 @@
     python bench/env_throughput.py [--seconds 2] [--robots cartpole cube ...]
 
 For each robot with its default task, in one run:
-  (a) the physics limit: ``mujoco.mj_step`` in a Python loop over N ``MjData``
-      copies of the same compiled model, with the task's substeps per control
-      step (one thread), N = 1, 16, 64, 256;
-  (a') the same physics through ``mujoco.rollout``'s thread pool (what our env uses);
-  (b) our ``RobotTaskEnv`` at num_envs = N with uniform random actions, through
-      TorchRL's ``step_and_maybe_reset`` (auto-resets included);
+  (b) our ``RobotTaskEnv`` at num_envs = N (1, 16, 64, 256) with uniform random
+      actions, through TorchRL's ``step_and_maybe_reset`` (auto-resets included);
+  (a) the physics limit: the very control steps (b) simulated, replayed from
+      recorded states and controls with raw ``mujoco.mj_step`` in a Python loop
+      over N ``MjData`` copies of the same compiled model and the task's
+      substeps per control step (one thread) -- the cost of a MuJoCo step
+      depends on the state (contacts, limits), so the limit uses the same ones;
+  (a') the same replay through ``mujoco.rollout``'s thread pool (what our env uses);
   (c) transitions/s of each and the ratio of (b) to the physics limit, the
       faster of (a) and (a'): a one-thread ``mj_step`` loop is no limit for an
       env that steps its copies on every core, so the ratio is not flattered.
@@ -38,6 +40,7 @@ import train  # noqa: E402
 from robots.physics import default_threads  # noqa: E402
 
 SIZES = (1, 16, 64, 256)
+_FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
 def timed(fn, seconds: float) -> float:
@@ -50,30 +53,55 @@ def timed(fn, seconds: float) -> float:
     return calls / elapsed
 
 
-def raw_loop(model: mujoco.MjModel, n: int, substeps: int, seconds: float) -> float:
+def record(cfg, n: int, steps: int = 100) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (state, control) of every copy at the start of ``steps`` control steps of
+    our env under random actions (resets included): what (b) makes MuJoCo simulate."""
+    env = train.build_env(cfg, n, seed=0)
+    physics, snaps = env.physics, []
+    step = physics.step
+
+    def recording_step(nsubsteps: int) -> None:
+        snaps.append((physics.state.copy(), physics.ctrl.copy()))
+        step(nsubsteps)
+    physics.step = recording_step
+    gen = torch.Generator().manual_seed(0)
+    td = env.reset()
+    for _ in range(steps):
+        td["action"] = torch.randint(0, env.task.n_actions, (n,), generator=gen)
+        _, td = env.step_and_maybe_reset(td)
+    env.close()
+    return snaps
+
+
+def raw_loop(model: mujoco.MjModel, snaps, substeps: int, seconds: float) -> float:
+    n = snaps[0][0].shape[0]
     datas = [mujoco.MjData(model) for _ in range(n)]
-    for d in datas:
-        d.ctrl[:] = 0.1 if model.nu else 0.0
+    k = [0]
 
     def control_step():
-        for d in datas:
+        state, ctrl = snaps[k[0] % len(snaps)]
+        k[0] += 1
+        for i, d in enumerate(datas):
+            mujoco.mj_setState(model, d, state[i], _FULL)
+            d.ctrl[:] = ctrl[i]
             for _ in range(substeps):
                 mujoco.mj_step(model, d)
     return timed(control_step, seconds) * n
 
 
-def raw_rollout(model: mujoco.MjModel, n: int, substeps: int, seconds: float) -> float:
+def raw_rollout(model: mujoco.MjModel, snaps, substeps: int, seconds: float) -> float:
+    n = snaps[0][0].shape[0]
     nthread = min(default_threads(), n)
     datas = [mujoco.MjData(model) for _ in range(nthread)]
-    mujoco.mj_forward(model, datas[0])
-    state = np.empty(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
-    mujoco.mj_getState(model, datas[0], state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    states = np.tile(state, (n, 1))
-    control = np.full((n, substeps, model.nu), 0.1)
+    controls = [np.repeat(ctrl[:, None, :], substeps, axis=1) for _, ctrl in snaps]
+    warmstart = np.zeros((n, model.nv))
+    k = [0]
     with rollout.Rollout(nthread=nthread if nthread > 1 else 0) as pool:
         def control_step():
-            out, _ = pool.rollout([model] * n, datas, states, control, nstep=substeps)
-            states[:] = out[:, -1]
+            i = k[0] % len(snaps)
+            k[0] += 1
+            pool.rollout([model] * n, datas, snaps[i][0], controls[i], nstep=substeps,
+                         initial_warmstart=warmstart)
         return timed(control_step, seconds) * n
 
 
@@ -114,8 +142,9 @@ def main() -> None:
         print(f"{'num_envs':>8s} {'raw mj_step/s':>14s} {'raw rollout/s':>14s} {'ours/s':>10s} "
               f"{'ours/mj_step':>12s} {'ours/limit':>10s}   (transitions per second)")
         for n in SIZES:
-            a = raw_loop(model, n, substeps, args.seconds)
-            a2 = raw_rollout(model, n, substeps, args.seconds)
+            snaps = record(cfg, n)
+            a = raw_loop(model, snaps, substeps, args.seconds)
+            a2 = raw_rollout(model, snaps, substeps, args.seconds)
             b = ours(cfg, n, args.seconds)
             limit = max(a, a2)
             print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {b / a:12.2f} {b / limit:10.2f}", flush=True)
