@@ -2,12 +2,14 @@
 
     python compare.py multirun/2026-11-21/12-00-00
 
-Prints a table (learner x robot/task: seeds solved, episodes and env steps to
-solve, final mean length and return of the last 100 episodes, wall time; mean
-+- std over seeds), saves it as ``comparison.csv`` and ``comparison.md`` in the
-sweep folder, and draws ``comparison.png``: each learner's 100-episode mean
-length per episode, mean and min-max spread over seeds. Jobs that left no
-metrics are listed as failed.
+Prints a table (learner x robot/task, judged by the task's own success measure:
+seeds solved and by which judge, episodes and env steps to solve, the greedy
+policy's measure, the best rolling 100-episode mean of the training episodes,
+final mean return, wall time; mean +- std over seeds), saves it as
+``comparison.csv`` and ``comparison.md`` in the sweep folder, and draws
+``comparison.png``: each learner's rolling mean of the task's measure per
+episode, mean and min-max spread over seeds, with the threshold. Jobs that
+left no verdict are listed as failed or interrupted.
 """
 
 from __future__ import annotations
@@ -22,14 +24,15 @@ import numpy as np
 
 from learners.summary import summarize_run
 
-COLUMNS = ("robot/task", "learner", "seeds", "solved", "failed", "episodes_to_solve",
-           "steps_to_solve", "final_mean_length", "final_mean_return", "wall_s")
+COLUMNS = ("robot/task", "learner", "measure", "seeds", "solved", "failed", "episodes_to_solve",
+           "steps_to_solve", "greedy", "best_rolling", "final_mean_return", "wall_s")
 
 
-def _mean_std(values: list[float]) -> str:
+def _mean_std(values: list) -> str:
+    values = [v for v in values if v is not None]
     if not values:
         return "-"
-    return f"{np.mean(values):.1f} +- {np.std(values):.1f}"
+    return f"{np.mean(values):.3g} +- {np.std(values):.2g}"
 
 
 def job_dirs(sweep_dir: Path) -> list[Path]:
@@ -44,18 +47,22 @@ def compare(sweep_dir: Path) -> list[dict]:
     for r in runs:
         groups[(f"{r.get('robot')}/{r.get('task')}", str(r.get("learner")))].append(r)
     for r in runs:
-        if r["status"] == "failed":
-            print(f"failed: {r['run_dir']}: {r.get('error', 'no metrics')}")
+        if r["status"] != "ok":
+            print(f"{r['status']}: {r['run_dir']}: {r.get('error', 'no verdict')}")
     rows = []
     for (pair, learner), rs in sorted(groups.items()):
         ok = [r for r in rs if r["status"] == "ok"]
         won = [r for r in ok if r["solved"]]
+        measures = sorted({f"{r['measure']} ({r['unit']}, {r['judge']} >= {r['threshold']:g})"
+                           for r in ok})
         rows.append({
-            "robot/task": pair, "learner": learner, "seeds": len(rs),
+            "robot/task": pair, "learner": learner, "measure": "; ".join(measures) or "-",
+            "seeds": len(rs),
             "solved": f"{len(won)}/{len(ok)}", "failed": len(rs) - len(ok),
             "episodes_to_solve": _mean_std([r["episodes_to_solve"] for r in won]),
             "steps_to_solve": _mean_std([r["steps_to_solve"] for r in won]),
-            "final_mean_length": _mean_std([r["final_mean_length"] for r in ok]),
+            "greedy": _mean_std([r["greedy"] for r in ok]),
+            "best_rolling": _mean_std([r["best_rolling"] for r in ok]),
             "final_mean_return": _mean_std([r["final_mean_return"] for r in ok]),
             "wall_s": _mean_std([r["wall_s"] for r in ok]),
             "_runs": rs,
@@ -83,13 +90,18 @@ def plot(sweep_dir: Path, rows: list[dict]) -> None:
     pairs = sorted({r["robot/task"] for r in rows})
     fig, axes = plt.subplots(len(pairs), 1, figsize=(9, 4 * len(pairs)), squeeze=False)
     for ax, pair in zip(axes[:, 0], pairs):
+        thresholds, ylabel = set(), "rolling mean"
         for row in (r for r in rows if r["robot/task"] == pair):
             curves = []
             for run in row["_runs"]:
-                metrics = Path(run["run_dir"]) / "metrics.csv"
-                if run["status"] == "ok":
-                    with open(metrics) as f:
-                        curves.append(np.array([float(r["mean100"]) for r in csv.DictReader(f)]))
+                if run["status"] != "ok":
+                    continue
+                with open(Path(run["run_dir"]) / "metrics.csv") as f:
+                    reader = csv.DictReader(f)
+                    column = next(c for c in reader.fieldnames if c.startswith(f"{run['measure']}_mean"))
+                    curves.append(np.array([float(r[column]) for r in reader]))
+                thresholds.add(run["threshold"])
+                ylabel = f"{column} ({run['unit']}), training episodes"
             if not curves:
                 continue
             n = max(len(c) for c in curves)
@@ -98,9 +110,11 @@ def plot(sweep_dir: Path, rows: list[dict]) -> None:
             x = np.arange(1, n + 1)
             line, = ax.plot(x, padded.mean(0), label=f"{row['learner']} ({len(curves)} seeds)")
             ax.fill_between(x, padded.min(0), padded.max(0), color=line.get_color(), alpha=0.2)
+        for t in sorted(v for v in thresholds if np.isfinite(v)):
+            ax.axhline(t, color="k", ls="--", lw=1, label=f"threshold {t:g}")
         ax.set_title(pair)
         ax.set_xlabel("episode")
-        ax.set_ylabel("mean length of last 100 episodes")
+        ax.set_ylabel(ylabel)
         ax.legend(loc="upper left")
     fig.tight_layout()
     fig.savefig(sweep_dir / "comparison.png", dpi=100)

@@ -12,11 +12,13 @@ state, every ``checkpoint_every`` episodes and at the end) and, with
 ``video=true``, policy.mp4. Ctrl-C (or SIGTERM) stops at the next step, saves
 checkpoint.pt and prints the resume command. The last line printed is
 machine-readable:
-``VERDICT solved=<true|false> episodes=<n> best100=<v> wall_s=<v> run_dir=<path>``.
+``VERDICT solved=<true|false> episodes=<n> measure=<task's measure> judge=<training|greedy>
+value=<v> threshold=<v> best_rolling100=<v> greedy=<v> wall_s=<v> run_dir=<path>``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import sys
@@ -27,6 +29,7 @@ from pathlib import Path
 from typing import Iterator
 
 import hydra
+import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
@@ -38,7 +41,7 @@ import robots  # noqa: F401  (sets a headless GL backend before dm_control loads
 from learners.checkpoint import CheckpointError
 from learners.loggers import make_logger
 from learners.resume import load_training_state, save_training_state
-from learners.run import Run, WinCriterion, evaluate, seed_everything, verdict_lines
+from learners.run import Run, evaluate, measure_of, seed_everything, verdict_lines
 from learners.settings import check_run_config
 from learners.video import record_video
 from tasks.base import ConfigError
@@ -94,6 +97,24 @@ def stop_on_signals(record: Run) -> Iterator[None]:
             signal.signal(sig, old)
 
 
+def greedy_evaluation(learner, env, seed: int) -> dict:
+    """The greedy policy, one episode in each copy of ``env``, from the same starts every time."""
+    env.set_seed(seed)
+    with learner.greedy():
+        return evaluate(env, learner.policy)
+
+
+def describe_evaluation(result: dict, success) -> str:
+    """``greedy evaluation over N episodes: <measure> m +- s <unit>, length ..., return ...``."""
+    values = result["lengths"] if success.measure == "length" else result["info"][success.measure]
+    extra = "".join(f", {k} {v:.3f}" for k, v in result["info_mean"].items() if k != success.measure)
+    return (f"greedy evaluation over {result['episodes']} episodes: {success.description} "
+            f"{measure_of(result, success.measure):.4g} +- {np.std(values):.3g} {success.unit} "
+            f"(solved at >= {success.threshold:g}), length {result['mean_length']:.1f} +- "
+            f"{result['std_length']:.1f}, return {result['mean_return']:.1f} +- "
+            f"{result['std_return']:.1f}{extra}")
+
+
 def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
     """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict).
 
@@ -104,28 +125,47 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
     generator = seed_everything(int(cfg.seed))
     learner = instantiate(cfg.learner, _convert_="all")
     env = build_env(cfg, int(cfg.num_envs), int(cfg.seed), learner.nsteps)
+    success = env.task.success
     learner.build(env.task, generator)
     if cfg.checkpoint and not resume:
         learner.load(Path(cfg.checkpoint))
     elif cfg.mode == "eval":
         raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
+    (run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(success), indent=1))
+    eval_seed = int(cfg.seed) + 10_000
+    n_eval = int(getattr(learner, "run_episodes", 0) or cfg.eval_episodes)
+    eval_envs: dict[int, RobotTaskEnv] = {}  # greedy evaluation envs by copies, built when first used
+
+    def greedy(copies: int) -> dict:
+        if copies not in eval_envs:
+            eval_envs[copies] = build_env(cfg, copies, eval_seed, learner.nsteps)
+        return greedy_evaluation(learner, eval_envs[copies], eval_seed)
+
     summary: dict = {}
+    result = None
     if cfg.mode == "train":
-        win = WinCriterion(float(cfg.win.n_win_ticks), int(cfg.win.min_episodes))
         state_path = run_dir / "checkpoint.pt"
-        record = Run(run_dir, env.num_envs, learner.nepisodes, win, extra_fields=tuple(learner.stats),
+        record = Run(run_dir, env.num_envs, learner.nepisodes, success, extra_fields=tuple(learner.stats),
                      quiet=bool(cfg.quiet), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
-                     resume=resume)
+                     eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume)
         if resume:
             record.resume_td = load_training_state(state_path, learner, env, record)
             print(f"resuming {run_dir} after episode {record.n_episodes} ({record.env_steps} env steps)")
         record.logger = make_logger(cfg.logger.kind, run_dir, exp_name=run_dir.name,
                                     **{k: v for k, v in cfg.logger.items() if k != "kind"})
         record.checkpoint = lambda td: save_training_state(state_path, learner, env, record, td)
+        record.greedy_eval = lambda: greedy(int(cfg.eval_episodes))
         finished = False
         try:
             with stop_on_signals(record):
                 learner.train(env, record)
+                if n_eval > 0 and not record.stop_requested:
+                    # The trained policy, judged like the evaluations during training (an
+                    # evaluation of this very policy is reused); at the budget's end it may
+                    # still solve a greedily judged task.
+                    fresh = record.last_eval is not None and record.evals[-1]["episode"] == record.n_episodes
+                    result = (record.last_eval if fresh and n_eval == int(cfg.eval_episodes)
+                              else record.evaluate_greedy(lambda: greedy(n_eval)))
             finished = True
         finally:
             if finished:  # at a step boundary: the whole state is consistent
@@ -140,20 +180,19 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
             print(f"stopped after episode {record.n_episodes}; the whole training state is in "
                   f"{state_path}\nresume with: python train.py resume={run_dir}")
             summary["interrupted"] = True
+            (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
             return summary
+    elif n_eval > 0:
+        result = greedy(n_eval)
     env.close()
-    n_eval = int(getattr(learner, "run_episodes", 0) or cfg.eval_episodes)
-    if n_eval > 0:
-        eval_env = build_env(cfg, n_eval, int(cfg.seed) + 10_000, learner.nsteps)
-        with learner.greedy():
-            result = evaluate(eval_env, learner.policy)
-        eval_env.close()
-        print(f"greedy evaluation over {result['episodes']} episodes: "
-              f"length {result['mean_length']:.1f} +- {result['std_length']:.1f}, "
-              f"return {result['mean_return']:.1f} +- {result['std_return']:.1f}"
-              + "".join(f", {k} {v:.3f}" for k, v in result["info_mean"].items()))
-        (run_dir / "eval.json").write_text(json.dumps(result, indent=1))
+    if result is not None:
+        print(describe_evaluation(result, success))
+        (run_dir / "eval.json").write_text(json.dumps(
+            {"measure": success.measure, "value": measure_of(result, success.measure), **result},
+            indent=1))
         summary["eval"] = result
+    for eval_env in eval_envs.values():
+        eval_env.close()
     if cfg.video:  # the greedy policy on a fresh one-copy env
         video_env = build_env(cfg, 1, int(cfg.seed) + 20_000, learner.nsteps)
         with learner.greedy():
@@ -161,6 +200,8 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
         video_env.close()
         print(f"policy video in {run_dir / 'policy.mp4'}")
     if cfg.mode == "train":
+        (run_dir / "summary.json").write_text(json.dumps(
+            {k: v for k, v in summary.items() if k != "eval"}, indent=1))
         for line in verdict_lines(summary, run_dir):
             print(line)
     return summary

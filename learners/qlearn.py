@@ -220,13 +220,20 @@ class QLearn:
 
     @contextmanager
     def greedy(self) -> Iterator[None]:
-        """Within the block the policy acts greedily (epsilon 0, no noise)."""
-        saved = self.policy.epsilon
+        """Within the block the policy acts greedily (epsilon 0, no noise).
+
+        Ties between equal Q-values are broken by a generator of its own, seeded
+        the same each time: an evaluation neither draws from the training
+        stream (training goes on exactly as without it) nor varies between two
+        evaluations of the same table.
+        """
+        saved = self.policy.epsilon, self.policy.generator
         self.policy.epsilon = 0.0
+        self.policy.generator = torch.Generator().manual_seed(0)
         try:
             yield
         finally:
-            self.policy.epsilon = saved
+            self.policy.epsilon, self.policy.generator = saved
 
     def end_episode(self) -> None:
         if self.policy.epsilon > self.epsilon_min:

@@ -1,5 +1,6 @@
-"""What every training run shares: episode bookkeeping, the win criterion,
-per-episode console lines and metrics, the reward-curve plot and the verdict.
+"""What every training run shares: episode bookkeeping, the task's success
+measure and who judges it, greedy evaluations during training, per-episode
+console lines and metrics, the reward-curve plot and the verdict.
 
 Episodes in a batch end at different times; :class:`Run` turns the batch's
 per-step ``next`` tensordicts into one record per finished episode, in the
@@ -26,30 +27,17 @@ import torch
 from tensordict import TensorDictBase
 from tqdm import tqdm
 
-METRIC_FIELDS = ("episode", "env_index", "reward", "length", "terminated", "env_steps", "mean100")
+from tasks.base import Success
+
+BASE_FIELDS = ("episode", "env_index", "reward", "length", "terminated", "env_steps")
 TIMING_FIELDS = ("episode", "wall_s")
+EVAL_FIELDS = ("episode", "env_steps", "episodes", "length", "return")
 
 
-@dataclass(frozen=True)
-class WinCriterion:
-    """Solved when the mean length of the last ``window`` episodes reaches
-    ``n_win_ticks`` and at least ``min_episodes`` episodes have run."""
-
-    n_win_ticks: float = 250.0
-    min_episodes: int = 100
-    window: int = 100
-
-    def __post_init__(self) -> None:
-        if self.min_episodes < 0 or self.window < 1:
-            raise ValueError(
-                f"win.min_episodes must be >= 0 and win.window >= 1; got "
-                f"{self.min_episodes}, {self.window}"
-            )
-
-    def solved(self, lengths: list[int]) -> bool:
-        if len(lengths) < max(self.min_episodes, 1):
-            return False
-        return float(np.mean(lengths[-self.window :])) >= self.n_win_ticks
+def metric_fields(success: Success, extra_fields: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """metrics.csv's columns: the episode, the task's measure and its rolling mean, the learner's."""
+    measure = () if success.measure in BASE_FIELDS else (success.measure,)
+    return BASE_FIELDS + measure + (f"{success.measure}_mean{success.window}",) + tuple(extra_fields)
 
 
 @dataclass
@@ -61,41 +49,58 @@ class Episode:
     terminated: bool
     env_steps: int
     wall_s: float
-    mean100: float
+    value: float  # the task's success measure for this episode
+    rolling: float  # its mean over the last ``success.window`` episodes
     extra: dict = field(default_factory=dict)
 
 
 class Run:
-    """Records finished episodes of a batched env, prints and stores them."""
+    """Records finished episodes of a batched env, judges them, prints and stores them.
+
+    "Solved" follows the task's :class:`~tasks.base.Success`: with
+    ``judge="training"`` the mean measure of the last ``window`` training
+    episodes, with ``judge="greedy"`` the mean measure of a greedy evaluation
+    (``greedy_eval``, run every ``eval_every`` episodes); either way the run
+    stops once it is met. Every evaluation is kept (``evals``, evals.csv),
+    whichever judge decides.
+    """
 
     def __init__(
         self,
         run_dir: Path | str,
         num_envs: int,
         max_episodes: int,
-        win: WinCriterion,
+        success: Success,
         extra_fields: tuple[str, ...] = (),
         quiet: bool = False,
         logger=None,
         checkpoint_every: int = 0,
+        eval_every: int = 0,
         resume: bool = False,
     ) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.num_envs = num_envs
         self.max_episodes = int(max_episodes)
-        self.win = win
+        self.success = success
         self.extra_fields = tuple(extra_fields)
         self.quiet = quiet
         self.logger = logger
         self.checkpoint_every = int(checkpoint_every)
+        self.eval_every = int(eval_every)
         self.checkpoint = None  # checkpoint(td): saves the whole run; set by the trainer
+        self.greedy_eval = None  # greedy_eval() -> evaluate()'s result; set by the trainer
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
         self.last_td: TensorDictBase | None = None  # where the next step would start
         self.n_episodes = 0
         self.lengths: list[int] = []
+        self.values: list[float] = []  # the task's measure, per episode
+        self.evals: list[dict] = []  # one row per greedy evaluation (EVAL_FIELDS + "value")
+        self.last_eval: dict | None = None  # the newest evaluation's full result
         self.env_steps = 0
         self.solved_at: int | None = None
+        self.decided_by: str | None = None  # "training" or "greedy", once solved
+        self.solved_value: float | None = None  # the judged mean that solved it
         self.stop_requested = False
         self.divergences = 0  # the env's count of physics divergences (truncated episodes)
         self._last_checkpoint = 0
@@ -113,7 +118,7 @@ class Run:
         run) are dropped, so a resumed run neither repeats nor skips an episode.
         """
         self._files = []
-        for name, header in (("metrics.csv", METRIC_FIELDS + self.extra_fields),
+        for name, header in (("metrics.csv", metric_fields(self.success, self.extra_fields)),
                              ("timing.csv", TIMING_FIELDS)):
             path = self.run_dir / name
             rows = []
@@ -129,10 +134,11 @@ class Run:
             # Line-buffered: every finished episode is on disk, even if the run is killed.
             self._files.append(open(path, "a", newline="", buffering=1))
         self._csv, self._timing = (csv.writer(f) for f in self._files)
+        self._write_evals()
 
     @property
     def finished(self) -> bool:
-        """True once the episode budget is spent or the win criterion is met."""
+        """True once the episode budget is spent or the task counts as solved."""
         return self.solved_at is not None or self.n_episodes >= self.max_episodes
 
     @property
@@ -145,15 +151,62 @@ class Run:
         self.stop_requested = True
 
     def after_step(self, td: TensorDictBase) -> None:
-        """Saves a checkpoint when ``checkpoint_every`` more episodes have finished."""
+        """At a step boundary: a greedy evaluation every ``eval_every`` episodes, then a
+        checkpoint every ``checkpoint_every`` (so the checkpoint holds the evaluation)."""
+        last_eval = self.evals[-1]["episode"] if self.evals else 0
+        if (self.eval_every and self.greedy_eval is not None and not self.done
+                and self.n_episodes - last_eval >= self.eval_every):
+            self.evaluate_greedy()
         due = self.checkpoint_every and self.n_episodes - self._last_checkpoint >= self.checkpoint_every
-        if due and self.checkpoint is not None and not self.done:
+        if due and self.checkpoint is not None and not self.stop_requested:
             self.checkpoint(td)
             self._last_checkpoint = self.n_episodes
 
+    def evaluate_greedy(self, evaluation=None) -> dict:
+        """Runs ``evaluation`` (default ``greedy_eval``) now, records it and, if the greedy
+        policy judges, may solve."""
+        result = (evaluation or self.greedy_eval)()
+        value = measure_of(result, self.success.measure)
+        row = {"episode": self.n_episodes, "env_steps": self.env_steps, "episodes": result["episodes"],
+               "length": result["mean_length"], "return": result["mean_return"], "value": value}
+        self.evals.append(row)
+        self.last_eval = result
+        self._write_evals()
+        if (self.solved_at is None and self.success.judge == "greedy"
+                and self.success.met(value, self.n_episodes)):
+            self._solve("greedy", value)
+        if self.logger is not None:
+            for key, v in ((self.success.measure, value), ("length", row["length"]),
+                           ("return", row["return"])):
+                self.logger.log_scalar(f"eval/{key}", float(v), step=self.n_episodes)
+        if not self.quiet:
+            self._bar.write(f"greedy evaluation at episode {self.n_episodes}: "
+                            f"{self.success.measure}={value:.4g} length={row['length']:.1f} "
+                            f"return={row['return']:.1f}")
+        return result
+
+    def _solve(self, judge: str, value: float) -> None:
+        self.solved_at, self.decided_by, self.solved_value = self.n_episodes, judge, value
+
+    def _write_evals(self) -> None:
+        """evals.csv: one row per greedy evaluation so far (rewritten whole: a few rows)."""
+        path = self.run_dir / "evals.csv"
+        tmp = path.with_suffix(".csv.tmp")
+        with open(tmp, "w", newline="") as f:
+            writer = csv.writer(f)
+            own = self.success.measure not in EVAL_FIELDS  # the length is a column anyway
+            writer.writerow(EVAL_FIELDS[:2] + (self.success.measure,) * own + EVAL_FIELDS[2:])
+            for r in self.evals:
+                writer.writerow([r["episode"], r["env_steps"], *[round(r["value"], 6)] * own,
+                                 r["episodes"], round(r["length"], 3), round(r["return"], 3)])
+        tmp.replace(path)
+
     def state_dict(self) -> dict:
-        return {"n_episodes": self.n_episodes, "lengths": list(self.lengths), "env_steps": self.env_steps,
-                "solved_at": self.solved_at, "wall_s": self.wall_s,
+        return {"n_episodes": self.n_episodes, "lengths": list(self.lengths),
+                "values": list(self.values), "evals": [dict(r) for r in self.evals],
+                "env_steps": self.env_steps, "solved_at": self.solved_at,
+                "decided_by": self.decided_by, "solved_value": self.solved_value,
+                "wall_s": self.wall_s,
                 "ret": torch.from_numpy(self._ret.copy()), "len": torch.from_numpy(self._len.copy())}
 
     def load_state_dict(self, state: Mapping) -> None:
@@ -162,8 +215,12 @@ class Run:
             raise ValueError(f"the checkpoint has {len(state['ret'])} copies, this run {self.num_envs}")
         self.n_episodes = self._last_checkpoint = int(state["n_episodes"])
         self.lengths = [int(v) for v in state["lengths"]]
+        self.values = [float(v) for v in state["values"]]
+        self.evals = [dict(r) for r in state["evals"]]
         self.env_steps = int(state["env_steps"])
         self.solved_at = state["solved_at"]
+        self.decided_by = state["decided_by"]
+        self.solved_value = state["solved_value"]
         self._ret[:] = state["ret"].numpy()
         self._len[:] = state["len"].numpy()
         self._t0 = time.perf_counter() - float(state["wall_s"])
@@ -174,63 +231,100 @@ class Run:
     def wall_s(self) -> float:
         return time.perf_counter() - self._t0
 
-    def record(self, next_td: TensorDictBase, stats: Mapping[str, float] | None = None) -> list[Episode]:
-        """Accounts one batched step; returns the episodes it finished."""
+    def rolling(self) -> float:
+        """Mean measure of the last ``success.window`` episodes (of all, while fewer ran)."""
+        return float(np.mean(self.values[-self.success.window :])) if self.values else float("nan")
+
+    def record(self, next_td: TensorDictBase, stats: Mapping[str, float] | None = None,
+               ended_info: Mapping[str, np.ndarray] | None = None) -> list[Episode]:
+        """Accounts one batched step; returns the episodes it finished.
+
+        ``ended_info``: the env's ``ended_info`` after this step (the task's
+        ``episode_info`` of each copy whose episode just ended), where the
+        task's measure is read unless it is the episode length.
+        """
         reward = next_td.get("reward").reshape(self.num_envs).numpy()
         done = next_td.get("done").reshape(self.num_envs).numpy()
         terminated = next_td.get("terminated").reshape(self.num_envs).numpy()
         self._ret += reward
         self._len += 1
         self.env_steps += self.num_envs
+        measure = self.success.measure
         finished = []
         for i in np.flatnonzero(done):
             if self.finished:
                 break
             length = int(self._len[i])
+            value = float(length) if measure == "length" else float(ended_info[measure][i])
             self.lengths.append(length)
+            self.values.append(value)
             self.n_episodes += 1
             ep = Episode(
                 episode=self.n_episodes, env_index=int(i), reward=float(self._ret[i]),
                 length=length, terminated=bool(terminated[i]), env_steps=self.env_steps,
-                wall_s=round(self.wall_s, 3), mean100=float(np.mean(self.lengths[-self.win.window :])),
+                wall_s=round(self.wall_s, 3), value=value, rolling=self.rolling(),
                 extra=dict(stats or {}),
             )
             finished.append(ep)
             self._write(ep)
-            if self.win.solved(self.lengths):
-                self.solved_at = ep.episode
+            if self.success.judge == "training" and self.success.met(ep.rolling, self.n_episodes):
+                self._solve("training", ep.rolling)
         self._ret[done] = 0.0
         self._len[done] = 0
         return finished
 
     def _write(self, ep: Episode) -> None:
-        row = [ep.episode, ep.env_index, ep.reward, ep.length, int(ep.terminated), ep.env_steps,
-               round(ep.mean100, 3)]
+        measure = self.success.measure
+        row = [ep.episode, ep.env_index, ep.reward, ep.length, int(ep.terminated), ep.env_steps]
+        if measure not in BASE_FIELDS:
+            row.append(round(ep.value, 6))
+        row.append(round(ep.rolling, 6))
         row += [ep.extra.get(k, "") for k in self.extra_fields]
         self._csv.writerow(row)
         self._timing.writerow([ep.episode, ep.wall_s])
         self._bar.update(1)
         if self.logger is not None:
-            scalars = {"reward": ep.reward, "length": ep.length, "mean100": ep.mean100,
+            scalars = {"reward": ep.reward, "length": ep.length, measure: ep.value,
+                       f"{measure}_mean{self.success.window}": ep.rolling,
                        "env_steps": ep.env_steps, **ep.extra}
             for key, value in scalars.items():
                 self.logger.log_scalar(f"episode/{key}", float(value), step=ep.episode)
         if not self.quiet:
             stats = " ".join(f"{k}={v:.4g}" for k, v in ep.extra.items())
+            shown = "" if measure == "length" else f"{measure}={ep.value:.3g} "
             self._bar.write(
                 f"episode {ep.episode:5d} {stats} reward={ep.reward:.1f} length={ep.length} "
-                f"mean100={ep.mean100:.1f} time={ep.wall_s:.1f}s"
+                f"{shown}{measure}_mean{self.success.window}={ep.rolling:.3g} time={ep.wall_s:.1f}s"
             )
 
     def summary(self) -> dict:
-        lengths = np.asarray(self.lengths, dtype=float)
-        best = np.sort(lengths)[-100:] if len(lengths) else np.zeros(1)
+        """Solved or not and by which judge; the measure's headline numbers; the cost."""
+        s = self.success
+        values = np.asarray(self.values, dtype=float)
+        if len(values) >= s.window:  # every full window's mean, the best of them the headline
+            rolling = np.convolve(values, np.ones(s.window) / s.window, mode="valid")
+        else:
+            rolling = values.mean(keepdims=True) if len(values) else np.full(1, np.nan)
+        greedy = self.evals[-1]["value"] if self.evals else None
+        if self.solved_value is not None:
+            value = self.solved_value
+        else:  # what the judge saw: the last greedy evaluation, or the best training mean
+            value = greedy if s.judge == "greedy" else float(rolling.max())
         return {
             "solved": self.solved_at is not None,
+            "decided_by": self.decided_by or s.judge,
             "episodes": self.n_episodes,
             "solved_at": self.solved_at,
-            "score": float(lengths.mean()) if len(lengths) else 0.0,
-            "best100": float(best.mean()),
+            "measure": s.measure, "unit": s.unit, "description": s.description,
+            "threshold": s.threshold, "judge": s.judge, "window": s.window,
+            "min_episodes": s.min_episodes,
+            "value": value,
+            "best_rolling": float(rolling.max()),
+            "last_rolling": float(rolling[-1]),
+            "mean_of_100_best_episodes": float(np.sort(values)[-100:].mean()) if len(values) else float("nan"),
+            "greedy": greedy,
+            "evaluations": len(self.evals),
+            "score": float(np.mean(self.lengths)) if self.lengths else 0.0,
             "env_steps": self.env_steps,
             "wall_s": self.wall_s,
             "divergences": self.divergences,
@@ -241,18 +335,27 @@ class Run:
         self._bar.close()
         for f in getattr(self, "_files", ()):
             f.close()
+        summary = self.summary()
         if self.logger is not None:
-            summary = self.summary()
-            for key in ("score", "best100", "env_steps", "wall_s", "divergences"):
+            for key in ("best_rolling", "mean_of_100_best_episodes", "score", "env_steps", "wall_s",
+                        "divergences"):
                 self.logger.log_scalar(f"run/{key}", float(summary[key]), step=self.n_episodes)
+            self.logger.log_scalar("run/solved", float(summary["solved"]), step=self.n_episodes)
             self.logger.close()
         plot_reward_curve(self.run_dir / "metrics.csv", self.run_dir / "reward_curve.png",
-                          self.win.n_win_ticks)
-        return self.summary()
+                          self.success, self.run_dir / "evals.csv")
+        return summary
 
 
-def plot_reward_curve(metrics_csv: Path, out_png: Path, win_line: float | None = None) -> None:
-    """Episode length and its 100-episode mean (and return if it differs) per episode."""
+def measure_of(result: Mapping, measure: str) -> float:
+    """The mean of ``measure`` over the episodes of an :func:`evaluate` result."""
+    return float(result["mean_length"] if measure == "length" else result["info_mean"][measure])
+
+
+def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
+                      evals_csv: Path | None = None) -> None:
+    """The task's measure per episode, its rolling mean, the threshold and the greedy
+    evaluations; the episode length (if it is not the measure) and return below."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -260,44 +363,76 @@ def plot_reward_curve(metrics_csv: Path, out_png: Path, win_line: float | None =
 
     with open(metrics_csv) as f:
         rows = list(csv.DictReader(f))
-    ep = np.array([int(r["episode"]) for r in rows])
-    length = np.array([float(r["length"]) for r in rows])
-    mean100 = np.array([float(r["mean100"]) for r in rows])
-    reward = np.array([float(r["reward"]) for r in rows])
-    fig, axes = plt.subplots(2 if not np.allclose(reward, length) else 1, 1, figsize=(8, 5),
-                             squeeze=False, sharex=True)
+    evals = []
+    if evals_csv is not None and Path(evals_csv).is_file():
+        with open(evals_csv) as f:
+            evals = list(csv.DictReader(f))
+    m, rolling = success.measure, f"{success.measure}_mean{success.window}"
+    col = lambda rs, key: np.array([float(r[key]) for r in rs])  # noqa: E731
+    ep = col(rows, "episode")
+    panels = [(m, f"{success.description} ({success.unit})")]
+    if m != "length":
+        panels.append(("length", "episode length (steps)"))
+    panels.append(("reward", "episode return"))
+    fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.6), squeeze=False,
+                             sharex=True)
+    for ax, (key, label) in zip(axes[:, 0], panels):
+        if rows:
+            ax.plot(ep, col(rows, key), lw=0.6, alpha=0.5, label="training episode")
+        ax.set_ylabel(label)
     ax = axes[0, 0]
-    ax.plot(ep, length, lw=0.6, alpha=0.5, label="episode length")
-    ax.plot(ep, mean100, lw=2, label="mean of last 100")
-    if win_line is not None:
-        ax.axhline(win_line, color="k", ls="--", lw=1, label=f"win ({win_line:g})")
-    ax.set_ylabel("steps")
-    ax.legend(loc="upper left")
-    if axes.shape[0] > 1:
-        axes[1, 0].plot(ep, reward, lw=0.6)
-        axes[1, 0].set_ylabel("episode return")
+    if rows:
+        ax.plot(ep, col(rows, rolling), lw=2, label=f"mean of last {success.window}")
+    if evals:
+        ax.plot(col(evals, "episode"), col(evals, m), "o-", ms=4, lw=1, color="C3",
+                label="greedy evaluation")
+    if np.isfinite(success.threshold):
+        ax.axhline(success.threshold, color="k", ls="--", lw=1,
+                   label=f"solved: {success.judge} >= {success.threshold:g}")
+    ax.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("episode")
-    fig.suptitle(Path(out_png).parent.name)
+    fig.suptitle(f"{Path(out_png).parent.name}\nsolved when {success.describe()} "
+                 f"({'greedy policy' if success.judge == 'greedy' else 'training episodes'})",
+                 fontsize=9)
     fig.tight_layout()
     fig.savefig(out_png, dpi=100)
     plt.close(fig)
 
 
 def verdict_lines(summary: dict, run_dir: Path) -> list[str]:
-    """The human verdict and the final machine-readable ``VERDICT`` line."""
-    n = summary["solved_at"] if summary["solved"] else summary["episodes"]
-    word = "solved" if summary["solved"] else "not solved"
-    diverged = summary.get("divergences", 0)
+    """The human verdict, what each judge saw, and the final machine-readable ``VERDICT`` line."""
+    s = summary
+    unit = f" {s['unit']}" if s["unit"] else ""
+    num = lambda v: "-" if v is None or (isinstance(v, float) and np.isnan(v)) else f"{v:.4g}"  # noqa: E731
+    n = s["solved_at"] if s["solved"] else s["episodes"]
+    rule = f"{s['description']} >= {s['threshold']:g}{unit}"
+    if s["decided_by"] == "greedy":
+        how = (f"the greedy policy's mean {s['description']}, "
+               f"{num(s['value'])}{unit} (greedy evaluation at episode {n})")
+    else:
+        how = f"the mean {s['description']} of the last {s['window']} training episodes, {num(s['value'])}{unit}"
+    judged = f"judged on {'the greedy policy' if s['judge'] == 'greedy' else 'training episodes'}"
+    if s["solved"]:
+        head = f"solved after {n} episodes: {how} >= {s['threshold']:g}{unit}"
+    else:
+        head = (f"not solved after {n} episodes: needs {rule} ({judged}, after at least "
+                f"{s['min_episodes']} episodes); got {num(s['value'])}{unit}")
+    diverged = s.get("divergences", 0)
     return [
         *([f"warning: the physics diverged {diverged} times; each time that copy's episode was "
            "truncated and reset (see the log)"] if diverged else []),
-        f"{word} after {n} episodes "
-        f"(overall score {summary['score']:.1f}, best-100 score {summary['best100']:.1f}, "
-        f"{summary['env_steps']} env steps in {summary['wall_s']:.1f}s, "
-        f"{summary['env_steps'] / max(summary['wall_s'], 1e-9):.0f} steps/s)",
+        head,
+        f"  training episodes: best rolling-{s['window']} mean {num(s['best_rolling'])}{unit}, "
+        f"last-{s['window']} mean {num(s['last_rolling'])}{unit}, mean of the 100 best episodes "
+        f"{num(s['mean_of_100_best_episodes'])}{unit} (the seeds' \"best 100 score\")",
+        f"  greedy policy: {num(s['greedy'])}{unit} ({s['evaluations']} evaluations)",
+        f"  {s['env_steps']} env steps in {s['wall_s']:.1f}s "
+        f"({s['env_steps'] / max(s['wall_s'], 1e-9):.0f} steps/s)",
         f"results in {run_dir}",
-        f"VERDICT solved={str(summary['solved']).lower()} episodes={n} "
-        f"best100={summary['best100']:.1f} wall_s={summary['wall_s']:.1f} run_dir={run_dir}",
+        f"VERDICT solved={str(s['solved']).lower()} episodes={n} measure={s['measure']} "
+        f"judge={s['decided_by']} value={num(s['value'])} threshold={s['threshold']:g} "
+        f"best_rolling{s['window']}={num(s['best_rolling'])} greedy={num(s['greedy'])} "
+        f"wall_s={s['wall_s']:.1f} run_dir={run_dir}",
     ]
 
 
@@ -325,7 +460,7 @@ def drive(env, policy, run: Run, on_step, on_episode, stats) -> None:
         td, td_next = env.step_and_maybe_reset(td)
         run.divergences = getattr(env, "divergences", 0)
         on_step(td)
-        for episode in run.record(td.get("next"), stats()):
+        for episode in run.record(td.get("next"), stats(), getattr(env, "ended_info", None)):
             on_episode(episode)
         td = td_next
         run.after_step(td)

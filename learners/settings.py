@@ -4,7 +4,7 @@
 
 - the top-level keys of ``conf/config.yaml`` (``seed``, ``num_envs``, ``mode``,
   ``checkpoint``, ``checkpoint_every``, ``resume``, ``eval_episodes``,
-  ``win.*``, ``quiet``, ``video``, ``video_steps``, ``torch_threads``) and
+  ``eval_every``, ``quiet``, ``video``, ``video_steps``, ``torch_threads``) and
   ``logger``, by hand;
 - the ``robot``, ``task`` and ``learner`` nodes (and nested ``_target_`` nodes
   such as ``learner.epsilon``) against the signature of the class their
@@ -80,13 +80,10 @@ def _check_top_level(conf: dict) -> None:
     if resume is not None and not isinstance(resume, str):
         raise ConfigError(f"resume must be null or the path of a run folder; got {resume!r}")
     _integer(conf, "eval_episodes", 0)
-    win = conf.get("win")
-    if not isinstance(win, dict):
-        raise ConfigError(f"win must hold n_win_ticks and min_episodes; got {win!r}")
-    ticks = win.get("n_win_ticks")
-    if not _is_number(ticks) or math.isnan(ticks) or not ticks > 0:
-        raise ConfigError(f"win.n_win_ticks must be a number > 0 (mean episode length); got {ticks!r}")
-    _integer(win, "min_episodes", 0, name="win.min_episodes")
+    _integer(conf, "eval_every", 0, allowed="an integer >= 0 (0 = only after training)")
+    if "win" in conf:
+        raise ConfigError("win is the task's now: set task.win.threshold, task.win.min_episodes, ... "
+                          f"(see conf/task/<task>.yaml); got win={conf['win']!r}")
     for key in ("quiet", "video"):
         if not isinstance(conf.get(key), bool):
             raise ConfigError(f"{key} must be true or false; got {conf.get(key)!r}")

@@ -11,21 +11,20 @@ from omegaconf import OmegaConf
 
 
 def summarize_run(run_dir: Path | str) -> dict:
-    """Solved or not, episodes/steps/seconds to solve, final scores, of one run folder.
+    """Solved or not (and by which judge), episodes/steps/seconds to solve, the task's
+    measure for the training episodes and the greedy policy, of one run folder.
 
-    Reads ``run.json`` (robot, task, learner names, seed), ``config.yaml`` (win
-    criterion), ``metrics.csv``, ``timing.csv`` and, if present, ``eval.json``. A folder without metrics is reported as
-    ``status: failed``.
+    Reads ``run.json`` (robot, task, learner names, seed), ``config.yaml``,
+    ``summary.json`` (the run's own verdict: what "solved" means is the task's,
+    see ``success.json``), ``metrics.csv``, ``timing.csv`` and ``eval.json``.
+    A folder without a verdict is ``failed`` (with ``error.txt``'s last line)
+    or ``interrupted``.
     """
     run_dir = Path(run_dir)
     out: dict = {"run_dir": str(run_dir), "status": "failed"}
     cfg_path = run_dir / "config.yaml"
     if cfg_path.is_file():
-        cfg = OmegaConf.load(cfg_path)
-        out["seed"] = int(cfg.get("seed", 0))
-        win = cfg.get("win", {"n_win_ticks": 250, "min_episodes": 100})
-    else:
-        win = {"n_win_ticks": 250, "min_episodes": 100}
+        out["seed"] = int(OmegaConf.load(cfg_path).get("seed", 0))
     names = run_dir / "run.json"
     if names.is_file():
         chosen = json.loads(names.read_text())
@@ -34,39 +33,44 @@ def summarize_run(run_dir: Path | str) -> dict:
     if error.is_file():
         out["error"] = error.read_text().strip().splitlines()[-1]
         return out
-    metrics = run_dir / "metrics.csv"
-    if not metrics.is_file():
+    verdict, metrics = run_dir / "summary.json", run_dir / "metrics.csv"
+    if not verdict.is_file() or not metrics.is_file():
+        return out
+    summary = json.loads(verdict.read_text())
+    if summary.get("interrupted"):
+        out["status"] = "interrupted"
         return out
     with open(metrics) as f:
         rows = list(csv.DictReader(f))
-    if not rows:
-        return out
     timing = run_dir / "timing.csv"
-    wall = [0.0] * len(rows)
+    wall = [float("nan")] * len(rows)
     if timing.is_file():
         with open(timing) as f:
-            wall = [float(r["wall_s"]) for r in csv.DictReader(f)][: len(rows)]
-        wall += [float("nan")] * (len(rows) - len(wall))
-    lengths = np.array([float(r["length"]) for r in rows])
-    rewards = np.array([float(r["reward"]) for r in rows])
-    mean100 = np.array([float(r["mean100"]) for r in rows])
-    ok = (mean100 >= float(win["n_win_ticks"])) & (np.arange(1, len(rows) + 1) >= int(win["min_episodes"]))
-    solved_at = int(np.argmax(ok)) if ok.any() else None
+            wall = ([float(r["wall_s"]) for r in csv.DictReader(f)][: len(rows)]
+                    + [float("nan")] * len(rows))[: len(rows)]
+    at = summary["solved_at"]
     out.update(
         status="ok",
-        episodes=len(rows),
-        solved=solved_at is not None,
-        episodes_to_solve=solved_at + 1 if solved_at is not None else None,
-        steps_to_solve=int(rows[solved_at]["env_steps"]) if solved_at is not None else None,
-        wall_to_solve=wall[solved_at] if solved_at is not None else None,
-        final_mean_length=float(lengths[-100:].mean()),
-        final_mean_return=float(rewards[-100:].mean()),
-        wall_s=wall[-1],
-        env_steps=int(rows[-1]["env_steps"]),
+        measure=summary["measure"], unit=summary["unit"], judge=summary["judge"],
+        threshold=summary["threshold"],
+        episodes=summary["episodes"],
+        solved=summary["solved"],
+        decided_by=summary["decided_by"] if summary["solved"] else None,
+        episodes_to_solve=at,
+        steps_to_solve=int(rows[at - 1]["env_steps"]) if at else None,
+        wall_to_solve=wall[at - 1] if at else None,
+        best_rolling=summary["best_rolling"],
+        last_rolling=summary["last_rolling"],
+        greedy=summary["greedy"],
+        final_mean_length=float(np.mean([float(r["length"]) for r in rows[-100:]])) if rows else None,
+        final_mean_return=float(np.mean([float(r["reward"]) for r in rows[-100:]])) if rows else None,
+        wall_s=summary["wall_s"],
+        env_steps=summary["env_steps"],
     )
     eval_path = run_dir / "eval.json"
     if eval_path.is_file():
         result = json.loads(eval_path.read_text())
+        out["greedy"] = result.get("value", out["greedy"])
         out["greedy_mean_length"] = result["mean_length"]
         out["greedy_mean_return"] = result["mean_return"]
     return out

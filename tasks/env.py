@@ -18,6 +18,11 @@ A copy whose physics diverges during a step (MuJoCo found it unstable: see
 the step; ``step_and_maybe_reset`` then resets that copy only. ``divergences``
 counts these events since construction, and each is logged once (logger
 ``tasks.env``, WARNING).
+
+``ended_info`` holds, per copy, the task's ``episode_info`` as it was when that
+copy's episode last ended, taken just before a partial reset starts the next
+one (``step_and_maybe_reset`` resets ended copies in the same call, so this is
+where a trainer reads what an episode achieved).
 """
 
 from __future__ import annotations
@@ -69,6 +74,7 @@ class RobotTaskEnv(EnvBase):
         )
         self.elapsed_steps = np.zeros(n, dtype=np.int64)
         self.divergences = 0  # diverged steps (ended episodes) since construction
+        self.ended_info: dict[str, np.ndarray] = {}  # episode_info at each copy's last episode end
         self._rng = np.random.default_rng(seed)
         self._renderer: mujoco.Renderer | None = None
         self._render_data: mujoco.MjData | None = None
@@ -81,6 +87,7 @@ class RobotTaskEnv(EnvBase):
         mask = np.ones(self.num_envs, dtype=bool)
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
+            self._keep_ended_info(mask)
         self.physics.reset(mask)
         self.task.initialize_episode(self.physics, mask, self._rng)
         self.physics.forward(mask)
@@ -119,6 +126,14 @@ class RobotTaskEnv(EnvBase):
             truncated=truncated_t,
             batch_size=self.batch_size,
         )
+
+    def _keep_ended_info(self, mask: np.ndarray) -> None:
+        """Copies the task's ``episode_info`` of the ``mask`` copies into ``ended_info``."""
+        info_fn = getattr(self.task, "episode_info", None)
+        if info_fn is None:
+            return
+        for key, value in info_fn(self.physics).items():
+            self.ended_info.setdefault(key, np.zeros(self.num_envs))[mask] = np.asarray(value)[mask]
 
     def _report_divergences(self, diverged: np.ndarray) -> None:
         for i in np.flatnonzero(diverged):

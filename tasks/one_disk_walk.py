@@ -34,6 +34,13 @@ Reset: the cube at rest on its face at ``init_cube_pose`` (x, y, height of its
 bottom above the floor) with the wheel at ``init_roll_vel``, turned about z by
 a seeded uniform yaw in +-``reset_noise`` rad so the copies do not all repeat
 one trajectory. Parameter names are the course YAML's.
+
+Solved (``success``, overridable as ``task.win``): the greedy policy walks at
+least 1 m in the rewarded direction (the sign of
+``y_linear_speed_reward_weight``), the mean ``distance_walked`` of a greedy
+evaluation's episodes. One tip over an edge moves the cube 0.2 m, so 1 m is
+five edges in a row: a gait, not a lucky fall. Surviving is not success: a
+cube that never moves lasts every episode to its time limit and walks 0 m.
 """
 
 from __future__ import annotations
@@ -47,7 +54,9 @@ from dm_control import mjcf
 from robots.cube import Cube
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, finite, require, substeps_for, whole
+from tasks.base import Bounds, Success, finite, require, substeps_for, whole
+
+SUCCESS = Success("distance_walked", "m", "distance walked", 1.0, "greedy", 100, 100)
 
 # The five actions on the wheel-speed command.
 WHEEL_FORWARD, WHEEL_BACKWARD, WHEEL_STOP, SPEED_UP, SPEED_DOWN = range(5)
@@ -79,6 +88,7 @@ class OneDiskWalk:
         max_episode_steps: int = 1000,
         physics_timestep: float = 0.001,
         tabular_state: dict | None = None,
+        win: dict | None = None,
     ) -> None:
         require(isinstance(robot, Cube), "task one_disk_walk needs robot=cube",
                 type(robot).__name__)
@@ -112,6 +122,12 @@ class OneDiskWalk:
                 "task.reset_noise must be a finite number >= 0", reset_noise)
         require(whole(max_episode_steps) and max_episode_steps >= 1,
                 "task.max_episode_steps must be an integer >= 1", max_episode_steps)
+        # The rewarded walking direction along y: the speed weight's sign (else the distance's).
+        self.direction = float(np.sign(y_linear_speed_reward_weight)
+                               or np.sign(move_distance_reward_weight) or 1.0)
+        towards = "+y" if self.direction > 0 else "-y"
+        self.success = Success.from_config(
+            win, SUCCESS, {"distance_walked": ("m", f"distance walked towards {towards}")})
         self.robot = robot
         self.n_actions = int(n_actions)
         self.running_step = float(running_step)
@@ -214,5 +230,7 @@ class OneDiskWalk:
         return np.where(terminated, -self.end_episode_points, running)
 
     def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
-        """Per copy: how far along y the cube is from where its episode started."""
-        return {"y_displacement": self.robot.odometry(physics).position[:, 1] - self._start_y}
+        """Per copy: ``y_displacement``, how far along y the cube is from where its
+        episode started (m); ``distance_walked``, the same in the rewarded direction."""
+        dy = self.robot.odometry(physics).position[:, 1] - self._start_y
+        return {"y_displacement": dy, "distance_walked": dy * self.direction}

@@ -10,6 +10,10 @@ Reward +1 per step. The episode terminates when the cart leaves
 [``min_base_pose_x``, ``max_base_pose_x``] or the pole leaves
 [``min_pole_angle``, ``max_pole_angle``]; the environment truncates it after
 ``max_episode_steps``. Parameter names are the original YAML's.
+
+Solved (``success``, overridable as ``task.win``): the seeds' rule, a mean
+length of the last 100 training episodes of at least 250 steps (their
+``n_win_ticks``) after at least 100 episodes.
 """
 
 from __future__ import annotations
@@ -20,7 +24,10 @@ import numpy as np
 from robots.cartpole import CONTROL_TYPES, CartPole
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, finite, require, substeps_for, whole
+from tasks.base import Bounds, Success, finite, require, substeps_for, whole
+
+# The seeds' win rule: judged on the training episodes, as they did.
+SUCCESS = Success("length", "steps", "steps balanced", 250.0, "training", 100, 100)
 
 
 class StayUp:
@@ -45,6 +52,7 @@ class StayUp:
         max_episode_steps: int = 1000,
         physics_timestep: float = 0.002,
         tabular_state: dict | None = None,
+        win: dict | None = None,
     ) -> None:
         require(isinstance(robot, CartPole), "task stay_up needs robot=cartpole",
                 type(robot).__name__)
@@ -74,6 +82,7 @@ class StayUp:
                 "task.reset_noise must be a finite number >= 0", reset_noise)
         require(whole(max_episode_steps) and max_episode_steps >= 1,
                 "task.max_episode_steps must be an integer >= 1", max_episode_steps)
+        self.success = Success.from_config(win, SUCCESS, {"length": ("steps", "steps balanced")})
         self.robot = robot
         self.n_actions = int(n_actions)
         self.pole_angle_limits = (float(min_pole_angle), float(max_pole_angle))

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from learners.qlearn import QLearn
-from learners.run import Run, WinCriterion
+from learners.run import Run
 from robots.physics import BatchedPhysics
 
 HUGE_GAIN = 1e7  # N per unit command: about a third of the copies blow up per step
@@ -149,7 +149,7 @@ def test_qlearning_keeps_training_on_an_unstable_cartpole(make_cartpole_env, tmp
     env = unstable_cartpole(make_cartpole_env, 4)
     q = QLearn(alpha=0.5, gamma=0.9, epsilon=0.5, nepisodes=300, number_splits=4)
     q.build(env.task, torch.Generator().manual_seed(0))
-    run = Run(tmp_path, env.num_envs, q.nepisodes, WinCriterion(), quiet=True,
+    run = Run(tmp_path, env.num_envs, q.nepisodes, env.task.success, quiet=True,
               extra_fields=tuple(q.stats))
     q.train(env, run)
     summary = run.close()

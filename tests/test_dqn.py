@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 
 from learners.checkpoint import CheckpointError
 from learners.dqn import DQN
-from learners.run import Run, WinCriterion, evaluate, seed_everything
+from learners.run import Run, evaluate, seed_everything
 from learners.schedules import LinearEpsilon
 from robots.cartpole import CartPole
 from tasks.env import RobotTaskEnv
@@ -88,7 +88,7 @@ def train_and_eval(learner: DQN, tmp_path, num_envs: int, seed: int = 0) -> floa
     task = StayUp(CartPole())
     env = RobotTaskEnv(task, num_envs=num_envs, seed=seed)
     learner.build(task, gen)
-    run = Run(tmp_path, num_envs, learner.nepisodes, WinCriterion(), quiet=True,
+    run = Run(tmp_path, num_envs, learner.nepisodes, task.success, quiet=True,
               extra_fields=("alpha", "gamma", "epsilon"))
     learner.train(env, run)
     run.close()

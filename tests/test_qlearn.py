@@ -7,7 +7,7 @@ from tensordict import TensorDict
 
 from learners.checkpoint import CheckpointError
 from learners.qlearn import Discretizer, QLearn
-from learners.run import Run, WinCriterion, evaluate, seed_everything
+from learners.run import Run, evaluate, seed_everything
 from robots.cartpole import CartPole
 from tasks.base import Bounds
 from tasks.env import RobotTaskEnv
@@ -157,7 +157,7 @@ def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
     env = RobotTaskEnv(task, num_envs=1, seed=seed)
     q = instantiate(cfg.learner, _convert_="all")
     q.build(task, gen)
-    run = Run(tmp_path, 1, q.nepisodes, WinCriterion(), quiet=True, extra_fields=tuple(q.stats))
+    run = Run(tmp_path, 1, q.nepisodes, task.success, quiet=True, extra_fields=tuple(q.stats))
     q.train(env, run)
     run.close()
     trained = np.mean(run.lengths[-50:])

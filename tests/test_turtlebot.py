@@ -1,5 +1,6 @@
 """TurtleBot physics and sensors, and the maze task's rules and learnability."""
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -12,7 +13,7 @@ from hydra.utils import instantiate
 from torchrl.envs.utils import check_env_specs
 
 from learners.qlearn import QLearn
-from learners.run import Run, WinCriterion, evaluate, seed_everything
+from learners.run import Run, evaluate, seed_everything
 from robots.cartpole import CartPole
 from robots.turtlebot import TurtleBot
 from tasks.base import ConfigError
@@ -383,7 +384,8 @@ def test_q_learning_drives_round_the_ring_far_longer_than_random(tmp_path):
     assert isinstance(learner, QLearn)
     env = build_env(cfg, 4, seed=0, max_episode_steps=learner.nsteps)
     learner.build(env.task, generator)
-    run = Run(tmp_path, env.num_envs, learner.nepisodes, WinCriterion(1e9, 10**9), quiet=True)
+    run = Run(tmp_path, env.num_envs, learner.nepisodes,
+              dataclasses.replace(env.task.success, threshold=math.inf), quiet=True)
     learner.train(env, run)
     run.close()
     env.close()
