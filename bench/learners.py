@@ -1,12 +1,15 @@
-"""Every learner on cartpole/stay_up over 3 seeds, side by side (run by hand).
+"""Every learner on every robot's task over 3 seeds, judged by each task's own measure (run by hand).
 
-    python bench/learners.py [--seeds 0 1 2] [--learners qlearn n1try ...] [-- extra overrides]
+    python bench/learners.py [--robots cartpole cube turtlebot] [--learners qlearn dqn ...]
+                             [--seeds 0 1 2] [-- extra overrides]
 
 e.g. ``-- hydra/launcher=joblib hydra.launcher.n_jobs=2`` runs two jobs at a time.
 
-Runs one Hydra multirun of train.py and prints, per learner and seed, episodes,
-env steps and wall-clock seconds to the win criterion and the final greedy
-score, then the median per learner. Results stay in the printed sweep folder.
+Runs one Hydra multirun of train.py per robot (its tuned files apply as in a
+plain run) and prints one table: robot/task x learner -> seeds solved (and by
+which judge), the greedy policy's measure per seed, median episodes and wall
+seconds to solve, and a uniformly random policy's measure on the same greedy
+evaluation episodes for scale. Results stay in the printed sweep folders.
 """
 
 from __future__ import annotations
@@ -14,35 +17,75 @@ from __future__ import annotations
 import argparse
 import statistics
 
+import torch
+from hydra.utils import instantiate
+
 from sweep import fmt, run_sweep
 
+from learners.run import evaluate, measure_of
+from tasks.env import RobotTaskEnv
+from tasks.gym_env import compose_config
+
+ROBOTS = ["cartpole", "cube", "turtlebot"]
 LEARNERS = ["qlearn", "n1try", "mbalunovic", "ruippeixotog", "dqn"]
+
+
+def random_policy_measure(robot: str, episodes: int = 20, seed: int = 10_000) -> tuple[float, object]:
+    """The task's measure for uniformly random actions, one episode in each of ``episodes`` copies."""
+    cfg = compose_config(robot)
+    task = instantiate(cfg.task, robot=instantiate(cfg.robot, _convert_="all"), _convert_="all")
+    env = RobotTaskEnv(task, num_envs=episodes, seed=seed)
+    gen = torch.Generator().manual_seed(seed)
+
+    def act(td):
+        return td.set("action", torch.randint(0, task.n_actions, (episodes,), generator=gen))
+
+    value = measure_of(evaluate(env, act), task.success.measure)
+    env.close()
+    return value, task.success
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--robots", nargs="+", default=ROBOTS)
     parser.add_argument("--learners", nargs="+", default=LEARNERS)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run")
     args = parser.parse_args()
-    sweep_dir, runs = run_sweep("bench_learners", [
-        "robot=cartpole", f"learner={','.join(args.learners)}",
-        f"seed={','.join(map(str, args.seeds))}", *args.overrides])
-    print(f"\n{'learner':13s} {'seed':>4s} {'solved':>6s} {'episodes':>8s} {'env_steps':>9s} "
-          f"{'wall_s':>7s} {'greedy_len':>10s}")
-    for r in runs:
-        print(f"{str(r.get('learner')):13s} {r.get('seed', -1):4d} {str(r.get('solved', 'failed')):>6s} "
-              f"{fmt(r.get('episodes_to_solve')):>8s} {fmt(r.get('steps_to_solve')):>9s} "
-              f"{fmt(r.get('wall_to_solve'), '.1f'):>7s} {fmt(r.get('greedy_mean_length'), '.1f'):>10s}")
-    print("\nper learner: solved seeds, median episodes / env steps / wall_s to solve, median greedy length")
-    for learner in args.learners:
-        mine = [r for r in runs if r.get("learner") == learner]
-        won = [r for r in mine if r.get("solved")]
-        med = lambda key, rs: statistics.median(r[key] for r in rs) if rs else None  # noqa: E731
-        print(f"{learner:13s} solved={len(won)}/{len(mine)} episodes={fmt(med('episodes_to_solve', won))} "
-              f"env_steps={fmt(med('steps_to_solve', won))} wall_s={fmt(med('wall_to_solve', won), '.1f')} "
-              f"greedy={fmt(med('greedy_mean_length', [r for r in mine if 'greedy_mean_length' in r]), '.1f')}")
-    print(f"\nsweep folder: {sweep_dir}")
+    rows, folders = [], []
+    for robot in args.robots:
+        random_value, success = random_policy_measure(robot)
+        sweep_dir, runs = run_sweep(f"bench_learners_{robot}", [
+            f"robot={robot}", f"learner={','.join(args.learners)}",
+            f"seed={','.join(map(str, args.seeds))}", *args.overrides])
+        folders.append(sweep_dir)
+        for learner in args.learners:
+            mine = [r for r in runs if r.get("learner") == learner]
+            won = [r for r in mine if r.get("solved")]
+            med = lambda key: statistics.median(r[key] for r in won) if won else None  # noqa: E731
+            judges = sorted({r["decided_by"] for r in won})
+            rows.append({
+                "task": f"{robot}/{mine[0].get('task') if mine else '?'}",
+                "learner": learner,
+                "rule": f"{success.measure} {success.judge} >= {success.threshold:g} {success.unit}",
+                "solved": f"{len(won)}/{len(mine)}" + (f" ({','.join(judges)})" if judges else ""),
+                "greedy": " ".join(fmt(r.get("greedy"), ".2f") if r.get("status") == "ok"
+                                   else r.get("status", "?") for r in mine),
+                "episodes": fmt(med("episodes_to_solve")),
+                "wall_s": fmt(med("wall_to_solve"), ".1f"),
+                "random": f"{random_value:.2f}",
+            })
+    columns = ("task", "learner", "rule", "solved", "greedy", "episodes", "wall_s", "random")
+    widths = {c: max(len(c), *(len(r[c]) for r in rows)) for c in columns}
+    print(f"\nper robot/task and learner over seeds {args.seeds}: solved k/n (judge), the greedy "
+          "policy's measure per seed, median episodes and wall seconds to solve (solved seeds), "
+          "a random policy's measure")
+    print("| " + " | ".join(c.ljust(widths[c]) for c in columns) + " |")
+    print("|" + "|".join("-" * (widths[c] + 2) for c in columns) + "|")
+    for r in rows:
+        print("| " + " | ".join(r[c].ljust(widths[c]) for c in columns) + " |")
+    for folder in folders:
+        print(f"sweep folder: {folder}")
 
 
 if __name__ == "__main__":

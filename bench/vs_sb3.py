@@ -5,8 +5,9 @@
 SB3 trains with rl-baselines3-zoo's CartPole-v1 hyperparameters
 (``hyperparams/dqn.yml``) on ``MujocoRL/CartPoleStayUp-v0`` through the
 Gymnasium registration; ours runs ``train.py learner=dqn``. Both stop at the
-config's win criterion (mean length of the last 100 episodes >= ``win.n_win_ticks``
-after ``win.min_episodes`` episodes); SB3 at ``--cap`` env steps at most.
+task's success rule (stay_up: the seeds' mean length of the last 100 training
+episodes >= ``task.win.threshold`` after ``task.win.min_episodes`` episodes);
+SB3 at ``--cap`` env steps at most.
 Needs the ``bench`` extra (stable-baselines3).
 
 Last line: ``VS_SB3 wall_ratio=<ours/sb3> steps_ratio=<ours/sb3>`` (``nan`` when
@@ -28,11 +29,12 @@ sys.path.insert(0, str(ROOT))
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from hydra.utils import instantiate  # noqa: E402
 from stable_baselines3 import DQN  # noqa: E402
 from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 from stable_baselines3.common.monitor import Monitor  # noqa: E402
 
-from learners.run import WinCriterion  # noqa: E402
+from tasks.base import Success  # noqa: E402
 from learners.summary import summarize_run  # noqa: E402
 from tasks.gym_env import compose_config  # noqa: E402
 
@@ -48,7 +50,7 @@ ZOO = dict(learning_rate=2.3e-3, batch_size=64, buffer_size=100_000, learning_st
 class StopAtWin(BaseCallback):
     """Stops training once the win criterion holds over Monitor's episode lengths."""
 
-    def __init__(self, win: WinCriterion) -> None:
+    def __init__(self, win: Success) -> None:
         super().__init__()
         self.win = win
         self.lengths: list[int] = []
@@ -62,7 +64,7 @@ class StopAtWin(BaseCallback):
         for info in self.locals["infos"]:
             if "episode" in info:
                 self.lengths.append(int(info["episode"]["l"]))
-                if self.win.solved(self.lengths):
+                if self.win.met(float(np.mean(self.lengths[-self.win.window:])), len(self.lengths)):
                     self.solved_at = {"episodes": len(self.lengths), "steps": self.num_timesteps,
                                       "wall_s": time.perf_counter() - self.t0}
                     return False
@@ -76,7 +78,7 @@ class StopAtWin(BaseCallback):
         return float(np.max(window))
 
 
-def run_sb3(seed: int, cap: int, win: WinCriterion) -> dict:
+def run_sb3(seed: int, cap: int, win: Success) -> dict:
     torch.set_num_threads(1)
     env = Monitor(gym.make(ENV_ID))
     # The zoo's epsilon decays over 0.16 x its 50k steps; keep that span under our cap.
@@ -110,13 +112,13 @@ def run_ours(seed: int) -> dict:
             "episodes": s["episodes_to_solve"] if solved else s["episodes"],
             "env_steps": s["steps_to_solve"] if solved else s["env_steps"],
             "wall_s": s["wall_to_solve"] if solved else s["wall_s"],
-            "best100": float(s["final_mean_length"]), "run_dir": str(run_dir)}
+            "best100": float(s["best_rolling"]), "run_dir": str(run_dir)}
 
 
-def report(ours: dict, sb3: dict, seed: int, cap: int, win: WinCriterion) -> None:
+def report(ours: dict, sb3: dict, seed: int, cap: int, win: Success) -> None:
     """Prints the table and, last, the ``VS_SB3`` line."""
     print(f"\ncartpole/stay_up, seed {seed}, win: mean length of last 100 >= "
-          f"{win.n_win_ticks:g} after >= {win.min_episodes} episodes (SB3 cap {cap} steps)")
+          f"{win.threshold:g} after >= {win.min_episodes} episodes (SB3 cap {cap} steps)")
     print(f"| {'learner':15s} | solved | episodes | env steps | wall s | steps/s |")
     print("|" + "|".join("-" * w for w in (17, 8, 10, 11, 8, 9)) + "|")
     for r in (ours, sb3):
@@ -125,7 +127,7 @@ def report(ours: dict, sb3: dict, seed: int, cap: int, win: WinCriterion) -> Non
     wall = ours["wall_s"] / sb3["wall_s"]
     steps = ours["env_steps"] / sb3["env_steps"]
     if not ours["solved"]:
-        print(f"ours did not reach the criterion; last-100 mean length {ours['best100']:.1f}")
+        print(f"ours did not reach the criterion; best 100-episode mean length {ours['best100']:.1f}")
     if not sb3["solved"]:
         print(f"SB3 did not reach the criterion within {cap} steps; "
               f"its best 100-episode mean length was {sb3['best100']:.1f}")
@@ -142,7 +144,7 @@ def main() -> None:
     parser.add_argument("--cap", type=int, default=150_000, help="SB3 env steps at most")
     args = parser.parse_args()
     cfg = compose_config("cartpole", ("learner=dqn",))
-    win = WinCriterion(float(cfg.win.n_win_ticks), int(cfg.win.min_episodes))
+    win = instantiate(cfg.task, robot=instantiate(cfg.robot, _convert_="all"), _convert_="all").success
     ours = run_ours(args.seed)
     sb3 = run_sb3(args.seed, args.cap, win)
     report(ours, sb3, args.seed, args.cap, win)

@@ -107,7 +107,7 @@ def test_time_limit_and_episode_info(make):
     env.reset(seed=0)
     steps = [env.step(2)[2:] for _ in range(3)]  # action 2: wheel stopped, the cube rests
     assert [s[:2] for s in steps] == [(False, False), (False, False), (False, True)]
-    assert all(set(info) == {"y_displacement"} for *_, info in steps)
+    assert all(set(info) == {"y_displacement", "distance_walked"} for *_, info in steps)
     direct = MujocoRLEnv("cube", max_episode_steps=2)  # no make(): the task's own limit
     try:
         direct.reset(seed=0)

@@ -36,10 +36,12 @@ def test_run_folder_and_verdict(short_run):
     run_dir = tmp / "run"
     v = verdict(proc.stdout)
     assert v["solved"] == "false" and v["episodes"] == "30"
+    assert (v["measure"], v["judge"], v["threshold"]) == ("length", "training", "250")
     assert Path(v["run_dir"]) == run_dir
-    assert "not solved after 30 episodes" in proc.stdout
+    assert "not solved after 30 episodes: needs steps balanced >= 250 steps" in proc.stdout
+    assert "greedy evaluation over 3 episodes: steps balanced" in proc.stdout
     for name in ("config.yaml", "metrics.csv", "timing.csv", "reward_curve.png", "model.pt",
-                 "checkpoint.pt", "eval.json"):
+                 "checkpoint.pt", "eval.json", "evals.csv", "success.json", "summary.json"):
         assert (run_dir / name).stat().st_size > 0, name
     rows = list(csv.DictReader(open(run_dir / "metrics.csv")))
     assert [int(r["episode"]) for r in rows] == list(range(1, 31))
@@ -102,6 +104,21 @@ def test_same_config_and_seed_give_identical_metrics(tmp_path, overrides):
     metrics = {name: (tmp_path / name / "metrics.csv").read_bytes() for name in "abc"}
     assert metrics["a"] == metrics["b"]  # bit-identical: wall-clock lives in timing.csv
     assert metrics["a"] != metrics["c"]
+
+
+def test_greedy_evaluations_do_not_change_training(tmp_path):
+    """Evaluations every 10 episodes draw from no training generator: the same metrics.csv as
+    with none, and evals.csv holds one row per evaluation plus the final one."""
+    common = ("learner=qlearn", "learner.nepisodes=40", "eval_episodes=3", "seed=2")
+    a = train(tmp_path, *common, "eval_every=10", name="a")
+    b = train(tmp_path, *common, "eval_every=0", name="b")
+    assert a.returncode == b.returncode == 0, a.stderr[-1500:]
+    assert (tmp_path / "a" / "metrics.csv").read_bytes() == (tmp_path / "b" / "metrics.csv").read_bytes()
+    evals = list(csv.DictReader(open(tmp_path / "a" / "evals.csv")))
+    assert [int(r["episode"]) for r in evals] == [10, 20, 30, 40]
+    assert len(list(csv.DictReader(open(tmp_path / "b" / "evals.csv")))) == 1
+    # The final evaluation is the one eval.json and the verdict report.
+    assert verdict(a.stdout)["greedy"] == f"{float(evals[-1]['length']):.4g}"
 
 
 def test_a_diverging_model_keeps_training_and_says_so(tmp_path):

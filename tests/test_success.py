@@ -1,0 +1,165 @@
+"""What "solved" means: each task's own measure and judge, and a verdict that tells the truth.
+
+A cube that never moves survives every step, and a TurtleBot turning on the spot
+survives a long time: a length rule would call both solved. Their tasks judge
+the greedy policy's distance walked and laps driven instead.
+"""
+
+import csv
+import math
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+
+from learners.run import Run, drive, evaluate, verdict_lines
+from robots.cartpole import CartPole
+from robots.cube import Cube
+from robots.turtlebot import TurtleBot
+from tasks.base import ConfigError, Success
+from tasks.env import RobotTaskEnv
+from tasks.maze import FORWARD, LEFT, RIGHT, MazeTask
+from tasks.one_disk_walk import WHEEL_FORWARD, WHEEL_STOP, OneDiskWalk
+from tasks.stay_up import StayUp
+
+RING = {"inner_radius": 2.0, "outer_radius": 4.0, "segments": 24, "starts": 8, "wall_thickness": 0.2}
+
+
+def constant(action: int):
+    def policy(td):
+        return td.set("action", torch.full(td.batch_size, action, dtype=torch.int64))
+    return policy
+
+
+def follow_the_corridor(td):
+    """A hand policy for the ring maze: forward, turning away from near walls."""
+    o = td.get("observation")
+    front = torch.minimum(o[:, 2], o[:, 3])
+    left, right = o[:, 4:].mean(-1), o[:, :2].mean(-1)
+    action = torch.where(front < 1.2, torch.where(left > right, LEFT, RIGHT), FORWARD)
+    action = torch.where((front >= 1.2) & (o[:, 0] < 0.8), LEFT, action)
+    action = torch.where((front >= 1.2) & (o[:, 5] < 0.8), RIGHT, action)
+    return td.set("action", action.long())
+
+
+def judge(tmp_path, make_task, policy, episodes: int, num_envs: int = 2, eval_copies: int = 2):
+    """Trains nothing: drives ``policy`` for ``episodes`` episodes with greedy evaluations,
+    as train.py does, and returns the run's summary and verdict lines."""
+    env = RobotTaskEnv(make_task(), num_envs=num_envs, seed=0)
+    eval_env = RobotTaskEnv(make_task(), num_envs=eval_copies, seed=10_000)
+    run = Run(tmp_path, num_envs, episodes, env.task.success, quiet=True, eval_every=episodes // 2)
+    run.greedy_eval = lambda: evaluate(eval_env, policy)
+    drive(env, policy, run, lambda td: None, lambda ep: None, lambda: {})
+    if run.solved_at is None:
+        run.evaluate_greedy()  # the policy after the budget, as train.py's final evaluation
+    summary = run.close()
+    env.close()
+    eval_env.close()
+    return summary, verdict_lines(summary, tmp_path)
+
+
+def verdict(lines: list[str]) -> dict:
+    assert lines[-1].startswith("VERDICT ")
+    return dict(field.split("=", 1) for field in lines[-1].split()[1:])
+
+
+def test_a_cube_that_never_moves_is_not_solved(tmp_path):
+    task = lambda: OneDiskWalk(Cube(), max_episode_steps=40, win={"min_episodes": 4})  # noqa: E731
+    summary, lines = judge(tmp_path, task, constant(WHEEL_STOP), episodes=8)
+    lengths = [int(r["length"]) for r in csv.DictReader(open(tmp_path / "metrics.csv"))]
+    assert lengths == [40] * 8  # it survived every step: a length rule would say solved
+    assert not summary["solved"]
+    assert abs(summary["greedy"]) < 0.01 and summary["measure"] == "distance_walked"
+    v = verdict(lines)
+    assert v["solved"] == "false" and v["measure"] == "distance_walked" and v["judge"] == "greedy"
+    assert "not solved after 8 episodes: needs distance walked towards +y >= 1 m" in lines[0]
+
+
+def test_one_tip_over_an_edge_is_not_a_walk(tmp_path):
+    """Spinning the wheel up throws the cube over one edge (0.2 m); then it sits still."""
+    task = lambda: OneDiskWalk(Cube(), max_episode_steps=60, win={"min_episodes": 2})  # noqa: E731
+    summary, _ = judge(tmp_path, task, constant(WHEEL_FORWARD), episodes=4)
+    assert 0.1 < abs(summary["greedy"]) < 0.3
+    assert not summary["solved"]
+
+
+def test_the_walking_direction_is_the_rewarded_one():
+    forward, reverse = OneDiskWalk(Cube()), OneDiskWalk(Cube(), y_linear_speed_reward_weight=-1000)
+    assert "towards +y" in forward.success.description
+    assert "towards -y" in reverse.success.description
+    assert forward.direction == 1.0 and reverse.direction == -1.0
+
+
+def test_a_turtlebot_turning_on_the_spot_is_not_solved(tmp_path):
+    task = lambda: MazeTask(TurtleBot(), ring=RING, max_episode_steps=80, win={"min_episodes": 2})  # noqa: E731
+    summary, lines = judge(tmp_path, task, constant(LEFT), episodes=4)
+    assert summary["greedy"] < 0.1 and not summary["solved"]
+    assert verdict(lines)["measure"] == "laps"
+
+
+def test_a_turtlebot_that_drives_laps_is_solved_by_the_greedy_judge(tmp_path):
+    task = lambda: MazeTask(TurtleBot(), ring=RING, win={"min_episodes": 2})  # noqa: E731
+    summary, lines = judge(tmp_path, task, follow_the_corridor, episodes=2)
+    assert summary["solved"] and summary["decided_by"] == "greedy"
+    assert summary["value"] >= 2.0  # laps, measured: about 4.4 in 500 steps
+    v = verdict(lines)
+    assert v["solved"] == "true" and v["judge"] == "greedy" and float(v["value"]) >= 2.0
+    assert lines[0].startswith("solved after 2 episodes: the greedy policy's mean laps round the maze")
+
+
+def feed(run: Run, lengths: list[int]) -> None:
+    """Records one-copy episodes of the given lengths, as the env would report them."""
+    for length in lengths:
+        for t in range(1, length + 1):
+            end = torch.tensor([[t == length]])
+            run.record(TensorDict(reward=torch.ones(1, 1), done=end, terminated=end, batch_size=[1]))
+
+
+def test_stay_up_keeps_the_seeds_rule_on_training_episodes(tmp_path):
+    """The seeds' rule: the mean length of the last 100 training episodes reaches
+    n_win_ticks (250) after at least 100 episodes; the run stops there."""
+    task = StayUp(CartPole())
+    assert (task.success.measure, task.success.threshold, task.success.judge,
+            task.success.window, task.success.min_episodes) == ("length", 250.0, "training", 100, 100)
+    run = Run(tmp_path, 1, 1000, task.success, quiet=True)
+    feed(run, [300] * 60)  # a mean of 300, but fewer than min_episodes
+    assert run.solved_at is None
+    lengths = [300] * 60 + [100] * 40 + [300] * 200
+    feed(run, lengths[60:100])  # episode 100: a mean of 220
+    assert run.solved_at is None
+    feed(run, lengths[100:])  # the short episodes roll out of the window one by one
+    # Independently: the first episode >= 100 whose last-100 mean reaches 250.
+    first = next(n for n in range(100, 301) if np.mean(lengths[n - 100:n]) >= 250)
+    assert first == 175  # episodes 76-175 hold 25 short ones: (75 * 300 + 25 * 100) / 100 = 250
+    assert run.solved_at == first and run.decided_by == "training"
+    assert run.n_episodes == first  # the run stopped there
+    assert run.summary()["value"] == pytest.approx(np.mean(lengths[first - 100:first]))
+    rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    assert "length_mean100" in rows[0] and float(rows[-1]["length_mean100"]) >= 250
+    run.close()
+
+
+def test_scores_are_named_for_what_they_are(tmp_path):
+    """The headline is the best rolling mean; the seeds' "best 100" is the mean of the 100
+    best episodes, wherever they fell."""
+    run = Run(tmp_path, 1, 300, Success("length", "steps", "steps balanced", math.inf), quiet=True)
+    # 150 short episodes, then 100 long ones scattered among 50 short ones.
+    values = [10.0] * 150 + [100.0, 10.0] * 50 + [100.0] * 50
+    run.values = values
+    run.lengths = [int(v) for v in values]
+    run.n_episodes = len(values)
+    s = run.summary()
+    assert s["mean_of_100_best_episodes"] == 100.0
+    windows = [np.mean(values[i:i + 100]) for i in range(len(values) - 99)]
+    assert s["best_rolling"] == pytest.approx(max(windows)) and s["best_rolling"] < 100.0
+    assert s["last_rolling"] == pytest.approx(np.mean(values[-100:]))
+    run.close()
+
+
+def test_task_win_is_checked_in_one_line():
+    with pytest.raises(ConfigError, match=r"task.win.measure must be one of laps, loop_distance, distance; got 'x'"):
+        MazeTask(TurtleBot(), ring=RING, win={"measure": "x"})
+    with pytest.raises(ConfigError, match=r"task.win entries must be among"):
+        StayUp(CartPole(), win={"n_win_ticks": 300})
+    assert StayUp(CartPole(), win={"threshold": math.inf}).success.threshold == math.inf
