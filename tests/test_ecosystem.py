@@ -66,6 +66,7 @@ def test_two_job_sweep_through_a_launcher_then_compare(tmp_path, launcher):
     assert "cartpole/stay_up" in proc.stdout and "qlearn" in proc.stdout
     rows = list(csv.DictReader(open(sweep / "comparison.csv")))
     assert len(rows) == 1 and rows[0]["seeds"] == "2" and rows[0]["solved"] == "0/2"
+    assert rows[0]["measure"] == "length (steps, training >= 250)"  # the task's own rule, named
     assert (sweep / "comparison.png").read_bytes()[:4] == b"\x89PNG"
     assert "| cartpole/stay_up | qlearn |" in (sweep / "comparison.md").read_text()
 

@@ -130,3 +130,29 @@ def test_resume_mistakes_are_one_clear_line(tmp_path, uninterrupted):
         assert proc.returncode == 2
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("error:") and expected in lines[0], proc.stderr[-800:]
+
+
+def test_greedy_evaluations_survive_a_kill_and_resume(tmp_path):
+    """A greedily judged run (stay_up judged on the greedy policy, never solved) evaluated
+    every 10 episodes: killed mid-run and resumed, it ends with the same metrics.csv and
+    evals.csv as an uninterrupted run."""
+    judged = ["learner=qlearn", "learner.nepisodes=80", "checkpoint_every=20", "eval_episodes=2",
+              "eval_every=10", "task.win.judge=greedy", "task.win.threshold=inf"]
+
+    def launch(run_dir: Path) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "train.py", "quiet=true", "seed=4",
+                                 f"hydra.run.dir={run_dir}", *judged],
+                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    code, _, err = finish(launch(tmp_path / "whole"))
+    assert code == 0, err[-1500:]
+    proc = launch(tmp_path / "run")
+    wait_for_rows(proc, tmp_path / "run", 45)  # past two checkpoints and four evaluations
+    proc.kill()
+    proc.wait()
+    done = resume(tmp_path / "run")
+    assert done.returncode == 0, done.stderr[-1500:]
+    for name in ("metrics.csv", "evals.csv"):
+        assert (tmp_path / "run" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
+    evals = (tmp_path / "whole" / "evals.csv").read_text().splitlines()
+    assert [int(r.split(",")[0]) for r in evals[1:]] == [10, 20, 30, 40, 50, 60, 70, 80]
