@@ -2,8 +2,10 @@
 
     python bench/learners.py [--robots cartpole cube turtlebot] [--learners qlearn dqn ...]
                              [--seeds 0 1 2] [-- extra overrides]
+    python bench/learners.py --read multirun/bench_learners_*     # tabulate finished sweeps
 
-e.g. ``-- hydra/launcher=joblib hydra.launcher.n_jobs=2`` runs two jobs at a time.
+e.g. ``-- hydra/launcher=joblib hydra.launcher.n_jobs=2`` runs two jobs at a time, and
+``-- num_envs=8 learner.nepisodes=200`` caps a long sweep (say so with the table).
 
 Runs one Hydra multirun of train.py per robot (its tuned files apply as in a
 plain run) and prints one table: robot/task x learner -> seeds solved (and by
@@ -20,7 +22,9 @@ import statistics
 import torch
 from hydra.utils import instantiate
 
-from sweep import fmt, run_sweep
+from pathlib import Path
+
+from sweep import fmt, job_summaries, run_sweep
 
 from learners.run import evaluate, measure_of
 from tasks.env import RobotTaskEnv
@@ -50,22 +54,33 @@ def main() -> None:
     parser.add_argument("--robots", nargs="+", default=ROBOTS)
     parser.add_argument("--learners", nargs="+", default=LEARNERS)
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--read", nargs="+", type=Path, default=[],
+                        help="finished sweep folders to tabulate instead of running new ones")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run")
     args = parser.parse_args()
-    rows, folders = [], []
-    for robot in args.robots:
+    runs, folders = [], []
+    if args.read:
+        for folder in args.read:
+            folders.append(folder)
+            runs += job_summaries(folder)
+    else:
+        for robot in args.robots:
+            sweep_dir, found = run_sweep(f"bench_learners_{robot}", [
+                f"robot={robot}", f"learner={','.join(args.learners)}",
+                f"seed={','.join(map(str, args.seeds))}", *args.overrides])
+            folders.append(sweep_dir)
+            runs += found
+    rows = []
+    for robot in dict.fromkeys(r.get("robot") for r in runs if r.get("robot")):
         random_value, success = random_policy_measure(robot)
-        sweep_dir, runs = run_sweep(f"bench_learners_{robot}", [
-            f"robot={robot}", f"learner={','.join(args.learners)}",
-            f"seed={','.join(map(str, args.seeds))}", *args.overrides])
-        folders.append(sweep_dir)
-        for learner in args.learners:
-            mine = [r for r in runs if r.get("learner") == learner]
+        for learner in dict.fromkeys(r.get("learner") for r in runs if r.get("robot") == robot):
+            mine = sorted((r for r in runs if r.get("robot") == robot and r.get("learner") == learner),
+                          key=lambda r: r.get("seed", -1))
             won = [r for r in mine if r.get("solved")]
             med = lambda key: statistics.median(r[key] for r in won) if won else None  # noqa: E731
             judges = sorted({r["decided_by"] for r in won})
             rows.append({
-                "task": f"{robot}/{mine[0].get('task') if mine else '?'}",
+                "task": f"{robot}/{mine[0].get('task')}",
                 "learner": learner,
                 "rule": f"{success.measure} {success.judge} >= {success.threshold:g} {success.unit}",
                 "solved": f"{len(won)}/{len(mine)}" + (f" ({','.join(judges)})" if judges else ""),
@@ -77,7 +92,7 @@ def main() -> None:
             })
     columns = ("task", "learner", "rule", "solved", "greedy", "episodes", "wall_s", "random")
     widths = {c: max(len(c), *(len(r[c]) for r in rows)) for c in columns}
-    print(f"\nper robot/task and learner over seeds {args.seeds}: solved k/n (judge), the greedy "
+    print("\nper robot/task and learner: solved k/n seeds (judge), the greedy "
           "policy's measure per seed, median episodes and wall seconds to solve (solved seeds), "
           "a random policy's measure")
     print("| " + " | ".join(c.ljust(widths[c]) for c in columns) + " |")

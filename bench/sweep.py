@@ -21,8 +21,14 @@ def run_sweep(name: str, overrides: list[str]) -> tuple[Path, list[dict]]:
     proc = subprocess.run(cmd, cwd=ROOT, check=False)
     if not sweep_dir.is_dir():
         sys.exit(f"error: the sweep did not start (train.py exit code {proc.returncode})")
-    jobs = sorted((p for p in sweep_dir.iterdir() if p.is_dir()), key=lambda p: int(p.name.split("_")[0]))
-    return sweep_dir, [summarize_run(d) for d in jobs]
+    return sweep_dir, job_summaries(sweep_dir)
+
+
+def job_summaries(sweep_dir: Path) -> list[dict]:
+    """One summary per job folder of a sweep, in job order."""
+    jobs = sorted((p for p in Path(sweep_dir).iterdir() if p.is_dir() and p.name.split("_")[0].isdigit()),
+                  key=lambda p: int(p.name.split("_")[0]))
+    return [summarize_run(d) for d in jobs]
 
 
 def fmt(value, spec: str = ".0f") -> str:

@@ -335,10 +335,14 @@ def test_hydra_composes_cube_with_its_task_and_tuned_learner():
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="config", overrides=["robot=cube", "learner=qlearn"])
+        course = compose(config_name="config", overrides=["robot=cube", "learner=qlearn", "~tuned"])
         bad = compose(config_name="config", overrides=["robot=cartpole", "task=one_disk_walk"])
     assert cfg.task._target_ == "tasks.one_disk_walk.OneDiskWalk"
     assert cfg.task.running_step == 0.06 and cfg.task.end_episode_points == 1000
-    assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (0.1, 0.7, 0.9)
+    assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (0.1, 0.995, 0.9)
+    # Without the tuned file: the course unit's parameters, the baseline.
+    assert (course.learner.alpha, course.learner.gamma, course.learner.epsilon_discount,
+            course.learner.nepisodes) == (0.1, 0.7, 0.999, 500)
     assert dict(cfg.learner.number_splits) == {"wheel_speed": 21, "y_speed": 5, "yaw": 3}
     robot = instantiate(cfg.robot, _convert_="all")
     task = instantiate(cfg.task, robot=robot, _convert_="all")
