@@ -91,7 +91,7 @@ def test_unknown_robot_is_hydras_clear_message(tmp_path):
 
 
 @pytest.mark.parametrize("overrides", [
-    ["learner=qlearn", "learner.nepisodes=40"],
+    ["learner=qlearn", "learner.nepisodes=40", "num_envs=1"],
     ["learner=qlearn", "learner.nepisodes=40", "num_envs=6"],
     ["learner=dqn", "learner.nepisodes=30", "num_envs=1", "learner.learning_starts=64"],
     ["learner=dqn", "learner.nepisodes=30", "num_envs=4", "learner.learning_starts=64"],
@@ -109,7 +109,7 @@ def test_same_config_and_seed_give_identical_metrics(tmp_path, overrides):
 def test_greedy_evaluations_do_not_change_training(tmp_path):
     """Evaluations every 10 episodes draw from no training generator: the same metrics.csv as
     with none, and evals.csv holds one row per evaluation plus the final one."""
-    common = ("learner=qlearn", "learner.nepisodes=40", "eval_episodes=3", "seed=2")
+    common = ("learner=qlearn", "num_envs=1", "learner.nepisodes=40", "eval_episodes=3", "seed=2")
     a = train(tmp_path, *common, "eval_every=10", name="a")
     b = train(tmp_path, *common, "eval_every=0", name="b")
     assert a.returncode == b.returncode == 0, a.stderr[-1500:]
@@ -124,7 +124,7 @@ def test_greedy_evaluations_do_not_change_training(tmp_path):
 def test_a_diverging_model_keeps_training_and_says_so(tmp_path):
     """Effort control with a 1e9 N push per action: MuJoCo flags the state unstable."""
     proc = train(tmp_path, "task.control_type=effort", "task.pos_step=1e9", "learner.nepisodes=40",
-                 "eval_episodes=0")
+                 "eval_episodes=0", "num_envs=1")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert verdict(proc.stdout)["episodes"] == "40"
     assert "warning: the physics diverged 40 times" in proc.stdout
