@@ -355,7 +355,8 @@ def measure_of(result: Mapping, measure: str) -> float:
 def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
                       evals_csv: Path | None = None) -> None:
     """The task's measure per episode, its rolling mean, the threshold and the greedy
-    evaluations; the episode length (if it is not the measure) and return below."""
+    evaluations; the episode length (if it is not the measure) and return (if it is
+    not the length) below."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -373,7 +374,8 @@ def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
     panels = [(m, f"{success.description} ({success.unit})")]
     if m != "length":
         panels.append(("length", "episode length (steps)"))
-    panels.append(("reward", "episode return"))
+    if not rows or not np.array_equal(col(rows, "reward"), col(rows, "length")):  # +1 a step: same curve
+        panels.append(("reward", "episode return"))
     fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.6), squeeze=False,
                              sharex=True)
     for ax, (key, label) in zip(axes[:, 0], panels):
