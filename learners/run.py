@@ -391,7 +391,8 @@ def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
     if np.isfinite(success.threshold):
         ax.axhline(success.threshold, color="k", ls="--", lw=1,
                    label=f"solved: {success.judge} >= {success.threshold:g}")
-    ax.legend(loc="upper left", fontsize=8)
+    if ax.get_legend_handles_labels()[0]:  # an empty run with no threshold has nothing to label
+        ax.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("episode")
     fig.suptitle(f"{Path(out_png).parent.name}\nsolved when {success.describe()} "
                  f"({'greedy policy' if success.judge == 'greedy' else 'training episodes'})",
