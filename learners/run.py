@@ -158,7 +158,7 @@ class Run:
                 and self.n_episodes - last_eval >= self.eval_every):
             self.evaluate_greedy()
         due = self.checkpoint_every and self.n_episodes - self._last_checkpoint >= self.checkpoint_every
-        if due and self.checkpoint is not None and not self.stop_requested:
+        if due and self.checkpoint is not None and not self.done:  # the trainer saves the end
             self.checkpoint(td)
             self._last_checkpoint = self.n_episodes
 
