@@ -44,7 +44,7 @@ from learners.resume import load_training_state, save_training_state
 from learners.run import Run, evaluate, measure_of, seed_everything, verdict_lines
 from learners.settings import check_run_config
 from learners.video import record_video
-from tasks.base import ConfigError
+from params import ConfigError
 from tasks.env import RobotTaskEnv
 
 

@@ -39,7 +39,7 @@ from torchrl.modules import MLP, EGreedyModule, QValueActor
 
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from learners.run import Run, drive
-from tasks.base import require
+from params import require
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
 LOSSES = {"l2": "l2", "mse": "l2", "huber": "smooth_l1", "smooth_l1": "smooth_l1"}

@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from tasks.base import ConfigError
+from params import ConfigError
 
 # logger kind -> the package it needs (None: nothing beyond the base install)
 NEEDS = {"csv": None, "tensorboard": "tensorboard", "wandb": "wandb", "mlflow": "mlflow"}

@@ -44,7 +44,8 @@ from tensordict.nn import TensorDictModuleBase
 
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from learners.run import Run, drive
-from tasks.base import Bounds, require
+from params import require
+from tasks.base import Bounds
 
 
 class Discretizer:

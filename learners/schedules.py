@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from tasks.base import finite, require, whole
+from params import finite, require, whole
 
 
 def _check(epsilon: float, epsilon_min: float) -> None:

@@ -15,7 +15,7 @@
 
 Ranges that depend on the parameter (``learner.lr > 0``, ``epsilon`` in [0, 1],
 ``n_actions`` the task can honour, a task that does not fit the robot) are
-checked by the constructors themselves with :func:`tasks.base.require`, so a
+checked by the constructors themselves with :func:`params.require`, so a
 value is checked once for its type here and once for its range there, and both
 say ``"<key> must be <allowed>; got <value>"``.
 
@@ -40,7 +40,7 @@ from typing import Any, Callable
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from tasks.base import ConfigError
+from params import ConfigError
 
 MODES = ("train", "eval")
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")

@@ -27,7 +27,7 @@ from dm_control import mjcf
 
 from robots.physics import BatchedPhysics
 from robots.binding import JointHandle, actuator_id
-from tasks.base import finite, require
+from params import finite, require
 
 CONTROL_TYPES = ("velocity", "position", "effort")
 _XML = Path(__file__).with_suffix(".xml")

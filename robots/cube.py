@@ -52,7 +52,7 @@ from numpy.typing import ArrayLike
 
 from robots.binding import JointHandle, actuator_id
 from robots.physics import BatchedPhysics
-from tasks.base import finite, require
+from params import finite, require
 
 _XML = Path(__file__).with_suffix(".xml")
 

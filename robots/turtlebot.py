@@ -32,7 +32,7 @@ from dm_control import mjcf
 
 from robots.binding import JointHandle, actuator_id, sensor_slice
 from robots.physics import BatchedPhysics
-from tasks.base import finite, require, whole
+from params import finite, require, whole
 
 _XML = Path(__file__).with_suffix(".xml")
 

@@ -20,25 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-
-class ConfigError(ValueError):
-    """A parameter value the task, robot or learner cannot honour."""
-
-
-def require(condition: bool, what: str, got: Any) -> None:
-    """Raises :class:`ConfigError` ``"<what>; got <got>"`` unless ``condition``."""
-    if not condition:
-        raise ConfigError(f"{what}; got {got!r}")
-
-
-def finite(value: Any) -> bool:
-    """Whether ``value`` is a real number (not a bool), neither NaN nor infinite."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def whole(value: Any) -> bool:
-    """Whether ``value`` is a finite number with an integer value (``3`` or ``3.0``)."""
-    return finite(value) and float(value).is_integer()
+from params import finite, require, whole
 
 
 def substeps_for(running_step: float, timestep: float) -> int:

@@ -40,7 +40,8 @@ from dm_control import mjcf
 
 from robots.physics import BatchedPhysics
 from robots.turtlebot import TurtleBot
-from tasks.base import Bounds, Success, finite, require, substeps_for, whole
+from params import finite, require, whole
+from tasks.base import Bounds, Success, substeps_for
 from tasks.maze_arena import Maze, maze_arena
 
 SUCCESS = Success("laps", "laps", "laps round the maze without a collision", 2.0, "greedy", 100, 100)

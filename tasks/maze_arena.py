@@ -24,7 +24,7 @@ import numpy as np
 from dm_control import mjcf
 
 from tasks.arena import floor_arena
-from tasks.base import finite, require, whole
+from params import finite, require, whole
 
 _HEADINGS = {">": 0.0, "^": math.pi / 2, "<": math.pi, "v": -math.pi / 2}
 _FREE = {".", " "} | set(_HEADINGS)

@@ -54,7 +54,8 @@ from dm_control import mjcf
 from robots.cube import Cube
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, Success, finite, require, substeps_for, whole
+from params import finite, require, whole
+from tasks.base import Bounds, Success, substeps_for
 
 SUCCESS = Success("distance_walked", "m", "distance walked", 1.0, "greedy", 100, 100)
 

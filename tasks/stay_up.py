@@ -24,7 +24,8 @@ import numpy as np
 from robots.cartpole import CONTROL_TYPES, CartPole
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, Success, finite, require, substeps_for, whole
+from params import finite, require, whole
+from tasks.base import Bounds, Success, substeps_for
 
 # The seeds' win rule: judged on the training episodes, as they did.
 SUCCESS = Success("length", "steps", "steps balanced", 250.0, "training", 100, 100)

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from robots.cartpole import CartPole
-from tasks.base import ConfigError
+from params import ConfigError
 from tasks.stay_up import StayUp
 from tasks.env import RobotTaskEnv
 

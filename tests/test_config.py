@@ -8,7 +8,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import train
-from tasks.base import ConfigError
+from params import ConfigError
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))

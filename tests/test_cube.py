@@ -16,7 +16,7 @@ from learners.run import Run, evaluate, seed_everything
 from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.physics import BatchedPhysics
-from tasks.base import ConfigError
+from params import ConfigError
 from tasks.env import RobotTaskEnv, compile_model
 from tasks.one_disk_walk import OneDiskWalk
 from tasks.stay_up import StayUp

@@ -136,7 +136,7 @@ def test_checkpoint_rebuilds_the_network_and_rejects_mismatch(tmp_path):
 
 
 def test_bad_dqn_values_are_one_line_errors():
-    from tasks.base import ConfigError
+    from params import ConfigError
     for kwargs, key in ((dict(lr=-0.1), "learner.lr"), (dict(gamma=1.5), "learner.gamma"),
                         (dict(double_dqn=True, target_update=0, tau=0.0), "learner.double_dqn"),
                         (dict(batch_size=10, buffer_size=5), "learner.batch_size")):

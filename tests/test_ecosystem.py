@@ -42,7 +42,7 @@ def test_csv_logger_is_the_default(tmp_path):
 
 def test_missing_logger_backend_is_a_one_line_error(tmp_path, monkeypatch):
     from learners.loggers import make_logger
-    from tasks.base import ConfigError
+    from params import ConfigError
     import importlib.util
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "mlflow" else real(name, *a))

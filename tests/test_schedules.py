@@ -5,7 +5,7 @@ import math
 import pytest
 
 from learners.schedules import LinearEpsilon, LogEpisodeEpsilon, MultiplicativeEpsilon
-from tasks.base import ConfigError
+from params import ConfigError
 
 
 def test_n1try_log_schedule_per_episode():

@@ -22,7 +22,8 @@ from learners.run import Run, drive, evaluate, verdict_lines
 from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.turtlebot import TurtleBot
-from tasks.base import ConfigError, Success
+from params import ConfigError
+from tasks.base import Success
 from tasks.env import RobotTaskEnv
 from tasks.maze import FORWARD, LEFT, RIGHT, MazeTask
 from tasks.one_disk_walk import WHEEL_FORWARD, WHEEL_STOP, OneDiskWalk

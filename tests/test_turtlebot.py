@@ -16,7 +16,7 @@ from learners.qlearn import QLearn
 from learners.run import Run, evaluate, seed_everything
 from robots.cartpole import CartPole
 from robots.turtlebot import TurtleBot
-from tasks.base import ConfigError
+from params import ConfigError
 from tasks.env import RobotTaskEnv
 from tasks.maze import FORWARD, LEFT, RIGHT, MazeTask
 from tasks.maze_arena import Maze

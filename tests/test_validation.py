@@ -25,7 +25,7 @@ from omegaconf import OmegaConf
 
 import train
 from learners.settings import check_run_config
-from tasks.base import ConfigError
+from params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"

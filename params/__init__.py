@@ -1,0 +1,33 @@
+"""The bottom layer: parameter checks every other layer may use.
+
+``ConfigError`` is the one exception a bad parameter value raises, with a
+one-line message ``"<key> must be <allowed>; got <value>"``; :func:`require`
+raises it. Declaring parameters (type, default, range, meaning, once) is
+:mod:`params.declare`.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+
+class ConfigError(ValueError):
+    """A parameter value a robot, task or learner cannot honour."""
+
+
+def require(condition: bool, what: str, got: Any) -> None:
+    """Raises :class:`ConfigError` ``"<what>; got <got>"`` unless ``condition``."""
+    if not condition:
+        raise ConfigError(f"{what}; got {got!r}")
+
+
+def finite(value: Any) -> bool:
+    """Whether ``value`` is a real number (not a bool), neither NaN nor infinite."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def whole(value: Any) -> bool:
+    """Whether ``value`` is a finite number with an integer value (``3`` or ``3.0``)."""
+    return finite(value) and float(value).is_integer()
