@@ -46,6 +46,7 @@ from learners.settings import check_run_config
 from learners.video import record_video
 from params import ConfigError
 from tasks.env import RobotTaskEnv
+from tasks.factory import build_env
 
 
 
@@ -60,19 +61,6 @@ OmegaConf.register_new_resolver("if_run_folder", _if_run_folder, replace=True)
 INTERRUPTED = 130  # exit code of a run stopped by Ctrl-C, as shells report SIGINT
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
 RESUME_OVERRIDES = ("resume", "quiet", "torch_threads", "video", "video_steps", "eval_episodes")
-
-
-def build_task(cfg: DictConfig):
-    """A fresh task (with its robot) from the ``robot`` and ``task`` configs."""
-    robot = instantiate(cfg.robot, _convert_="all")
-    return instantiate(cfg.task, robot=robot, _convert_="all")
-
-
-def build_env(cfg: DictConfig, num_envs: int, seed: int, max_episode_steps: int | None = None):
-    task = build_task(cfg)
-    if max_episode_steps is not None:
-        task.max_episode_steps = min(task.max_episode_steps, int(max_episode_steps))
-    return RobotTaskEnv(task, num_envs=num_envs, seed=seed)
 
 
 @contextmanager

@@ -37,6 +37,7 @@ from hydra import compose, initialize_config_dir  # noqa: E402
 from mujoco import rollout  # noqa: E402
 
 import train  # noqa: E402
+from tasks import factory
 from robots.physics import default_threads  # noqa: E402
 
 SIZES = (1, 16, 64, 256)
@@ -56,7 +57,7 @@ def timed(fn, seconds: float) -> float:
 def record(cfg, n: int, steps: int = 100) -> list[tuple[np.ndarray, np.ndarray]]:
     """The (state, control) of every copy at the start of ``steps`` control steps of
     our env under random actions (resets included): what (b) makes MuJoCo simulate."""
-    env = train.build_env(cfg, n, seed=0)
+    env = factory.build_env(cfg, n, seed=0)
     physics, snaps = env.physics, []
     step = physics.step
 
@@ -106,7 +107,7 @@ def raw_rollout(model: mujoco.MjModel, snaps, substeps: int, seconds: float) -> 
 
 
 def ours(cfg, n: int, seconds: float) -> float:
-    env = train.build_env(cfg, n, seed=0)
+    env = factory.build_env(cfg, n, seed=0)
     gen = torch.Generator().manual_seed(0)
     td = env.reset()
     holder = {"td": td}
@@ -134,7 +135,7 @@ def main() -> None:
         with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
             cfg = compose(config_name="config", overrides=[f"robot={robot}"], return_hydra_config=True)
         task_name = cfg.hydra.runtime.choices.task
-        probe = train.build_env(cfg, 1, seed=0)
+        probe = factory.build_env(cfg, 1, seed=0)
         model, substeps = probe.model, probe.task.n_substeps
         probe.close()
         print(f"\n{robot}/{task_name}: {substeps} substeps of {model.opt.timestep * 1e3:.1f} ms "

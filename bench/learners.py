@@ -20,15 +20,13 @@ import argparse
 import statistics
 
 import torch
-from hydra.utils import instantiate
 
 from pathlib import Path
 
 from sweep import fmt, job_summaries, run_sweep
 
 from learners.run import evaluate, measure_of
-from tasks.env import RobotTaskEnv
-from tasks.gym_env import compose_config
+from tasks.factory import make_env
 
 ROBOTS = ["cartpole", "cube", "turtlebot"]
 LEARNERS = ["qlearn", "n1try", "mbalunovic", "ruippeixotog", "dqn"]
@@ -36,9 +34,8 @@ LEARNERS = ["qlearn", "n1try", "mbalunovic", "ruippeixotog", "dqn"]
 
 def random_policy_measure(robot: str, episodes: int = 20, seed: int = 10_000) -> tuple[float, object]:
     """The task's measure for uniformly random actions, one episode in each of ``episodes`` copies."""
-    cfg = compose_config(robot)
-    task = instantiate(cfg.task, robot=instantiate(cfg.robot, _convert_="all"), _convert_="all")
-    env = RobotTaskEnv(task, num_envs=episodes, seed=seed)
+    env = make_env(robot, num_envs=episodes, seed=seed)
+    task = env.task
     gen = torch.Generator().manual_seed(seed)
 
     def act(td):

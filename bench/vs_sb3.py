@@ -29,14 +29,13 @@ sys.path.insert(0, str(ROOT))
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from hydra.utils import instantiate  # noqa: E402
 from stable_baselines3 import DQN  # noqa: E402
 from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 from stable_baselines3.common.monitor import Monitor  # noqa: E402
 
 from tasks.base import Success  # noqa: E402
 from learners.summary import summarize_run  # noqa: E402
-from tasks.gym_env import compose_config  # noqa: E402
+from tasks.factory import build_task, compose  # noqa: E402
 
 ENV_ID = "tasks.gym_env:MujocoRL/CartPoleStayUp-v0"
 # rl-baselines3-zoo hyperparams/dqn.yml, CartPole-v1 ("Almost Tuned").
@@ -143,8 +142,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cap", type=int, default=150_000, help="SB3 env steps at most")
     args = parser.parse_args()
-    cfg = compose_config("cartpole", ("learner=dqn",))
-    win = instantiate(cfg.task, robot=instantiate(cfg.robot, _convert_="all"), _convert_="all").success
+    win = build_task(compose("cartpole", learner="dqn")).success
     ours = run_ours(args.seed)
     sb3 = run_sb3(args.seed, args.cap, win)
     report(ours, sb3, args.seed, args.cap, win)

@@ -2,7 +2,7 @@
 
 State -> index mapping (:class:`Discretizer`): the task names which
 observation entries may form the tabular state and the range ``[low, high]``
-of each (``task.tabular_state``); the learner's ``number_splits`` says how many
+of each (``task.tabular_state``, read as ``task.tabular_bounds``); the learner's ``number_splits`` says how many
 equal bins each gets: one int for all, or a mapping from entry name to bins
 (entries it leaves out get 1 bin, i.e. are ignored), or a list in
 ``tabular_state`` order. Values outside a range fall into the end bins, and
@@ -183,7 +183,7 @@ class QLearn:
     # -- building ------------------------------------------------------------
     def build(self, task, generator: torch.Generator | None = None) -> QTablePolicy:
         """Creates the Q-table policy for ``task``'s tabular state and actions."""
-        discretizer = Discretizer(task.tabular_state, self.number_splits)
+        discretizer = Discretizer(task.tabular_bounds, self.number_splits)
         self.policy = QTablePolicy(discretizer, task.n_actions, self.epsilon_start,
                                    self.noise_exploration, generator)
         self.policy.table.fill_(self.initial_q)

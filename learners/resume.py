@@ -6,7 +6,8 @@ the next step depends on, so a resumed run continues bit for bit:
 - the learner's training state (``learner.training_state()``: Q-table or
   networks, optimiser, target network, schedules, counters, replay buffer);
 - the environment: every physics copy's state, controls and sensors, elapsed
-  steps, the env's random generator and the task's and robot's per-copy arrays;
+  steps, the env's random generator and the task's and robot's declared per-copy
+  state (their ``state_dict()``);
 - the observation tensordict the next step acts on;
 - the run's bookkeeping (episodes so far, partial returns; see ``Run``);
 - the global torch, numpy and ``random`` generators.
@@ -19,7 +20,6 @@ from __future__ import annotations
 
 import random
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -27,17 +27,15 @@ from tensordict import TensorDict, TensorDictBase
 
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 
-FORMAT = 1
+FORMAT = 2  # 2: the task's and robot's declared state_dict (1: scanned attributes)
 
 
-def _arrays(obj: Any) -> dict[str, torch.Tensor]:
-    """The numpy-array attributes of ``obj`` (a task's or robot's per-copy state)."""
-    return {k: torch.from_numpy(v.copy()) for k, v in vars(obj).items() if isinstance(v, np.ndarray)}
+def _tensors(state: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    return {k: torch.from_numpy(np.array(v, copy=True)) for k, v in state.items()}
 
 
-def _set_arrays(obj: Any, arrays: dict[str, torch.Tensor]) -> None:
-    for key, value in arrays.items():
-        setattr(obj, key, value.numpy().copy())
+def _arrays(state: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
+    return {k: v.numpy().copy() for k, v in state.items()}
 
 
 def env_state(env) -> dict:
@@ -52,8 +50,8 @@ def env_state(env) -> dict:
         "elapsed_steps": torch.from_numpy(env.elapsed_steps.copy()),
         "divergences": int(getattr(env, "divergences", 0)),
         "rng": env._rng.bit_generator.state,
-        "task": _arrays(env.task),
-        "robot": _arrays(env.task.robot),
+        "task": _tensors(env.task.state_dict()),
+        "robot": _tensors(env.task.robot.state_dict()),
     }
 
 
@@ -70,8 +68,8 @@ def load_env_state(env, state: dict, path: Path) -> None:
     if hasattr(env, "divergences"):
         env.divergences = int(state["divergences"])
     env._rng.bit_generator.state = state["rng"]
-    _set_arrays(env.task, state["task"])
-    _set_arrays(env.task.robot, state["robot"])
+    env.task.load_state_dict(_arrays(state["task"]))
+    env.task.robot.load_state_dict(_arrays(state["robot"]))
 
 
 def global_rng_state() -> dict:

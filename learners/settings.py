@@ -7,40 +7,36 @@
   ``eval_every``, ``quiet``, ``video``, ``video_steps``, ``torch_threads``) and
   ``logger``, by hand;
 - the ``robot``, ``task`` and ``learner`` nodes (and nested ``_target_`` nodes
-  such as ``learner.epsilon``) against the signature of the class their
-  ``_target_`` names: every key must be a parameter, and every value must have
-  the parameter's annotated type (a float must be a finite number, an int a
-  whole number, a bool ``true``/``false``, a list a list, ...). String
-  parameters are choices, which their constructors check and list.
+  such as ``learner.epsilon``) against their class's declared parameters
+  (:mod:`params.declare`): every key must be declared, and every value must
+  have its type (a float a finite number, an int a whole number, a bool
+  ``true``/``false``, a list a list, ...) and lie in its declared range. A
+  class without declarations is checked against its signature's annotations.
 
-Ranges that depend on the parameter (``learner.lr > 0``, ``epsilon`` in [0, 1],
-``n_actions`` the task can honour, a task that does not fit the robot) are
-checked by the constructors themselves with :func:`params.require`, so a
-value is checked once for its type here and once for its range there, and both
-say ``"<key> must be <allowed>; got <value>"``.
+Checks that relate two values (``min_pole_angle < max_pole_angle``, a task that
+does not fit the robot, ``batch_size <= buffer_size``) are the constructors'
+own, with :func:`params.require`; every message reads
+``"<key> must be <allowed>; got <value>"``.
 
 Why not Hydra structured configs (dataclasses in the ConfigStore)? Hydra
 reports a type mismatch as a five-line composition error outside the run's
-error handling (``Error merging override num_envs=abc`` / ``Value 'abc' of type
-'str' could not be converted to Integer`` / ``full_key: ...`` / ...), and it
-has no ranges: ``num_envs=-3`` and ``lr=nan`` pass. The constructors'
-signatures are the schema here, so no second copy of every default can drift.
+error handling, and it has no ranges: ``num_envs=-3`` and ``lr=nan`` pass.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import inspect
 import math
-import types
 import typing
-from collections.abc import Mapping as AbcMapping, Sequence as AbcSequence
 from typing import Any, Callable
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from params import ConfigError
+from params.declare import check_values, describe, is_integer, mismatch, specs
 
 MODES = ("train", "eval")
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
@@ -114,7 +110,7 @@ def _integer(conf: dict, key: str, low: int, high: float = math.inf, allowed: st
              name: str | None = None) -> None:
     name = name or key
     value = conf.get(key)
-    if not (_is_integer(value) and low <= value < high):
+    if not (is_integer(value) and low <= value < high):
         allowed = allowed or f"an integer >= {low}"
         raise ConfigError(f"{name} must be {allowed}; got {value!r}")
 
@@ -131,8 +127,11 @@ def check_params(node: dict, prefix: str, skip: tuple[str, ...] = ()) -> None:
         obj = get_object(target)
     except Exception:  # noqa: BLE001 - any import failure is the same config mistake
         raise ConfigError(f"{prefix}._target_ must name an importable class; got {target!r}") from None
-    params = {k: v for k, v in node.items() if not k.startswith("_")}
-    _check_against(obj, params, prefix, skip=skip, what=target, check_str=False)
+    params = {k: v for k, v in node.items() if not k.startswith("_") and k not in skip}
+    if dataclasses.is_dataclass(obj) and specs(obj):  # declared: names, types and ranges
+        check_values(obj, params, prefix, nested=check_params)
+    else:
+        _check_against(obj, params, prefix, skip=skip, what=target, check_str=False)
 
 
 def _check_against(obj: Callable, params: dict, prefix: str, skip: tuple[str, ...], what: str,
@@ -165,110 +164,10 @@ def _check_against(obj: Callable, params: dict, prefix: str, skip: tuple[str, ..
         hint = hints.get(name, Any)
         if hint is str and not check_str:
             continue  # the constructor checks its choices and says which are allowed
-        bad = _mismatch(value, hint, f"{prefix}.{name}")
+        bad = mismatch(value, hint, f"{prefix}.{name}")
         if bad is not None:
             key, hint, got = bad
-            raise ConfigError(f"{key} must be {_describe(hint)}; got {got!r}")
-
-
-# -- types --------------------------------------------------------------------
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _is_integer(value: Any) -> bool:
-    """An int, or a float with a whole value (``1e5`` on the command line); not a bool."""
-    if isinstance(value, bool):
-        return False
-    if isinstance(value, int):
-        return True
-    return isinstance(value, float) and math.isfinite(value) and value.is_integer()
-
-
-def _union_args(hint: Any) -> tuple | None:
-    if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        return typing.get_args(hint)
-    return None
-
-
-def _fits(value: Any, hint: Any) -> bool:
-    if hint is Any or hint is inspect.Parameter.empty:
-        return True
-    members = _union_args(hint)
-    if members is not None:
-        return any(_fits(value, m) for m in members)
-    if hint is type(None) or hint is None:
-        return value is None
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint is int:
-        return _is_integer(value)
-    if hint is float:
-        return _is_number(value) and math.isfinite(value)
-    if hint is str:
-        return isinstance(value, str)
-    origin = typing.get_origin(hint) or hint
-    args = typing.get_args(hint)
-    if origin in (list, tuple, AbcSequence):
-        if not isinstance(value, (list, tuple)):
-            return False
-        return not args or all(_fits(v, args[0]) for v in value)
-    if origin in (dict, AbcMapping):
-        if not isinstance(value, dict):
-            return False
-        return len(args) != 2 or all(_fits(k, args[0]) and _fits(v, args[1]) for k, v in value.items())
-    if inspect.isclass(origin):
-        return isinstance(value, origin)
-    return True
-
-
-def _mismatch(value: Any, hint: Any, key: str) -> tuple[str, Any, Any] | None:
-    """``None`` if ``value`` fits ``hint``; else the innermost (key, hint, value) that does not:
-    an entry of a mapping is named by its own key (``task.ring.segments``)."""
-    if _fits(value, hint):
-        return None
-    if isinstance(value, dict):
-        for member in _union_args(hint) or (hint,):
-            args = typing.get_args(member)
-            if (typing.get_origin(member) or member) in (dict, AbcMapping) and len(args) == 2:
-                for k, v in value.items():
-                    if not _fits(v, args[1]):
-                        return _mismatch(v, args[1], f"{key}.{k}")
-    return key, hint, value
-
-
-def _describe(hint: Any) -> str:
-    members = _union_args(hint)
-    if members is not None:
-        words = [_describe(m) for m in members]
-        return ", ".join(words[:-1]) + " or " + words[-1] if len(words) > 1 else words[0]
-    if hint is type(None) or hint is None:
-        return "null"
-    if hint is bool:
-        return "true or false"
-    if hint is int:
-        return "an integer"
-    if hint is float:
-        return "a finite number"
-    if hint is str:
-        return "a string"
-    origin = typing.get_origin(hint) or hint
-    args = typing.get_args(hint)
-    if origin in (list, tuple, AbcSequence):
-        return f"a list of {_plural(args[0])}" if args else "a list"
-    if origin in (dict, AbcMapping):
-        return f"a mapping of names to {_plural(args[1])}" if len(args) == 2 else "a mapping"
-    return f"a {getattr(origin, '__name__', origin)}"
-
-
-def _plural(hint: Any) -> str:
-    plain = {int: "integers", float: "finite numbers", str: "strings", bool: "booleans"}
-    if hint in plain:
-        return plain[hint]
-    origin, args = typing.get_origin(hint) or hint, typing.get_args(hint)
-    if origin in (list, tuple, AbcSequence) and args:
-        return f"lists of {_plural(args[0])}"
-    return f"values that are {_describe(hint)}"
+            raise ConfigError(f"{key} must be {describe(hint)}; got {got!r}")
 
 
 def _first_line(err: BaseException) -> str:

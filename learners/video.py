@@ -16,14 +16,13 @@ import warnings
 from pathlib import Path
 from typing import Callable
 
-import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 import imageio.v2 as imageio
 import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from torchrl.envs.utils import step_mdp
 
-ROOT = Path(__file__).resolve().parents[1]
+from tasks.factory import build_env
 
 
 def record_video(
@@ -83,7 +82,7 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
             raise FileNotFoundError(f"{run_dir} is not a run folder: it has no {name}")
     cfg = OmegaConf.load(run_dir / "config.yaml")
     learner = instantiate(cfg.learner, _convert_="all")
-    env = _train_module().build_env(cfg, 1, int(cfg.seed) + 20_000, learner.nsteps)
+    env = build_env(cfg, 1, int(cfg.seed) + 20_000, learner.nsteps)
     try:
         learner.build(env.task)
         with warnings.catch_warnings():  # torchrl's target updater notes it is re-initialised
@@ -95,15 +94,6 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
     finally:
         env.close()
     return out
-
-
-def _train_module():
-    """``train.py`` (repo root), for ``build_task``/``build_env``."""
-    if str(ROOT) not in sys.path and (ROOT / "train.py").is_file():
-        sys.path.insert(0, str(ROOT))
-    import train
-
-    return train
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -25,9 +25,11 @@ from pathlib import Path
 import numpy as np
 from dm_control import mjcf
 
-from robots.physics import BatchedPhysics
+from params import require
+from params.declare import check_fields, param
+from robots.base import Robot
 from robots.binding import JointHandle, actuator_id
-from params import finite, require
+from robots.physics import BatchedPhysics
 
 CONTROL_TYPES = ("velocity", "position", "effort")
 _XML = Path(__file__).with_suffix(".xml")
@@ -43,27 +45,21 @@ class CartPoleState:
     pole_vel: np.ndarray
 
 
-class CartPole:
+@dataclass(eq=False)
+class CartPole(Robot):
     """A cart-pole robot; ``mjcf_model`` is attached to an arena by its task."""
 
-    def __init__(
-        self,
-        velocity_gain: float = 1000.0,
-        position_gain: float = 1000.0,
-        force_limit: float = 0.0,
-        control_type: str = "velocity",
-    ) -> None:
-        for name, value in (("velocity_gain", velocity_gain), ("position_gain", position_gain)):
-            require(finite(value) and value > 0, f"robot.{name} must be a finite number > 0", value)
-        require(finite(force_limit) and force_limit >= 0,
-                "robot.force_limit must be a finite number >= 0 (0 = unlimited)", force_limit)
-        self.velocity_gain = float(velocity_gain)
-        self.position_gain = float(position_gain)
-        self.force_limit = float(force_limit)
+    velocity_gain: float = param(1000.0, "velocity servo gain, N per m/s (original PID p = 1000)", gt=0)
+    position_gain: float = param(1000.0, "position servo gain, N per m (task.control_type=position)",
+                                 gt=0)
+    force_limit: float = param(0.0, "largest cart force, N", ge=0, note="0 = unlimited")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "robot")
         self.mjcf_model = mjcf.from_path(str(_XML))
         self._actuator = None
         self.control_type = ""
-        self.use_controller(control_type)
+        self.use_controller("velocity")
         self._slider: JointHandle | None = None
         self._hinge: JointHandle | None = None
         self._act_id = -1
@@ -75,10 +71,8 @@ class CartPole:
 
     def use_controller(self, control_type: str) -> None:
         """Loads the cart controller for ``control_type`` (before compiling)."""
-        if control_type not in CONTROL_TYPES:
-            raise ValueError(
-                f"control_type must be one of {', '.join(CONTROL_TYPES)}; got {control_type!r}"
-            )
+        require(control_type in CONTROL_TYPES,
+                f"task.control_type must be one of {', '.join(CONTROL_TYPES)}", control_type)
         if self._actuator is not None:
             self._actuator.remove()
         slider = self.mjcf_model.find("joint", "slider")

@@ -50,9 +50,10 @@ import numpy as np
 from dm_control import mjcf
 from numpy.typing import ArrayLike
 
+from params.declare import check_fields, param
+from robots.base import Robot
 from robots.binding import JointHandle, actuator_id
 from robots.physics import BatchedPhysics
-from params import finite, require
 
 _XML = Path(__file__).with_suffix(".xml")
 
@@ -138,21 +139,18 @@ class CubeOdometry:
     linear_velocity: np.ndarray
 
 
-class Cube:
+@dataclass(eq=False)
+class Cube(Robot):
     """The one-wheel moving cube; ``mjcf_model`` is attached to an arena by its task."""
 
-    def __init__(
-        self,
-        velocity_gain: float = 1.0,
-        torque_limit: float = 200.0,
-        speed_limit: float = 1000.0,
-    ) -> None:
-        for name, value in (("velocity_gain", velocity_gain), ("torque_limit", torque_limit),
-                            ("speed_limit", speed_limit)):
-            require(finite(value) and value > 0, f"robot.{name} must be a finite number > 0", value)
-        self.velocity_gain = float(velocity_gain)
-        self.torque_limit = float(torque_limit)
-        self.speed_limit = float(speed_limit)
+    velocity_gain: float = param(1.0, "wheel velocity servo gain, N m per rad/s (original PID p = 1.0)",
+                                 gt=0)
+    torque_limit: float = param(200.0, "largest wheel torque, N m (original effort limit)", gt=0)
+    speed_limit: float = param(1000.0, "largest wheel speed command, rad/s (original velocity limit)",
+                               gt=0)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "robot")
         self.mjcf_model = mjcf.from_path(str(_XML))
         self._actuator = self.mjcf_model.find("actuator", "wheel")
         self._actuator.kv = self.velocity_gain

@@ -30,9 +30,10 @@ from pathlib import Path
 import numpy as np
 from dm_control import mjcf
 
+from params.declare import check_fields, param
+from robots.base import Robot
 from robots.binding import JointHandle, actuator_id, sensor_slice
 from robots.physics import BatchedPhysics
-from params import finite, require, whole
 
 _XML = Path(__file__).with_suffix(".xml")
 
@@ -52,58 +53,55 @@ class Odometry:
     angular: np.ndarray
 
 
-class TurtleBot:
+@dataclass(eq=False)
+class TurtleBot(Robot):
     """A TurtleBot2-like robot; ``mjcf_model`` is attached to an arena by its task."""
 
-    def __init__(
-        self,
-        laser_rays: int = 31,
-        laser_fov: float = math.pi,
-        laser_max_range: float = 6.0,
-        laser_height: float = 0.3,
-        linear_gain: float = 200.0,
-        angular_gain: float = 3.0,
-        max_linear_speed: float = 0.7,
-        max_angular_speed: float = math.pi,
-    ) -> None:
-        require(whole(laser_rays) and laser_rays >= 1, "robot.laser_rays must be an integer >= 1",
-                laser_rays)
-        require(finite(laser_fov) and 0 < laser_fov <= 2 * math.pi,
-                "robot.laser_fov must be in (0, 2 pi] radians", laser_fov)
-        for name, value in (("laser_max_range", laser_max_range), ("laser_height", laser_height),
-                            ("linear_gain", linear_gain), ("angular_gain", angular_gain),
-                            ("max_linear_speed", max_linear_speed),
-                            ("max_angular_speed", max_angular_speed)):
-            require(finite(value) and value > 0, f"robot.{name} must be a finite number > 0", value)
-        self.laser_max_range = float(laser_max_range)
-        self.max_linear_speed = float(max_linear_speed)
-        self.max_angular_speed = float(max_angular_speed)
-        n = int(laser_rays)
-        if n == 1:
-            self.laser_angles = np.zeros(1)
-        elif laser_fov >= 2 * math.pi - 1e-9:  # a full circle: no duplicate ray at +-pi
-            self.laser_angles = -math.pi + 2 * math.pi * np.arange(n) / n
-        else:
-            self.laser_angles = np.linspace(-laser_fov / 2, laser_fov / 2, n)
+    laser_rays: int = param(31, "rangefinders in the laser fan, right to left", ge=1)
+    laser_fov: float = param(math.pi, "angle the fan covers, centred on the heading, rad",
+                             gt=0, le=2 * math.pi)
+    laser_max_range: float = param(6.0, "laser range, m; no hit reads this (original max_laser_value)",
+                                   gt=0)
+    laser_height: float = param(0.3, "height of the laser above the floor, m", gt=0)
+    linear_gain: float = param(200.0, "velocity servo gain, N per m/s (about 0.03 s to settle)", gt=0)
+    angular_gain: float = param(3.0, "yaw-rate servo gain, N m per rad/s (about 0.03 s to settle)",
+                                gt=0)
+    max_linear_speed: float = param(0.7, "linear speed limit, m/s (Kobuki); commands are clipped",
+                                    gt=0)
+    max_angular_speed: float = param(math.pi, "yaw rate limit, rad/s (Kobuki); commands are clipped",
+                                     gt=0)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "robot")
+        self.laser_angles = self._fan_angles(self.laser_rays, self.laser_fov)
         self.mjcf_model = mjcf.from_path(str(_XML))
-        model = self.mjcf_model
-        self._linear = model.find("actuator", "linear")
-        self._angular = model.find("actuator", "angular")
-        self._linear.kv = float(linear_gain)
-        self._angular.kv = float(angular_gain)
-        base = model.find("body", "base")
-        self._rays = []
-        for i, angle in enumerate(self.laser_angles):
-            site = base.add("site", name=f"laser_{i:03d}", pos=[0, 0, laser_height],
-                            zaxis=[math.cos(angle), math.sin(angle), 0], size=[0.005],
-                            rgba=[1, 0, 0, 0])
-            self._rays.append(model.sensor.add("rangefinder", name=f"laser_{i:03d}", site=site))
+        self._linear = self.mjcf_model.find("actuator", "linear")
+        self._angular = self.mjcf_model.find("actuator", "angular")
+        self._linear.kv = self.linear_gain
+        self._angular.kv = self.angular_gain
+        self._rays = [self._add_ray(i, angle) for i, angle in enumerate(self.laser_angles)]
         self._x: JointHandle | None = None
         self._y: JointHandle | None = None
         self._yaw: JointHandle | None = None
         self._act = np.zeros(2, dtype=np.int64)
-        self._laser_idx = np.zeros(n, dtype=np.int64)
+        self._laser_idx = np.zeros(self.laser_rays, dtype=np.int64)
         self._bumper_idx = -1
+
+    @staticmethod
+    def _fan_angles(n: int, fov: float) -> np.ndarray:
+        """Ray headings, right to left; a full circle has no duplicate ray at +-pi."""
+        if n == 1:
+            return np.zeros(1)
+        if fov >= 2 * math.pi - 1e-9:
+            return -math.pi + 2 * math.pi * np.arange(n) / n
+        return np.linspace(-fov / 2, fov / 2, n)
+
+    def _add_ray(self, i: int, angle: float):
+        """A rangefinder on a site of the base, looking along ``angle``."""
+        site = self.mjcf_model.find("body", "base").add(
+            "site", name=f"laser_{i:03d}", pos=[0, 0, self.laser_height],
+            zaxis=[math.cos(angle), math.sin(angle), 0], size=[0.005], rgba=[1, 0, 0, 0])
+        return self.mjcf_model.sensor.add("rangefinder", name=f"laser_{i:03d}", site=site)
 
     @property
     def n_rays(self) -> int:

@@ -1,18 +1,15 @@
-"""Small pieces every task uses: argument checks, substeps, tabular state bounds.
+"""The task contract (:class:`Task`) and the small pieces every task uses.
 
-A task is a plain class that *has* a robot and provides:
-
-``n_actions``, ``observation_names``, ``n_substeps``, ``max_episode_steps``,
-``tabular_state`` (:class:`Bounds`), ``build_arena()``, ``bind(physics)``,
-``initialize_episode(physics, mask, rng)``, ``apply_action(physics, action)``,
-``observation(physics)``, ``terminated(physics, obs)`` and
-``reward(physics, obs, terminated)``, all over the whole batch of copies;
-``success`` (:class:`Success`, what "solved" means for it) and, unless its
-measure is the episode length, ``episode_info(physics)`` holding that measure.
+A task *has* a robot and turns it into a decision problem over a batch of
+copies (dm_control's ``composer.Task``): the arena it lives in, what an action
+does, what is observed, the reward, when an episode ends, how one starts, and
+what "solved" means (:class:`Success`). Its parameters are dataclass fields
+declared with :func:`params.declare.param`.
 """
 
 from __future__ import annotations
 
+import abc
 import math
 import numbers
 from dataclasses import dataclass
@@ -21,6 +18,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from params import finite, require, whole
+from params.declare import check_fields
+from robots.base import Robot
+from robots.physics import BatchedPhysics
 
 
 def substeps_for(running_step: float, timestep: float) -> int:
@@ -130,3 +130,133 @@ class Success:
     def describe(self) -> str:
         """``"distance walked towards +y >= 1 m"``: the rule in words."""
         return f"{self.description} >= {self.threshold:g} {self.unit}".rstrip()
+
+
+class PerCopy:
+    """A task's per-copy state between steps: named arrays with one row per copy.
+
+    ``PerCopy(command=(), start_xy=(2,), action=((), np.int64))`` declares the
+    arrays by their shape after the copy axis (and dtype, default float64);
+    ``allocate(n)`` makes them zeros for ``n`` copies. They are attributes
+    (``state.command``) and are what a training checkpoint saves.
+    """
+
+    def __init__(self, **declared: tuple) -> None:
+        self._declared = {name: self._spec(spec) for name, spec in declared.items()}
+        self.allocate(0)
+
+    @staticmethod
+    def _spec(spec: tuple) -> tuple[tuple[int, ...], type]:
+        if len(spec) == 2 and isinstance(spec[0], tuple):
+            return spec[0], spec[1]
+        return tuple(spec), np.float64
+
+    def allocate(self, n: int) -> None:
+        for name, (shape, dtype) in self._declared.items():
+            setattr(self, name, np.zeros((n, *shape), dtype=dtype))
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self, name).copy() for name in self._declared}
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        require(set(state) == set(self._declared),
+                f"per-copy task state must hold {sorted(self._declared)}", sorted(state))
+        for name, value in state.items():
+            current = getattr(self, name)
+            require(np.shape(value) == current.shape,
+                    f"per-copy task state {name} must have shape {current.shape}", np.shape(value))
+            setattr(self, name, np.array(value, dtype=current.dtype))
+
+
+class Task(abc.ABC):
+    """The task contract. Besides the methods below, a task has these attributes:
+
+    - ``robot`` (:class:`~robots.base.Robot`): the robot it has;
+    - ``n_actions`` (int): actions are ``Discrete(n_actions)``;
+    - ``observation_names`` (tuple of str): the observation's entries, in order;
+    - ``running_step`` (s of simulated time per step), ``physics_timestep`` (s)
+      and ``n_substeps`` (physics steps per env step);
+    - ``max_episode_steps`` (int): the time limit (the env truncates);
+    - ``tabular_bounds`` (:class:`Bounds`): entries and ranges a tabular learner may bin;
+    - ``success`` (:class:`Success`): what "solved" means for it;
+    - ``per_copy`` (:class:`PerCopy`): its state between steps, saved with checkpoints.
+
+    Every method works on the whole batch of copies at once.
+    """
+
+    @abc.abstractmethod
+    def build_arena(self) -> Any:
+        """The MJCF arena with the robot attached (compiled once by the env)."""
+
+    @abc.abstractmethod
+    def bind(self, physics: BatchedPhysics) -> None:
+        """Resolves names in the compiled model; sizes per-copy state for ``physics.num_envs``."""
+
+    @abc.abstractmethod
+    def initialize_episode(self, physics: BatchedPhysics, mask: np.ndarray,
+                           rng: np.random.Generator) -> None:
+        """Starts a new episode in the copies where ``mask`` is true."""
+
+    @abc.abstractmethod
+    def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
+        """Turns each copy's action (int ``(num_envs,)``) into robot commands."""
+
+    @abc.abstractmethod
+    def observation(self, physics: BatchedPhysics) -> np.ndarray:
+        """``(num_envs, len(observation_names))``."""
+
+    @abc.abstractmethod
+    def terminated(self, physics: BatchedPhysics, observation: np.ndarray) -> np.ndarray:
+        """Bool ``(num_envs,)``: the episode ended by failure or success (not by time)."""
+
+    @abc.abstractmethod
+    def reward(self, physics: BatchedPhysics, observation: np.ndarray,
+               terminated: np.ndarray) -> np.ndarray:
+        """``(num_envs,)`` rewards of the step just taken."""
+
+    @abc.abstractmethod
+    def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
+        """Per copy, what its episode has achieved so far (``success.measure`` among
+        them unless it is the episode length); ``{}`` if nothing."""
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The per-copy state (``per_copy``) as arrays, for a training checkpoint."""
+        return self.per_copy.state_dict()
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """Restores what :meth:`state_dict` returned."""
+        self.per_copy.load_state_dict(state)
+
+
+#: Every member a task provides.
+CONTRACT = (
+    "robot", "n_actions", "observation_names", "running_step", "physics_timestep", "n_substeps",
+    "max_episode_steps", "tabular_bounds", "success", "per_copy",
+    "build_arena", "bind", "initialize_episode", "apply_action", "observation", "terminated",
+    "reward", "episode_info", "state_dict", "load_state_dict",
+)
+_TYPES = {"robot": Robot, "tabular_bounds": Bounds, "success": Success, "per_copy": PerCopy}
+
+
+def check_task(task: Any) -> None:
+    """Raises ``TypeError`` naming what ``task`` lacks of the contract."""
+    missing = [m for m in CONTRACT if not hasattr(task, m)]
+    wrong = [f"{m} is not a {t.__name__}" for m, t in _TYPES.items()
+             if hasattr(task, m) and not isinstance(getattr(task, m), t)]
+    if not isinstance(task, Task):
+        wrong.append("it does not derive from tasks.base.Task")
+    if missing or wrong:
+        raise TypeError(f"{type(task).__name__} does not fulfil the task contract (tasks.base.Task): "
+                        + "; ".join(([f"missing {', '.join(missing)}"] if missing else []) + wrong))
+
+
+def setup(task: Task, robot: type, robot_name: str, success: Success,
+          measures: Mapping[str, tuple[str, str]]) -> None:
+    """What every task's ``__post_init__`` does first: checks its declared parameters and
+    that its robot fits; sets ``n_substeps`` and ``success`` (``task.win`` over ``success``,
+    ``measures`` naming each measure the task offers with its unit and description)."""
+    check_fields(task, "task")
+    require(isinstance(task.robot, robot), f"task {task.name} needs robot={robot_name}",
+            type(task.robot).__name__)
+    task.n_substeps = substeps_for(task.running_step, task.physics_timestep)
+    task.success = Success.from_config(task.win, success, measures)

@@ -28,7 +28,6 @@ where a trainer reads what an episode achieved).
 from __future__ import annotations
 
 import logging
-from typing import Any
 
 import mujoco
 import numpy as np
@@ -38,6 +37,7 @@ from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from robots.physics import BatchedPhysics
+from tasks.base import Task, check_task
 
 _log = logging.getLogger(__name__)
 
@@ -50,9 +50,10 @@ def compile_model(arena) -> mujoco.MjModel:
 class RobotTaskEnv(EnvBase):
     """A batched TorchRL environment for any task and the robot it has."""
 
-    def __init__(self, task: Any, num_envs: int = 1, seed: int = 0, nthread: int | None = None):
+    def __init__(self, task: Task, num_envs: int = 1, seed: int = 0, nthread: int | None = None):
         if int(num_envs) < 1:
             raise ValueError(f"env.num_envs must be >= 1, got {num_envs}")
+        check_task(task)
         super().__init__(batch_size=torch.Size([int(num_envs)]), device="cpu")
         self.task = task
         self.num_envs = int(num_envs)
@@ -129,10 +130,7 @@ class RobotTaskEnv(EnvBase):
 
     def _keep_ended_info(self, mask: np.ndarray) -> None:
         """Copies the task's ``episode_info`` of the ``mask`` copies into ``ended_info``."""
-        info_fn = getattr(self.task, "episode_info", None)
-        if info_fn is None:
-            return
-        for key, value in info_fn(self.physics).items():
+        for key, value in self.task.episode_info(self.physics).items():
             self.ended_info.setdefault(key, np.zeros(self.num_envs))[mask] = np.asarray(value)[mask]
 
     def _report_divergences(self, diverged: np.ndarray) -> None:

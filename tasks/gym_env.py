@@ -22,24 +22,19 @@ holds the task's ``episode_info`` values (such as the cube's y displacement).
 from __future__ import annotations
 
 import re
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 import gymnasium as gym
 import torch
 from gymnasium import spaces
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
-from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, OmegaConf
 
+from tasks import factory
 from tasks.env import RobotTaskEnv
 
 NAMESPACE = "MujocoRL"
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 # Display names of robots in env ids; a robot not listed gets its name camel-cased.
 ROBOT_NAMES = {"cartpole": "CartPole", "cube": "MovingCube", "turtlebot": "TurtleBot2"}
 _NO_LIMIT = 2**62
@@ -49,45 +44,9 @@ def _camel(name: str) -> str:
     return "".join(part.capitalize() for part in re.split(r"[_\-]", name) if part)
 
 
-def _conf_dir() -> Path:
-    if not (CONF_DIR / "config.yaml").is_file():
-        raise FileNotFoundError(
-            f"the Hydra configs were not found at {CONF_DIR}; install the project editable "
-            "(pip install -e .) so conf/ stays next to the packages")
-    return CONF_DIR
-
-
-def _compose(robot: str, overrides: tuple[str, ...] = ()) -> tuple[DictConfig, str]:
-    gh = GlobalHydra.instance()
-    app = gh.hydra if gh.is_initialized() else None
-    gh.clear()
-    try:
-        with initialize_config_dir(config_dir=str(_conf_dir()), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[f"robot={robot}", *overrides],
-                          return_hydra_config=True)
-    finally:
-        if app is not None:
-            GlobalHydra.instance().clear()
-            GlobalHydra.instance().initialize(app)
-    task = str(cfg.hydra.runtime.choices.task)
-    with open_dict(cfg):
-        del cfg["hydra"]
-    OmegaConf.resolve(cfg)
-    return cfg, task
-
-
-def compose_config(robot: str, overrides: tuple[str, ...] = ()) -> DictConfig:
-    """The resolved run config for ``robot=<robot>`` (plus Hydra ``overrides``).
-
-    Works inside a running Hydra app too: that app's global state is restored.
-    """
-    return _compose(robot, overrides)[0]
-
-
 def default_tasks() -> dict[str, str]:
     """Robot name (one per ``conf/robot/*.yaml``) -> the task its config picks."""
-    return {path.stem: _compose(path.stem)[1]
-            for path in sorted((_conf_dir() / "robot").glob("*.yaml"))}
+    return {robot: factory.default_task(robot) for robot in factory.robot_names()}
 
 
 def env_id(robot: str, task: str) -> str:
@@ -123,15 +82,15 @@ class MujocoRLEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None; "
                              f"got {render_mode!r}")
-        cfg = compose_config(robot)
+        cfg = factory.compose(robot)
         robot_cfg = _override(cfg.robot, robot_params or {}, f"robot {robot}")
         task_cfg = _override(cfg.task, task_params, f"the task of robot {robot}")
-        task = instantiate(task_cfg, robot=instantiate(robot_cfg, _convert_="all"), _convert_="all")
+        self.config = OmegaConf.create({"robot": robot_cfg, "task": task_cfg})
+        task = factory.build_task(self.config)
         if "max_episode_steps" not in task_params:
             task.max_episode_steps = _NO_LIMIT  # gymnasium.make's TimeLimit truncates
         self.torchrl_env = RobotTaskEnv(task, num_envs=1, seed=0)  # the one copy underneath
         self.task = task
-        self.config = OmegaConf.create({"robot": robot_cfg, "task": task_cfg})
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
         self.camera = camera if camera is not None else (0 if self.torchrl_env.model.ncam else -1)
@@ -161,9 +120,8 @@ class MujocoRLEnv(gym.Env):
         self._td = nxt.exclude("reward", "done", "terminated", "truncated")
         terminated = bool(nxt.get("terminated").item())
         truncated = bool(nxt.get("truncated").item())
-        episode_info = getattr(self.task, "episode_info", None)
-        info = {} if episode_info is None else {
-            k: float(np.asarray(v)[0]) for k, v in episode_info(self.torchrl_env.physics).items()}
+        info = {k: float(np.asarray(v)[0])
+                for k, v in self.task.episode_info(self.torchrl_env.physics).items()}
         return self._obs(nxt), float(nxt.get("reward").item()), terminated, truncated, info
 
     def render(self) -> np.ndarray | None:
@@ -188,13 +146,11 @@ def register_envs() -> list[str]:
     changes it.
     """
     ids = []
-    for path in sorted((_conf_dir() / "robot").glob("*.yaml")):
-        cfg, task = _compose(path.stem)
-        name = env_id(path.stem, task)
+    for robot in factory.robot_names():
+        name = env_id(robot, factory.default_task(robot))
         if name not in gym.registry:
-            gym.register(id=name, entry_point=f"{__name__}:MujocoRLEnv",
-                         kwargs={"robot": path.stem},
-                         max_episode_steps=int(cfg.task.max_episode_steps))
+            gym.register(id=name, entry_point=f"{__name__}:MujocoRLEnv", kwargs={"robot": robot},
+                         max_episode_steps=int(factory.compose(robot).task.max_episode_steps))
         ids.append(name)
     return ids
 

@@ -33,15 +33,17 @@ can be judged by ``distance`` (path length, m) instead.
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from dataclasses import dataclass
+from typing import ClassVar, Mapping, Sequence
 
 import numpy as np
 from dm_control import mjcf
 
+from params import require
+from params.declare import param
 from robots.physics import BatchedPhysics
 from robots.turtlebot import TurtleBot
-from params import finite, require, whole
-from tasks.base import Bounds, Success, substeps_for
+from tasks.base import Bounds, PerCopy, Success, Task, setup
 from tasks.maze_arena import Maze, maze_arena
 
 SUCCESS = Success("laps", "laps", "laps round the maze without a collision", 2.0, "greedy", 100, 100)
@@ -50,119 +52,106 @@ MEASURES = {
     "loop_distance": ("m", "distance along the loop without a collision"),
     "distance": ("m", "path length driven without a collision"),
 }
+RING_KEYS = ("inner_radius", "outer_radius", "segments", "starts", "wall_thickness")
 
 FORWARD, LEFT, RIGHT = 0, 1, 2
 
 
-class MazeTask:
+@dataclass(eq=False)
+class MazeTask(Task):
     """The maze-driving task; it has a :class:`TurtleBot`."""
 
-    def __init__(
-        self,
-        robot: TurtleBot,
-        ring: Mapping[str, float] | None = None,
-        layout: Sequence[str] | None = None,
-        cell_size: float = 0.5,
-        wall_height: float = 0.5,
-        n_actions: int = 3,
-        n_observations: int = 6,
-        linear_forward_speed: float = 0.5,
-        linear_turn_speed: float = 0.1,
-        angular_speed: float = 0.3,
-        min_range: float = 0.5,
-        forwards_reward: float = 5.0,
-        turn_reward: float = 1.0,
-        end_episode_points: float = 200.0,
-        running_step: float = 0.5,
-        max_episode_steps: int = 500,
-        physics_timestep: float = 0.02,
-        start_position_noise: float = 0.2,
-        start_yaw_noise: float = 0.3,
-        tabular_state: Mapping[str, Sequence[float]] | None = None,
-        win: Mapping[str, object] | None = None,
-    ) -> None:
-        require(isinstance(robot, TurtleBot), "task maze needs robot=turtlebot",
-                type(robot).__name__)
-        require(n_actions == 3, "task.n_actions must be 3 (forward, left, right)", n_actions)
-        require(whole(n_observations) and n_observations >= 1,
-                "task.n_observations must be an integer >= 1", n_observations)
-        require(finite(min_range) and min_range > 0, "task.min_range must be a finite number > 0",
-                min_range)
-        require(min_range < robot.laser_max_range,
+    name: ClassVar[str] = "maze"
+
+    robot: TurtleBot
+    ring: Mapping[str, float] | None = param(None, "a round loop: " + ", ".join(RING_KEYS)
+                                                   + " (or give layout)")
+    layout: Sequence[str] | None = param(None, "a grid of wall cells, rows north to south: "
+                                               "'#' wall, '.' floor, '> ^ < v' starts (or give ring)")
+    cell_size: float = param(0.5, "edge of a layout cell, m", gt=0)
+    wall_height: float = param(0.5, "height of the walls, m", gt=0)
+    n_actions: int = param(3, "actions: forward, turn left, turn right", choices=(3,))
+    n_observations: int = param(6, "laser sectors in the observation", ge=1)
+    linear_forward_speed: float = param(0.5, "speed of the forward action, m/s", gt=0)
+    linear_turn_speed: float = param(0.1, "speed while turning, m/s")
+    angular_speed: float = param(0.3, "turn rate of the turn actions, rad/s", gt=0)
+    min_range: float = param(0.5, "a laser reading below it ends the episode, m", gt=0)
+    forwards_reward: float = param(5.0, "reward of a forward step")
+    turn_reward: float = param(1.0, "reward of a turning step")
+    end_episode_points: float = param(200.0, "the colliding step's reward is minus this", ge=0)
+    running_step: float = param(0.5, "simulated time per step, s", gt=0)
+    max_episode_steps: int = param(500, "time limit, steps (the episode is truncated)", ge=1)
+    physics_timestep: float = param(0.02, "physics step, s", gt=0)
+    start_position_noise: float = param(0.2, "uniform start offset in x and y, m", ge=0)
+    start_yaw_noise: float = param(0.3, "uniform start heading offset, rad", ge=0)
+    tabular_state: Mapping[str, Sequence[float]] | None = param(
+        None, "observation entries a tabular learner bins: name: [low, high] "
+              "(null: every sector over [min_range, laser range])")
+    win: Mapping[str, object] | None = param(None, "what solved means: measure, threshold, judge, "
+                                                   "window, min_episodes (null: 2 greedy laps)")
+
+    def __post_init__(self) -> None:
+        setup(self, TurtleBot, "turtlebot", SUCCESS, MEASURES)
+        self._check_speeds()
+        self.maze = self._build_maze()
+        self.rewards = np.array([self.forwards_reward, self.turn_reward, self.turn_reward])
+        # Action -> (linear, angular) velocity command.
+        self.speeds = np.array([[self.linear_forward_speed, 0.0],
+                                [self.linear_turn_speed, self.angular_speed],
+                                [self.linear_turn_speed, -self.angular_speed]], dtype=float)
+        self._sectors = self._laser_sectors()
+        self.observation_names = tuple(f"laser_{k}" for k in range(self.n_observations))
+        self.tabular_bounds = Bounds.from_config(
+            self.tabular_state or {name: [self.min_range, self.robot.laser_max_range]
+                                   for name in self.observation_names},
+            self.observation_names)
+        # The last action, and the odometer and loop progress of the episode.
+        self.per_copy = PerCopy(action=((), np.int64), prev_xy=(2,), distance=(), winding=(),
+                                along=())
+
+    def _check_speeds(self) -> None:
+        """A range the laser can see, speeds the robot can drive (its servos clip to its limits)."""
+        robot = self.robot
+        require(self.min_range < robot.laser_max_range,
                 f"task.min_range must be below the laser's range ({robot.laser_max_range})",
-                min_range)
-        # Speeds the robot can drive: its servos clip commands to its limits.
+                self.min_range)
         v_max, w_max = robot.max_linear_speed, robot.max_angular_speed
-        require(finite(linear_forward_speed) and 0 < linear_forward_speed <= v_max,
+        require(self.linear_forward_speed <= v_max,
                 f"task.linear_forward_speed must be in (0, {v_max}] m/s (robot.max_linear_speed)",
-                linear_forward_speed)
-        require(finite(linear_turn_speed) and abs(linear_turn_speed) <= v_max,
+                self.linear_forward_speed)
+        require(abs(self.linear_turn_speed) <= v_max,
                 f"task.linear_turn_speed must be in [-{v_max}, {v_max}] m/s (robot.max_linear_speed)",
-                linear_turn_speed)
-        require(finite(angular_speed) and 0 < angular_speed <= w_max,
+                self.linear_turn_speed)
+        require(self.angular_speed <= w_max,
                 f"task.angular_speed must be in (0, {w_max}] rad/s (robot.max_angular_speed)",
-                angular_speed)
-        for name, value in (("forwards_reward", forwards_reward), ("turn_reward", turn_reward)):
-            require(finite(value), f"task.{name} must be a finite number", value)
-        require(finite(end_episode_points) and end_episode_points >= 0,
-                "task.end_episode_points must be a finite number >= 0 (it is subtracted)",
-                end_episode_points)
-        require(finite(start_position_noise) and start_position_noise >= 0,
-                "task.start_position_noise must be a finite number >= 0", start_position_noise)
-        require(finite(start_yaw_noise) and start_yaw_noise >= 0,
-                "task.start_yaw_noise must be a finite number >= 0", start_yaw_noise)
-        require(whole(max_episode_steps) and max_episode_steps >= 1,
-                "task.max_episode_steps must be an integer >= 1", max_episode_steps)
-        require(finite(wall_height) and wall_height > 0, "task.wall_height must be a finite number > 0",
-                wall_height)
+                self.angular_speed)
+
+    def _build_maze(self) -> Maze:
+        """The maze of ``ring`` or of ``layout``: exactly one of them."""
+        ring, layout = self.ring, self.layout
         require((ring is None) != (layout is None),
                 "task maze needs exactly one of task.ring and task.layout",
                 "neither" if ring is None else "both")
-        ring_keys = ("inner_radius", "outer_radius", "segments", "starts", "wall_thickness")
-        require(ring is None or isinstance(ring, Mapping),
-                f"task.ring must be a mapping of {', '.join(ring_keys)}", ring)
-        unknown = sorted(set(ring or ()) - set(ring_keys))
-        require(not unknown, f"task.ring entries must be among {', '.join(ring_keys)}",
+        if layout is not None:
+            require(all(isinstance(row, str) for row in layout),
+                    "task.layout must be a list of strings (rows of the grid)", layout)
+            return Maze.grid(layout, self.cell_size)
+        unknown = sorted(set(ring) - set(RING_KEYS))
+        require(not unknown, f"task.ring entries must be among {', '.join(RING_KEYS)}",
                 ", ".join(map(str, unknown)))
-        require(layout is None or (isinstance(layout, Sequence) and not isinstance(layout, str)
-                                   and all(isinstance(row, str) for row in layout)),
-                "task.layout must be a list of strings (rows of the grid)", layout)
-        self.success = Success.from_config(win, SUCCESS, MEASURES)
-        self.robot = robot
-        self.maze = Maze.ring(**ring) if ring is not None else Maze.grid(layout, cell_size)
-        self.wall_height = float(wall_height)
-        self.n_actions = 3
-        self.n_observations = int(n_observations)
-        self.min_range = float(min_range)
-        self.rewards = np.array([forwards_reward, turn_reward, turn_reward], dtype=float)
-        self.end_episode_points = float(end_episode_points)
-        self.running_step = float(running_step)
-        self.max_episode_steps = int(max_episode_steps)
-        self.physics_timestep = float(physics_timestep)
-        self.n_substeps = substeps_for(running_step, physics_timestep)
-        self.start_position_noise = float(start_position_noise)
-        self.start_yaw_noise = float(start_yaw_noise)
-        # Action -> (linear, angular) velocity command.
-        self.speeds = np.array([[linear_forward_speed, 0.0],
-                                [linear_turn_speed, angular_speed],
-                                [linear_turn_speed, -angular_speed]], dtype=float)
-        # Sector k covers the closed angle interval k of n_observations equal ones, so a ray
-        # on a boundary counts in both neighbours.
-        angles = robot.laser_angles
+        return Maze.ring(**ring)
+
+    def _laser_sectors(self) -> np.ndarray:
+        """``(n_observations, rays)``: sector k covers the closed angle interval k of
+        n_observations equal ones, so a ray on a boundary counts in both neighbours."""
+        angles = self.robot.laser_angles
         edges = np.linspace(angles[0], angles[-1], self.n_observations + 1)
         eps = 1e-9
-        self._sectors = (angles[None, :] >= edges[:-1, None] - eps) & (
-            angles[None, :] <= edges[1:, None] + eps)
-        require(bool(self._sectors.any(1).all()),
+        sectors = (angles[None, :] >= edges[:-1, None] - eps) & (angles[None, :] <= edges[1:, None] + eps)
+        require(bool(sectors.any(1).all()),
                 f"task.n_observations must leave at least one laser ray per sector "
-                f"(robot.laser_rays = {robot.n_rays})", n_observations)
-        self.observation_names = tuple(f"laser_{k}" for k in range(self.n_observations))
-        self.tabular_state = Bounds.from_config(
-            tabular_state or {name: [self.min_range, robot.laser_max_range]
-                              for name in self.observation_names},
-            self.observation_names,
-        )
-        self._allocate(0)
+                f"(robot.laser_rays = {self.robot.n_rays})", self.n_observations)
+        return sectors
 
     def build_arena(self) -> mjcf.RootElement:
         arena = maze_arena("turtlebot_maze", self.maze, self.physics_timestep, self.wall_height)
@@ -171,15 +160,7 @@ class MazeTask:
 
     def bind(self, physics: BatchedPhysics) -> None:
         self.robot.bind(physics)
-        self._allocate(physics.num_envs)
-
-    def _allocate(self, n: int) -> None:
-        """Per-copy state: last action, and the odometer and loop progress of the episode."""
-        self._action = np.zeros(n, dtype=np.int64)
-        self._prev_xy = np.zeros((n, 2))
-        self._distance = np.zeros(n)
-        self._winding = np.zeros(n)
-        self._along = np.zeros(n)
+        self.per_copy.allocate(physics.num_envs)
 
     def initialize_episode(
         self, physics: BatchedPhysics, mask: np.ndarray, rng: np.random.Generator
@@ -191,17 +172,16 @@ class MazeTask:
             self.start_position_noise, self.start_position_noise, self.start_yaw_noise]
         pose = starts + noise
         self.robot.set_pose(physics, mask, pose[:, 0], pose[:, 1], pose[:, 2])
-        linear, angular = self.speeds[self._action].T
+        linear, angular = self.speeds[self.per_copy.action].T
         self.robot.command_velocity(physics, np.where(mask, 0.0, linear),
                                     np.where(mask, 0.0, angular))
-        self._prev_xy[mask] = pose[:, :2]
-        self._distance[mask] = 0.0
-        self._winding[mask] = 0.0
-        self._along[mask] = 0.0
+        c = self.per_copy
+        c.prev_xy[mask] = pose[:, :2]
+        c.distance[mask] = c.winding[mask] = c.along[mask] = 0.0
 
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
-        self._action = np.asarray(action, dtype=np.int64).copy()
-        linear, angular = self.speeds[self._action].T
+        self.per_copy.action = np.asarray(action, dtype=np.int64).copy()
+        linear, angular = self.speeds[self.per_copy.action].T
         self.robot.command_velocity(physics, linear, angular)
 
     def scan(self, physics: BatchedPhysics) -> np.ndarray:
@@ -220,25 +200,27 @@ class MazeTask:
     def reward(
         self, physics: BatchedPhysics, observation: np.ndarray, terminated: np.ndarray
     ) -> np.ndarray:
-        return np.where(terminated, -self.end_episode_points, self.rewards[self._action])
+        return np.where(terminated, -self.end_episode_points, self.rewards[self.per_copy.action])
 
     def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
         """Per copy, since the episode began: ``distance``, the path length driven (m);
         ``loop_distance``, the net distance driven around the maze centre (m, either
         way round); ``laps``, the net number of times round it."""
         self._track(physics)
-        return {"distance": self._distance.copy(), "loop_distance": np.abs(self._along),
-                "laps": np.abs(self._winding) / (2 * math.pi)}
+        c = self.per_copy
+        return {"distance": c.distance.copy(), "loop_distance": np.abs(c.along),
+                "laps": np.abs(c.winding) / (2 * math.pi)}
 
     def _track(self, physics: BatchedPhysics) -> None:
         """Adds the motion since the last call to each copy's path length and its
         progress around the maze centre (angle, and arc length r * d(angle))."""
+        c = self.per_copy
         odom = self.robot.odometry(physics)
         xy = np.stack([odom.x, odom.y], axis=1)
-        self._distance += np.linalg.norm(xy - self._prev_xy, axis=1)
-        now, before = xy[:, 0] + 1j * xy[:, 1], self._prev_xy[:, 0] + 1j * self._prev_xy[:, 1]
+        c.distance += np.linalg.norm(xy - c.prev_xy, axis=1)
+        now, before = xy[:, 0] + 1j * xy[:, 1], c.prev_xy[:, 0] + 1j * c.prev_xy[:, 1]
         turned = np.angle(now * np.conj(before))
         radius = (np.abs(now) + np.abs(before)) / 2
-        self._winding += turned
-        self._along += radius * turned
-        self._prev_xy = xy
+        c.winding += turned
+        c.along += radius * turned
+        c.prev_xy = xy

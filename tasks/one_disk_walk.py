@@ -46,16 +46,18 @@ cube that never moves lasts every episode to its time limit and walks 0 m.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from dm_control import mjcf
 
+from params import require
+from params.declare import param
 from robots.cube import Cube
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from params import finite, require, whole
-from tasks.base import Bounds, Success, substeps_for
+from tasks.base import Bounds, PerCopy, Success, Task, setup
 
 SUCCESS = Success("distance_walked", "m", "distance walked", 1.0, "greedy", 100, 100)
 
@@ -63,102 +65,71 @@ SUCCESS = Success("distance_walked", "m", "distance walked", 1.0, "greedy", 100,
 WHEEL_FORWARD, WHEEL_BACKWARD, WHEEL_STOP, SPEED_UP, SPEED_DOWN = range(5)
 
 
-class OneDiskWalk:
+@dataclass(eq=False)
+class OneDiskWalk(Task):
     """The cube walking task; it has a :class:`Cube`."""
 
-    observation_names = ("wheel_speed", "y_distance", "roll", "pitch", "y_speed", "yaw")
+    name: ClassVar[str] = "one_disk_walk"
+    observation_names: ClassVar[tuple[str, ...]] = (
+        "wheel_speed", "y_distance", "roll", "pitch", "y_speed", "yaw")
 
-    def __init__(
-        self,
-        robot: Cube,
-        running_step: float = 0.06,
-        n_actions: int = 5,
-        init_roll_vel: float = 0.0,
-        roll_speed_fixed_value: float = 100.0,
-        roll_speed_increment_value: float = 10.0,
-        max_distance: float = 2.0,
-        max_pitch_angle: float = 0.2,
-        max_yaw_angle: float = 0.1,
-        max_y_linear_speed: float = 100.0,
-        init_cube_pose: Sequence[float] = (0.0, 0.0, 0.0),
-        end_episode_points: float = 1000.0,
-        move_distance_reward_weight: float = 1000.0,
-        y_linear_speed_reward_weight: float = 1000.0,
-        y_axis_angle_reward_weight: float = 1000.0,
-        reset_noise: float = 0.005,
-        max_episode_steps: int = 1000,
-        physics_timestep: float = 0.001,
-        tabular_state: dict | None = None,
-        win: dict | None = None,
-    ) -> None:
-        require(isinstance(robot, Cube), "task one_disk_walk needs robot=cube",
-                type(robot).__name__)
-        require(n_actions == 5, "task.n_actions must be 5 (the five wheel actions)", n_actions)
-        require(finite(roll_speed_fixed_value) and roll_speed_fixed_value > 0,
-                "task.roll_speed_fixed_value must be a finite number > 0", roll_speed_fixed_value)
-        require(roll_speed_fixed_value <= robot.speed_limit,
-                f"task.roll_speed_fixed_value must be <= robot.speed_limit ({robot.speed_limit})",
-                roll_speed_fixed_value)
-        require(finite(roll_speed_increment_value) and roll_speed_increment_value > 0,
-                "task.roll_speed_increment_value must be a finite number > 0",
-                roll_speed_increment_value)
-        require(finite(init_roll_vel) and abs(init_roll_vel) <= roll_speed_fixed_value,
-                f"task.init_roll_vel must be within +-roll_speed_fixed_value "
-                f"({roll_speed_fixed_value})", init_roll_vel)
-        for name, value in (("max_pitch_angle", max_pitch_angle), ("max_yaw_angle", max_yaw_angle),
-                            ("max_distance", max_distance),
-                            ("max_y_linear_speed", max_y_linear_speed)):
-            require(finite(value) and value > 0, f"task.{name} must be a finite number > 0", value)
-        require(isinstance(init_cube_pose, (Sequence, np.ndarray)) and not isinstance(init_cube_pose, str)
-                and len(init_cube_pose) == 3 and all(finite(v) for v in init_cube_pose),
-                "task.init_cube_pose must be [x, y, z], three finite numbers", init_cube_pose)
-        require(finite(end_episode_points) and end_episode_points >= 0,
-                "task.end_episode_points must be a finite number >= 0 (it is subtracted)",
-                end_episode_points)
-        for name, value in (("move_distance_reward_weight", move_distance_reward_weight),
-                            ("y_linear_speed_reward_weight", y_linear_speed_reward_weight),
-                            ("y_axis_angle_reward_weight", y_axis_angle_reward_weight)):
-            require(finite(value), f"task.{name} must be a finite number", value)
-        require(finite(reset_noise) and reset_noise >= 0,
-                "task.reset_noise must be a finite number >= 0", reset_noise)
-        require(whole(max_episode_steps) and max_episode_steps >= 1,
-                "task.max_episode_steps must be an integer >= 1", max_episode_steps)
+    robot: Cube
+    running_step: float = param(0.06, "simulated time per step, s", gt=0)
+    n_actions: int = param(5, "wheel actions: +fixed, -fixed, stop, +increment, -increment",
+                           choices=(5,))
+    init_roll_vel: float = param(0.0, "wheel speed at reset, rad/s (within +-roll_speed_fixed_value)")
+    roll_speed_fixed_value: float = param(100.0, "wheel speed of actions 0 and 1, rad/s; "
+                                                 "also the clip of the command", gt=0)
+    roll_speed_increment_value: float = param(10.0, "change of the wheel command by actions 3 and 4, "
+                                                    "rad/s", gt=0)
+    max_distance: float = param(2.0, "observation bound only, m (as in the original)", gt=0)
+    max_pitch_angle: float = param(0.2, "|pitch| beyond which the episode terminates, rad", gt=0)
+    max_yaw_angle: float = param(0.1, "|yaw| beyond which the episode terminates, rad", gt=0)
+    max_y_linear_speed: float = param(100.0, "observation bound only, m/s (as in the original)", gt=0)
+    init_cube_pose: list[float] = param([0.0, 0.0, 0.0], "x, y of the start and z of the cube's "
+                                                         "bottom, m")
+    end_episode_points: float = param(1000.0, "the ending step's reward is minus this", ge=0)
+    move_distance_reward_weight: float = param(1000.0, "reward per metre moved along y in a step")
+    y_linear_speed_reward_weight: float = param(1000.0, "reward per m/s along y; negative walks "
+                                                        "towards -y")
+    y_axis_angle_reward_weight: float = param(1000.0, "penalty per |sin yaw|")
+    reset_noise: float = param(0.005, "uniform start yaw perturbation, rad", ge=0)
+    max_episode_steps: int = param(1000, "time limit, steps (the episode is truncated)", ge=1)
+    physics_timestep: float = param(0.001, "physics step, s", gt=0)
+    tabular_state: dict | None = param(None, "observation entries a tabular learner bins: "
+                                             "name: [low, high] (null: the course's reduced state)")
+    win: dict | None = param(None, "what solved means: measure, threshold, judge, window, "
+                                   "min_episodes (null: the greedy policy walks 1 m)")
+
+    def __post_init__(self) -> None:
         # The rewarded walking direction along y: the speed weight's sign (else the distance's).
-        self.direction = float(np.sign(y_linear_speed_reward_weight)
-                               or np.sign(move_distance_reward_weight) or 1.0)
+        self.direction = float(np.sign(self.y_linear_speed_reward_weight)
+                               or np.sign(self.move_distance_reward_weight) or 1.0)
         towards = "+y" if self.direction > 0 else "-y"
-        self.success = Success.from_config(
-            win, SUCCESS, {"distance_walked": ("m", f"distance walked towards {towards}")})
-        self.robot = robot
-        self.n_actions = int(n_actions)
-        self.running_step = float(running_step)
-        self.physics_timestep = float(physics_timestep)
-        self.n_substeps = substeps_for(running_step, physics_timestep)
-        self.init_roll_vel = float(init_roll_vel)
-        self.roll_speed_fixed_value = float(roll_speed_fixed_value)
-        self.roll_speed_increment_value = float(roll_speed_increment_value)
-        self.max_pitch_angle = float(max_pitch_angle)
-        self.max_yaw_angle = float(max_yaw_angle)
-        self.init_cube_pose = np.asarray(init_cube_pose, dtype=float)
-        self.end_episode_points = float(end_episode_points)
-        self.move_distance_reward_weight = float(move_distance_reward_weight)
-        self.y_linear_speed_reward_weight = float(y_linear_speed_reward_weight)
-        self.y_axis_angle_reward_weight = float(y_axis_angle_reward_weight)
-        self.reset_noise = float(reset_noise)
-        self.max_episode_steps = int(max_episode_steps)
+        setup(self, Cube, "cube", SUCCESS,
+              {"distance_walked": ("m", f"distance walked towards {towards}")})
+        self._check_wheel()
+        require(len(self.init_cube_pose) == 3,
+                "task.init_cube_pose must be [x, y, z], three finite numbers", self.init_cube_pose)
         # The original's observation Box (informational: the env spec is unbounded).
         self.observation_high = np.array([
-            roll_speed_fixed_value, max_distance, 2 * math.pi, max_pitch_angle,
-            max_y_linear_speed, max_y_linear_speed,
-        ])
-        self.tabular_state = Bounds.from_config(
-            tabular_state
+            self.roll_speed_fixed_value, self.max_distance, 2 * math.pi, self.max_pitch_angle,
+            self.max_y_linear_speed, self.max_y_linear_speed])
+        self.tabular_bounds = Bounds.from_config(
+            self.tabular_state
             or {"wheel_speed": [-105.0, 105.0], "y_speed": [-0.75, 0.75], "yaw": [-0.15, 0.15]},
-            self.observation_names,
-        )
-        self._command = np.zeros(0)
-        self._start_y = np.zeros(0)
-        self._prev_y = np.zeros(0)
+            self.observation_names)
+        self.per_copy = PerCopy(command=(), start_y=(), prev_y=())
+
+    def _check_wheel(self) -> None:
+        """Wheel speeds the robot can be commanded."""
+        fixed = self.roll_speed_fixed_value
+        require(fixed <= self.robot.speed_limit,
+                f"task.roll_speed_fixed_value must be <= robot.speed_limit ({self.robot.speed_limit})",
+                fixed)
+        require(abs(self.init_roll_vel) <= fixed,
+                f"task.init_roll_vel must be within +-roll_speed_fixed_value ({fixed})",
+                self.init_roll_vel)
 
     def build_arena(self) -> mjcf.RootElement:
         arena = floor_arena("cube_one_disk_walk", self.physics_timestep)
@@ -173,10 +144,7 @@ class OneDiskWalk:
 
     def bind(self, physics: BatchedPhysics) -> None:
         self.robot.bind(physics)
-        n = physics.num_envs
-        self._command = np.zeros(n)
-        self._start_y = np.zeros(n)
-        self._prev_y = np.zeros(n)
+        self.per_copy.allocate(physics.num_envs)
 
     def initialize_episode(
         self, physics: BatchedPhysics, mask: np.ndarray, rng: np.random.Generator
@@ -188,12 +156,12 @@ class OneDiskWalk:
         rpy = np.stack([np.zeros(n), np.zeros(n), yaw], axis=1)
         self.robot.set_state(physics, mask, [x, y, z + self.robot.half_edge], rpy,
                              wheel_speed=self.init_roll_vel)
-        self._command[mask] = self.init_roll_vel
-        self._start_y[mask] = y
+        self.per_copy.command[mask] = self.init_roll_vel
+        self.per_copy.start_y[mask] = y
 
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
         fixed, inc = self.roll_speed_fixed_value, self.roll_speed_increment_value
-        cmd = self._command
+        cmd = self.per_copy.command
         cmd[action == WHEEL_FORWARD] = fixed
         cmd[action == WHEEL_BACKWARD] = -fixed
         cmd[action == WHEEL_STOP] = 0.0
@@ -201,14 +169,14 @@ class OneDiskWalk:
         cmd[action == SPEED_DOWN] -= inc
         np.clip(cmd, -fixed, fixed, out=cmd)
         self.robot.command_wheel_speed(physics, cmd)
-        self._prev_y = self.robot.odometry(physics).position[:, 1]
+        self.per_copy.prev_y = self.robot.odometry(physics).position[:, 1]
 
     def observation(self, physics: BatchedPhysics) -> np.ndarray:
         odom = self.robot.odometry(physics)
         roll, pitch, yaw = odom.rpy.T
         return np.stack([
             np.round(self.robot.wheel_speed(physics), 0),
-            np.round(odom.position[:, 1] - self._start_y, 1),
+            np.round(odom.position[:, 1] - self.per_copy.start_y, 1),
             np.round(roll, 1),
             np.round(pitch, 1),
             np.round(odom.linear_velocity[:, 1], 1),
@@ -224,7 +192,7 @@ class OneDiskWalk:
     ) -> np.ndarray:
         odom = self.robot.odometry(physics)
         running = (
-            np.round((odom.position[:, 1] - self._prev_y) * self.move_distance_reward_weight)
+            np.round((odom.position[:, 1] - self.per_copy.prev_y) * self.move_distance_reward_weight)
             + np.round(odom.linear_velocity[:, 1] * self.y_linear_speed_reward_weight)
             + np.round(-np.abs(np.sin(odom.rpy[:, 2])) * self.y_axis_angle_reward_weight)
         )
@@ -233,5 +201,5 @@ class OneDiskWalk:
     def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
         """Per copy: ``y_displacement``, how far along y the cube is from where its
         episode started (m); ``distance_walked``, the same in the rewarded direction."""
-        dy = self.robot.odometry(physics).position[:, 1] - self._start_y
+        dy = self.robot.odometry(physics).position[:, 1] - self.per_copy.start_y
         return {"y_displacement": dy, "distance_walked": dy * self.direction}

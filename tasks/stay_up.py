@@ -18,96 +18,79 @@ length of the last 100 training episodes of at least 250 steps (their
 
 from __future__ import annotations
 
-from dm_control import mjcf
-import numpy as np
+from dataclasses import dataclass
+from typing import ClassVar
 
+import numpy as np
+from dm_control import mjcf
+
+from params import require
+from params.declare import param
 from robots.cartpole import CONTROL_TYPES, CartPole
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from params import finite, require, whole
-from tasks.base import Bounds, Success, substeps_for
+from tasks.base import Bounds, PerCopy, Success, Task, setup
 
 # The seeds' win rule: judged on the training episodes, as they did.
 SUCCESS = Success("length", "steps", "steps balanced", 250.0, "training", 100, 100)
 
 
-class StayUp:
+@dataclass(eq=False)
+class StayUp(Task):
     """The cart-pole balancing task; it has a :class:`CartPole`."""
 
-    observation_names = ("cart_pos", "cart_vel", "pole_angle", "pole_vel")
+    name: ClassVar[str] = "stay_up"
+    observation_names: ClassVar[tuple[str, ...]] = ("cart_pos", "cart_vel", "pole_angle", "pole_vel")
 
-    def __init__(
-        self,
-        robot: CartPole,
-        n_actions: int = 2,
-        min_pole_angle: float = -0.7,
-        max_pole_angle: float = 0.7,
-        max_base_velocity: float = 50.0,
-        min_base_pose_x: float = -1.0,
-        max_base_pose_x: float = 1.0,
-        pos_step: float = 1.0,
-        running_step: float = 0.04,
-        init_pos: float = 0.0,
-        control_type: str = "velocity",
-        reset_noise: float = 0.05,
-        max_episode_steps: int = 1000,
-        physics_timestep: float = 0.002,
-        tabular_state: dict | None = None,
-        win: dict | None = None,
-    ) -> None:
-        require(isinstance(robot, CartPole), "task stay_up needs robot=cartpole",
-                type(robot).__name__)
-        require(n_actions in (2, 4), "task.n_actions must be 2 or 4", n_actions)
-        # Limits the robot can reach: within the hinge's and the rail's travel.
-        hinge = float(robot.mjcf_model.find("joint", "hinge").range[1])
-        rail = robot.rail_limit
-        for key, low, high, limit, what in (
-            ("pole_angle", min_pole_angle, max_pole_angle, hinge, "the hinge's limit"),
-            ("base_pose_x", min_base_pose_x, max_base_pose_x, rail, "the rail's end"),
-        ):
-            require(finite(low) and low >= -limit,
-                    f"task.min_{key} must be a number >= -{limit} ({what})", low)
-            require(finite(high) and high <= limit,
-                    f"task.max_{key} must be a number <= {limit} ({what})", high)
-            require(low < high, f"task.min_{key} must be < task.max_{key} ({high})", low)
-        require(finite(init_pos) and min_base_pose_x < init_pos < max_base_pose_x,
-                f"task.init_pos must be within (min_base_pose_x, max_base_pose_x) = "
-                f"({min_base_pose_x}, {max_base_pose_x})", init_pos)
-        require(finite(pos_step) and pos_step > 0, "task.pos_step must be a finite number > 0",
-                pos_step)
-        require(finite(max_base_velocity) and max_base_velocity > 0,
-                "task.max_base_velocity must be a finite number > 0", max_base_velocity)
-        require(control_type in CONTROL_TYPES,
-                f"task.control_type must be one of {', '.join(CONTROL_TYPES)}", control_type)
-        require(finite(reset_noise) and reset_noise >= 0,
-                "task.reset_noise must be a finite number >= 0", reset_noise)
-        require(whole(max_episode_steps) and max_episode_steps >= 1,
-                "task.max_episode_steps must be an integer >= 1", max_episode_steps)
-        self.success = Success.from_config(win, SUCCESS, {"length": ("steps", "steps balanced")})
-        self.robot = robot
-        self.n_actions = int(n_actions)
-        self.pole_angle_limits = (float(min_pole_angle), float(max_pole_angle))
-        self.base_x_limits = (float(min_base_pose_x), float(max_base_pose_x))
-        self.max_base_velocity = float(max_base_velocity)
-        self.pos_step = float(pos_step)
-        self.running_step = float(running_step)
-        self.init_pos = float(init_pos)
-        self.reset_noise = float(reset_noise)
-        self.max_episode_steps = int(max_episode_steps)
-        self.physics_timestep = float(physics_timestep)
-        self.n_substeps = substeps_for(running_step, physics_timestep)
-        robot.use_controller(control_type)
-        self.control_type = control_type
+    robot: CartPole
+    n_actions: int = param(2, "actions: 1 / 0 add / subtract pos_step to the cart command; "
+                              "3 / 2 ten times that", choices=(2, 4))
+    min_pole_angle: float = param(-0.7, "pole angle at or below which the episode terminates, rad")
+    max_pole_angle: float = param(0.7, "pole angle at or above which the episode terminates, rad")
+    max_base_velocity: float = param(50.0, "clip of the velocity command, m/s", gt=0)
+    min_base_pose_x: float = param(-1.0, "cart position at or below which the episode terminates, m")
+    max_base_pose_x: float = param(1.0, "cart position at or above which the episode terminates, m")
+    pos_step: float = param(1.0, "change of the cart command per action (m/s, m or N)", gt=0)
+    running_step: float = param(0.04, "simulated time per step, s", gt=0)
+    init_pos: float = param(0.0, "cart position at reset, m")
+    control_type: str = param("velocity", "cart controller", choices=CONTROL_TYPES)
+    reset_noise: float = param(0.05, "uniform start perturbation of each joint position and velocity",
+                               ge=0)
+    max_episode_steps: int = param(1000, "time limit, steps (the episode is truncated)", ge=1)
+    physics_timestep: float = param(0.002, "physics step, s", gt=0)
+    tabular_state: dict | None = param(None, "observation entries a tabular learner bins: "
+                                             "name: [low, high] (null: all four, wide ranges)")
+    win: dict | None = param(None, "what solved means: measure, threshold, judge, window, "
+                                   "min_episodes (null: the seeds' rule)")
+
+    def __post_init__(self) -> None:
+        setup(self, CartPole, "cartpole", SUCCESS, {"length": ("steps", "steps balanced")})
+        self._check_limits()
+        self.robot.use_controller(self.control_type)
         # Action -> change of the cart command.
         steps = [-self.pos_step, self.pos_step, -10 * self.pos_step, 10 * self.pos_step]
         self._deltas = np.asarray(steps[: self.n_actions])
-        self._command = np.zeros(0)
-        self.tabular_state = Bounds.from_config(
-            tabular_state
-            or {"cart_pos": [min_base_pose_x, max_base_pose_x], "cart_vel": [-2.0, 2.0],
-                "pole_angle": [min_pole_angle, max_pole_angle], "pole_vel": [-3.0, 3.0]},
+        self.per_copy = PerCopy(command=())
+        self.tabular_bounds = Bounds.from_config(
+            self.tabular_state
+            or {"cart_pos": [self.min_base_pose_x, self.max_base_pose_x], "cart_vel": [-2.0, 2.0],
+                "pole_angle": [self.min_pole_angle, self.max_pole_angle], "pole_vel": [-3.0, 3.0]},
             self.observation_names,
         )
+
+    def _check_limits(self) -> None:
+        """Limits the robot can reach (within the hinge's and the rail's travel), and a
+        start inside them."""
+        hinge = float(self.robot.mjcf_model.find("joint", "hinge").range[1])
+        for key, limit, what in (("pole_angle", hinge, "the hinge's limit"),
+                                 ("base_pose_x", self.robot.rail_limit, "the rail's end")):
+            low, high = getattr(self, f"min_{key}"), getattr(self, f"max_{key}")
+            require(low >= -limit, f"task.min_{key} must be a number >= -{limit} ({what})", low)
+            require(high <= limit, f"task.max_{key} must be a number <= {limit} ({what})", high)
+            require(low < high, f"task.min_{key} must be < task.max_{key} ({high})", low)
+        require(self.min_base_pose_x < self.init_pos < self.max_base_pose_x,
+                f"task.init_pos must be within (min_base_pose_x, max_base_pose_x) = "
+                f"({self.min_base_pose_x}, {self.max_base_pose_x})", self.init_pos)
 
     def build_arena(self) -> mjcf.RootElement:
         arena = floor_arena("cartpole_stay_up", self.physics_timestep)
@@ -117,7 +100,7 @@ class StayUp:
 
     def bind(self, physics: BatchedPhysics) -> None:
         self.robot.bind(physics)
-        self._command = np.zeros(physics.num_envs)
+        self.per_copy.allocate(physics.num_envs)
 
     def initialize_episode(
         self, physics: BatchedPhysics, mask: np.ndarray, rng: np.random.Generator
@@ -130,15 +113,15 @@ class StayUp:
             cart_pos=self.init_pos + noise[0], cart_vel=noise[1],
             pole_angle=noise[2], pole_vel=noise[3],
         )
-        self._command[mask] = 0.0
-        self.robot.command(physics, self._command)
+        self.per_copy.command[mask] = 0.0
+        self.robot.command(physics, self.per_copy.command)
 
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
-        self._command += self._deltas[action]
+        command = self.per_copy.command
+        command += self._deltas[action]
         if self.control_type == "velocity":
-            np.clip(self._command, -self.max_base_velocity, self.max_base_velocity,
-                    out=self._command)
-        self.robot.command(physics, self._command)
+            np.clip(command, -self.max_base_velocity, self.max_base_velocity, out=command)
+        self.robot.command(physics, command)
 
     def observation(self, physics: BatchedPhysics) -> np.ndarray:
         s = self.robot.joint_states(physics)
@@ -146,11 +129,14 @@ class StayUp:
 
     def terminated(self, physics: BatchedPhysics, observation: np.ndarray) -> np.ndarray:
         x, angle = observation[:, 0], observation[:, 2]
-        lo_x, hi_x = self.base_x_limits
-        lo_a, hi_a = self.pole_angle_limits
-        return (x <= lo_x) | (x >= hi_x) | (angle <= lo_a) | (angle >= hi_a)
+        return ((x <= self.min_base_pose_x) | (x >= self.max_base_pose_x)
+                | (angle <= self.min_pole_angle) | (angle >= self.max_pole_angle))
 
     def reward(
         self, physics: BatchedPhysics, observation: np.ndarray, terminated: np.ndarray
     ) -> np.ndarray:
         return np.ones(physics.num_envs)
+
+    def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
+        """Nothing beyond the length, which is this task's measure."""
+        return {}

@@ -8,6 +8,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import train
+from tasks import factory
 from params import ConfigError
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -26,7 +27,7 @@ def compose_cfg(*overrides: str):
 def test_every_robot_learner_pair_composes_and_builds(robot, learner):
     cfg = compose_cfg(f"robot={robot}", f"learner={learner}")
     OmegaConf.resolve(cfg)
-    env = train.build_env(cfg, num_envs=2, seed=0)
+    env = factory.build_env(cfg, num_envs=2, seed=0)
     try:
         agent = train.instantiate(cfg.learner, _convert_="all")
         agent.build(env.task)
@@ -42,10 +43,10 @@ def test_task_fits_robot_or_says_which_robot_it_needs(robot, task):
     cfg = compose_cfg(f"robot={robot}", f"task={task}")
     default_task = compose_cfg(f"robot={robot}").hydra.runtime.choices.task
     if task == default_task:
-        train.build_task(cfg)
+        factory.build_task(cfg)
         return
     try:
-        train.build_task(cfg)
+        factory.build_task(cfg)
     except Exception as err:  # noqa: BLE001 - a mismatch must name the robot needed
         message = train._one_line(err)
         assert "needs robot=" in message and len(message.splitlines()) == 1
@@ -91,7 +92,7 @@ def test_bad_values_give_one_line_naming_the_key(override, key):
     cfg = compose_cfg(override)
     with pytest.raises(Exception) as err:
         learner = train.instantiate(cfg.learner, _convert_="all")
-        env = train.build_env(cfg, num_envs=1, seed=0)
+        env = factory.build_env(cfg, num_envs=1, seed=0)
         learner.build(env.task)
     message = train._one_line(err.value)
     assert key in message and "got" in message, message

@@ -17,6 +17,7 @@ from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.physics import BatchedPhysics
 from params import ConfigError
+from tasks import factory
 from tasks.env import RobotTaskEnv, compile_model
 from tasks.one_disk_walk import OneDiskWalk
 from tasks.stay_up import StayUp
@@ -344,13 +345,12 @@ def test_hydra_composes_cube_with_its_task_and_tuned_learner():
     assert (course.learner.alpha, course.learner.gamma, course.learner.epsilon_discount,
             course.learner.nepisodes) == (0.1, 0.7, 0.999, 500)
     assert dict(cfg.learner.number_splits) == {"wheel_speed": 21, "y_speed": 5, "yaw": 3}
-    robot = instantiate(cfg.robot, _convert_="all")
-    task = instantiate(cfg.task, robot=robot, _convert_="all")
-    assert task.tabular_state.names == ("wheel_speed", "y_speed", "yaw")
+    task = factory.build_task(cfg)
+    assert task.tabular_bounds.names == ("wheel_speed", "y_speed", "yaw")
     learner = instantiate(cfg.learner, _convert_="all")
     assert learner.build(task).discretizer.n_states == 21 * 5 * 3
     with pytest.raises(Exception, match="one_disk_walk needs robot=cube"):
-        instantiate(bad.task, robot=instantiate(bad.robot, _convert_="all"), _convert_="all")
+        factory.build_task(bad)
 
 
 # -- learning -------------------------------------------------------------------

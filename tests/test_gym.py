@@ -13,7 +13,8 @@ from gymnasium.utils.env_checker import check_env
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from tasks.gym_env import MujocoRLEnv, compose_config, default_tasks, env_id, register_envs
+from tasks import factory
+from tasks.gym_env import MujocoRLEnv, default_tasks, env_id, register_envs
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPECTED = {  # id: robot, observation size, actions, time limit
@@ -128,7 +129,7 @@ def test_make_kwargs_override_task_and_robot_parameters(make):
 def test_composing_inside_a_running_hydra_app_keeps_its_state():
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         app = GlobalHydra.instance().hydra
-        cfg = compose_config("cube")
+        cfg = factory.compose("cube")
         assert cfg.task._target_ == "tasks.one_disk_walk.OneDiskWalk"
         assert GlobalHydra.instance().hydra is app
         assert compose(config_name="config").robot._target_ == "robots.cartpole.CartPole"

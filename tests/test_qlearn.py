@@ -10,6 +10,7 @@ from learners.qlearn import Discretizer, QLearn
 from learners.run import Run, evaluate, seed_everything
 from robots.cartpole import CartPole
 from tasks.base import Bounds
+from tasks import factory
 from tasks.env import RobotTaskEnv
 from tasks.stay_up import StayUp
 
@@ -36,7 +37,7 @@ class FakeTask:
     n_actions = 2
 
     def __init__(self):
-        self.tabular_state = Bounds.from_config({"a": [0, 4]}, NAMES)
+        self.tabular_bounds = Bounds.from_config({"a": [0, 4]}, NAMES)
 
 
 def transition(state_obs, action, reward, next_obs, terminated):
@@ -153,7 +154,7 @@ def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
         cfg = compose(config_name="config", overrides=["learner.nepisodes=200"])
     seed = 0
     gen = seed_everything(seed)
-    task = instantiate(cfg.task, robot=instantiate(cfg.robot), _convert_="all")
+    task = factory.build_task(cfg)
     env = RobotTaskEnv(task, num_envs=1, seed=seed)
     q = instantiate(cfg.learner, _convert_="all")
     q.build(task, gen)

@@ -20,7 +20,8 @@ from params import ConfigError
 from tasks.env import RobotTaskEnv
 from tasks.maze import FORWARD, LEFT, RIGHT, MazeTask
 from tasks.maze_arena import Maze
-from train import _one_line, build_env, build_task
+from tasks.factory import build_env, build_task
+from train import _one_line
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 ALL = np.array([True])

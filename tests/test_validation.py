@@ -24,6 +24,7 @@ from hypothesis import strategies as st
 from omegaconf import OmegaConf
 
 import train
+from tasks import factory
 from learners.settings import check_run_config
 from params import ConfigError
 
@@ -45,14 +46,14 @@ def compose_cfg(*overrides: str):
 
 @lru_cache(maxsize=None)
 def default_task(robot: str):
-    return train.build_task(compose_cfg(f"robot={robot}"))
+    return factory.build_task(compose_cfg(f"robot={robot}"))
 
 
 def build(cfg, parts: str = "all") -> None:
     """What train.run does with ``cfg`` before it builds the env."""
     check_run_config(cfg)
     if parts in ("all", "task"):
-        task = train.build_task(cfg)
+        task = factory.build_task(cfg)
     if parts in ("all", "learner"):
         learner = instantiate(cfg.learner, _convert_="all")
         learner.build(task if parts == "all" else default_task(cfg.robot._target_.split(".")[1]))

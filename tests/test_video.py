@@ -12,6 +12,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import train
+from tasks import factory
 from learners import video
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,7 +38,7 @@ def read_frames(path: Path) -> np.ndarray:
 def dqn_on_cartpole():
     cfg = config("robot=cartpole", "learner=dqn")
     learner = train.instantiate(cfg.learner, _convert_="all")
-    env = train.build_env(cfg, num_envs=1, seed=0)
+    env = factory.build_env(cfg, num_envs=1, seed=0)
     learner.build(env.task)
     yield cfg, learner, env
     env.close()

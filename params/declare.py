@@ -1,0 +1,272 @@
+"""Each parameter declared once: type, default, allowed range and meaning.
+
+A robot, task or learner is a dataclass whose parameter fields are made by
+:func:`param`::
+
+    @dataclass(eq=False)
+    class CartPole(Robot):
+        velocity_gain: float = param(1000.0, "velocity servo gain, N per m/s", gt=0)
+
+From that one line come the constructor's signature (the dataclass's), its
+check (:func:`check_fields` in ``__post_init__``), the config validator's check
+before anything is built (:func:`check_values`, used by
+``learners.settings``), the one-line error message, and the README's
+parameter tables (:func:`table`). Checks that relate two parameters, or a
+parameter and the robot, stay in the owner's ``__post_init__``.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import types
+import typing
+from collections.abc import Mapping as AbcMapping, Sequence as AbcSequence
+from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+from params import ConfigError
+
+_META = "param"
+REQUIRED = dataclasses.MISSING
+
+
+@dataclass(frozen=True)
+class Range:
+    """Bounds on a number (``gt``/``ge``/``lt``/``le``) or the allowed ``choices``."""
+
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    choices: tuple | None = None
+
+    def holds(self, value: Any) -> bool:
+        if self.choices is not None:
+            return not isinstance(value, bool) and value in self.choices
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            return True  # not a number: the type check's business
+        return ((self.gt is None or value > self.gt) and (self.ge is None or value >= self.ge)
+                and (self.lt is None or value < self.lt) and (self.le is None or value <= self.le))
+
+    def describe(self) -> str:
+        """``"> 0"``, ``"in (0, 1]"``, ``"one of a, b"`` or ``""``."""
+        if self.choices is not None:
+            return "one of " + ", ".join(map(str, self.choices))
+        low = (self.gt, "(") if self.gt is not None else (self.ge, "[")
+        high = (self.lt, ")") if self.lt is not None else (self.le, "]")
+        if low[0] is not None and high[0] is not None:
+            return f"in {low[1]}{_num(low[0])}, {_num(high[0])}{high[1]}"
+        if low[0] is not None:
+            return f"{'>' if low[1] == '(' else '>='} {_num(low[0])}"
+        if high[0] is not None:
+            return f"{'<' if high[1] == ')' else '<='} {_num(high[0])}"
+        return ""
+
+
+def _num(value: float) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def param(default: Any, doc: str, *, gt: float | None = None, ge: float | None = None,
+          lt: float | None = None, le: float | None = None, choices: tuple | None = None,
+          note: str = "") -> Any:
+    """A dataclass field declaring one parameter; ``default=REQUIRED`` for none.
+
+    ``doc`` is its one-line meaning; ``note`` words the allowed range where
+    that says more (``"0 = unlimited"``) and is shown after it.
+    """
+    meta = {_META: (doc, Range(gt, ge, lt, le, tuple(choices) if choices else None), note)}
+    if isinstance(default, (list, dict)):
+        return dataclasses.field(default_factory=partial(copy.deepcopy, default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class Spec:
+    """One declared parameter, read back from its owner's dataclass fields."""
+
+    name: str
+    hint: Any
+    default: Any
+    doc: str
+    range: Range
+    note: str = ""
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED
+
+    def allowed(self) -> str:
+        """What the value must be, in words: ``"a finite number > 0 (0 = unlimited)"``."""
+        if self.range.choices is not None:
+            words = self.range.describe()
+        else:
+            words = " ".join(w for w in (describe(self.hint), self.range.describe()) if w)
+        return f"{words} ({self.note})" if self.note else words
+
+    def check(self, value: Any, prefix: str) -> Any:
+        """``value`` as the owner keeps it (an int as int, a float as float), or
+        :class:`ConfigError` ``"<prefix>.<name> must be <allowed>; got <value>"``."""
+        bad = mismatch(value, self.hint, f"{prefix}.{self.name}")
+        if bad is not None:
+            key, hint, got = bad
+            if key != f"{prefix}.{self.name}":  # an entry of a mapping
+                raise ConfigError(f"{key} must be {describe(hint)}; got {got!r}")
+        if bad is not None or not self.range.holds(value):
+            raise ConfigError(f"{prefix}.{self.name} must be {self.allowed()}; got {value!r}")
+        if self.hint is float or (self.hint == (float | None) and value is not None):
+            return float(value)
+        if self.hint is int:
+            return int(value)
+        return value
+
+
+def specs(cls: type) -> tuple[Spec, ...]:
+    """The declared parameters of ``cls`` (a dataclass), in declaration order."""
+    hints = typing.get_type_hints(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        if _META in f.metadata:
+            doc, rng, note = f.metadata[_META]
+            default = f.default if f.default_factory is REQUIRED else f.default_factory()
+            out.append(Spec(f.name, hints.get(f.name, Any), default, doc, rng, note))
+    return tuple(out)
+
+
+def check_fields(obj: Any, prefix: str) -> None:
+    """Checks every declared field of ``obj`` and stores it in its declared type."""
+    for spec in specs(type(obj)):
+        setattr(obj, spec.name, spec.check(getattr(obj, spec.name), prefix))
+
+
+def check_values(cls: type, values: typing.Mapping[str, Any], prefix: str,
+                 nested: typing.Callable[[dict, str], None] | None = None) -> None:
+    """Checks config ``values`` for ``cls`` before it is built: names, types, ranges.
+
+    A value that is itself a config node (a dict with ``_target_``) goes to
+    ``nested(node, key)``.
+    """
+    declared = {s.name: s for s in specs(cls)}
+    for key, value in values.items():
+        if key not in declared:
+            raise ConfigError(f"{prefix}.{key} is not a parameter of {cls.__module__}.{cls.__name__}; "
+                              f"allowed: {', '.join(declared)}; got {prefix}.{key}={value!r}")
+    for name, spec in declared.items():
+        if name not in values:
+            if spec.required:
+                raise ConfigError(f"{prefix}.{name} is missing; {cls.__name__} needs it")
+            continue
+        value = values[name]
+        if isinstance(value, dict) and "_target_" in value and nested is not None:
+            nested(value, f"{prefix}.{name}")
+        else:
+            spec.check(value, prefix)
+
+
+def table(cls: type) -> str:
+    """A Markdown table of ``cls``'s parameters: name, default, allowed, meaning."""
+    rows = ["| parameter | default | allowed | meaning |", "| --- | --- | --- | --- |"]
+    for s in specs(cls):
+        default = "(required)" if s.required else _show(s.default)
+        rows.append(f"| `{s.name}` | {default} | {s.allowed()} | {s.doc} |")
+    return "\n".join(rows)
+
+
+def _show(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_show(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_show(v) for v in value) + "]"
+    return f"`{value!r}`" if isinstance(value, str) else str(value)
+
+
+# -- types ----------------------------------------------------------------------
+def is_integer(value: Any) -> bool:
+    """An int, or a float with a whole value (``1e5`` on the command line); not a bool."""
+    if isinstance(value, bool):
+        return False
+    if isinstance(value, int):
+        return True
+    return isinstance(value, float) and math.isfinite(value) and value.is_integer()
+
+
+def _union_args(hint: Any) -> tuple | None:
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return typing.get_args(hint)
+    return None
+
+
+def fits(value: Any, hint: Any) -> bool:
+    """Whether a config value has the annotated type (a float must be finite)."""
+    if hint is Any:
+        return True
+    members = _union_args(hint)
+    if members is not None:
+        return any(fits(value, m) for m in members)
+    if hint is type(None) or hint is None:
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return is_integer(value)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if hint is str:
+        return isinstance(value, str)
+    origin, args = typing.get_origin(hint) or hint, typing.get_args(hint)
+    if origin in (list, tuple, AbcSequence):
+        return isinstance(value, (list, tuple)) and (not args or all(fits(v, args[0]) for v in value))
+    if origin in (dict, AbcMapping):
+        return isinstance(value, dict) and (
+            len(args) != 2 or all(fits(k, args[0]) and fits(v, args[1]) for k, v in value.items()))
+    return not isinstance(origin, type) or isinstance(value, origin)
+
+
+def mismatch(value: Any, hint: Any, key: str) -> tuple[str, Any, Any] | None:
+    """``None`` if ``value`` fits ``hint``; else the innermost (key, hint, value) that does not:
+    an entry of a mapping is named by its own key (``task.ring.segments``)."""
+    if fits(value, hint):
+        return None
+    if isinstance(value, dict):
+        for member in _union_args(hint) or (hint,):
+            args = typing.get_args(member)
+            if (typing.get_origin(member) or member) in (dict, AbcMapping) and len(args) == 2:
+                for k, v in value.items():
+                    if not fits(v, args[1]):
+                        return mismatch(v, args[1], f"{key}.{k}")
+    return key, hint, value
+
+
+def describe(hint: Any) -> str:
+    """A type in words: ``"a finite number"``, ``"an integer"``, ``"a list of integers"``."""
+    members = _union_args(hint)
+    if members is not None:
+        words = [describe(m) for m in members]
+        return ", ".join(words[:-1]) + " or " + words[-1] if len(words) > 1 else words[0]
+    plain = {type(None): "null", bool: "true or false", int: "an integer", float: "a finite number",
+             str: "a string", Any: ""}
+    if hint in plain:
+        return plain[hint]
+    origin, args = typing.get_origin(hint) or hint, typing.get_args(hint)
+    if origin in (list, tuple, AbcSequence):
+        return f"a list of {_plural(args[0])}" if args else "a list"
+    if origin in (dict, AbcMapping):
+        return f"a mapping of names to {_plural(args[1])}" if len(args) == 2 else "a mapping"
+    return f"a {getattr(origin, '__name__', origin)}"
+
+
+def _plural(hint: Any) -> str:
+    plain = {int: "integers", float: "finite numbers", str: "strings", bool: "booleans"}
+    if hint in plain:
+        return plain[hint]
+    origin, args = typing.get_origin(hint) or hint, typing.get_args(hint)
+    if origin in (list, tuple, AbcSequence) and args:
+        return f"lists of {_plural(args[0])}"
+    return f"values that are {describe(hint)}"
