@@ -67,7 +67,7 @@ class Range:
 
 
 def _num(value: float) -> str:
-    return f"{value:g}" if isinstance(value, float) else str(value)
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
 
 
 def param(default: Any, doc: str, *, gt: float | None = None, ge: float | None = None,
@@ -171,7 +171,8 @@ def table(cls: type) -> str:
     rows = ["| parameter | default | allowed | meaning |", "| --- | --- | --- | --- |"]
     for s in specs(cls):
         default = "(required)" if s.required else _show(s.default)
-        rows.append(f"| `{s.name}` | {default} | {s.allowed()} | {s.doc} |")
+        cells = (f"`{s.name}`", default, s.allowed(), s.doc)
+        rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
     return "\n".join(rows)
 
 
@@ -184,6 +185,8 @@ def _show(value: Any) -> str:
         return "{" + ", ".join(f"{k}: {_show(v)}" for k, v in value.items()) + "}"
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_show(v) for v in value) + "]"
+    if isinstance(value, float):
+        return f"{value:.6g}"
     return f"`{value!r}`" if isinstance(value, str) else str(value)
 
 

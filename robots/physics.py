@@ -126,17 +126,9 @@ class BatchedPhysics:
             self._control = np.empty(shape + (self.model.nu,))
         self._control[:] = self.ctrl[:, None, :]
         # Arguments are already in rollout's final form, so its checks are skipped.
-        self._pool.rollout(
-            self._models,
-            self._datas,
-            self.state,
-            self._control,
-            nstep=nsubsteps,
-            initial_warmstart=self._warmstart,
-            state=self._out_state,
-            sensordata=self._out_sensor,
-            skip_checks=True,
-        )
+        self._pool.rollout(self._models, self._datas, self.state, self._control, nstep=nsubsteps,
+                           initial_warmstart=self._warmstart, state=self._out_state,
+                           sensordata=self._out_sensor, skip_checks=True)
         last = self._out_state[:, -1]
         sensor = self._out_sensor[:, -1] if self.model.nsensordata else None
         # MuJoCo adds the timestep once per substep: a copy whose clock moved by half
@@ -154,13 +146,17 @@ class BatchedPhysics:
             if sensor is not None:
                 self.sensordata[:] = sensor
             return
-        diverged = (elapsed < lo) | (elapsed > hi)
+        self._keep_good((elapsed < lo) | (elapsed > hi), last, sensor)
+
+    def _keep_good(self, diverged: np.ndarray, last: np.ndarray, sensor: np.ndarray | None) -> None:
+        """The slow path of a step where some copy failed: ``diverged`` (the copies whose
+        clock is off) widened by non-finite or huge states and sensors; the good copies
+        take the step's results, the diverged ones keep their state from before it (or
+        the initial state if even that was bad)."""
         diverged |= ~(np.abs(last) <= _MAXVAL).all(axis=1)
         if sensor is not None:
             diverged |= ~np.isfinite(sensor).all(axis=1)
         self.diverged = diverged
-        # The good copies take the step's results; the diverged ones keep their
-        # state from before it (or the initial state if even that was bad).
         ok = ~diverged
         self.state[ok] = last[ok]
         if sensor is not None:

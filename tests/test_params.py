@@ -1,0 +1,115 @@
+"""Parameters are declared once (params/declare.py): the YAML files name only declared
+parameters and agree with the declared defaults, the README's tables are made from
+the declarations, and a declaration checks what it says."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import pytest
+from hydra.utils import get_object
+from omegaconf import OmegaConf
+
+from learners import doc
+from params import ConfigError
+from params.declare import check_values, param, specs, table
+from tasks.factory import conf_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _base_configs():
+    """(file, node) of every config that names a class itself (not a variant of another)."""
+    for folder in ("robot", "task", "learner"):
+        for path in sorted((conf_dir() / folder).glob("*.yaml")):
+            node = OmegaConf.to_container(OmegaConf.load(path))
+            node = node.get("robot", node) if folder == "robot" else node
+            if "_target_" in node:
+                yield f"{folder}/{path.name}", node
+
+
+CONFIGS = list(_base_configs())
+
+
+@pytest.mark.parametrize("name, node", CONFIGS, ids=[c[0] for c in CONFIGS])
+def test_every_yaml_key_is_declared(name, node):
+    cls = get_object(node["_target_"])
+    declared = {s.name for s in specs(cls)}
+    assert declared, f"{node['_target_']} declares no parameters"
+    unknown = sorted(k for k in node if not k.startswith("_") and k not in declared)
+    assert not unknown, f"conf/{name} names undeclared parameters {unknown}"
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, float) or isinstance(b, float):
+        return isinstance(a, (int, float)) and isinstance(b, (int, float)) and math.isclose(a, b, rel_tol=1e-8)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return a == b
+
+
+def _defining_configs():
+    """The config that is each class's own (its defaults are the code's defaults)."""
+    own = {}
+    for name, node in CONFIGS:
+        own.setdefault(node["_target_"], (name, node))
+    preferred = {"learners.dqn.DQN": "learner/dqn.yaml"}
+    for target, file in preferred.items():
+        own[target] = next(c for c in CONFIGS if c[0] == file)
+    return sorted(own.values())
+
+
+@pytest.mark.parametrize("name, node", _defining_configs(), ids=[c[0] for c in _defining_configs()])
+def test_yaml_values_are_the_declared_defaults(name, node):
+    """The class's own config holds the declared defaults (a default of null is the
+    code's "derive it"; the YAML may spell the value out)."""
+    for spec in specs(get_object(node["_target_"])):
+        if spec.name in node and spec.default is not None and not spec.required:
+            assert _same(node[spec.name], spec.default), (
+                f"conf/{name}: {spec.name} is {node[spec.name]!r}, its declaration says {spec.default!r}")
+
+
+def test_every_parameter_says_what_it_means():
+    for target, _ in doc.classes().items():
+        cls = get_object(target)
+        if dataclasses.is_dataclass(cls):
+            for spec in specs(cls):
+                assert len(spec.doc) > 8, f"{target}.{spec.name} has no meaning"
+
+
+def test_readme_tables_are_current():
+    text = (ROOT / "README.md").read_text()
+    block = text.partition(doc.BEGIN)[2].partition(doc.END)[0]
+    assert block.strip() == doc.tables().strip(), "README tables are stale: python -m learners.doc --write"
+
+
+@dataclasses.dataclass
+class Example:
+    """An example."""
+
+    rate: float = param(0.5, "a rate", gt=0, le=1)
+    count: int = param(3, "a count", ge=1)
+    kind: str = param("a", "a kind", choices=("a", "b"))
+    limit: float = param(0.0, "a limit", ge=0, note="0 = none")
+
+
+@pytest.mark.parametrize("values, message", [
+    ({"rate": 0}, "x.rate must be a finite number in (0, 1]; got 0"),
+    ({"rate": math.nan}, "x.rate must be a finite number in (0, 1]; got nan"),
+    ({"count": 2.5}, "x.count must be an integer >= 1; got 2.5"),
+    ({"count": True}, "x.count must be an integer >= 1; got True"),
+    ({"kind": "c"}, "x.kind must be one of a, b; got 'c'"),
+    ({"limit": -1}, "x.limit must be a finite number >= 0 (0 = none); got -1"),
+    ({"rte": 1}, "x.rte is not a parameter of"),
+])
+def test_a_declaration_checks_what_it_says(values, message):
+    with pytest.raises(ConfigError) as err:
+        check_values(Example, values, "x")
+    assert str(err.value).startswith(message), str(err.value)
+
+
+def test_valid_values_pass_and_the_table_shows_the_declaration():
+    check_values(Example, {"rate": 1, "count": 4.0, "kind": "b", "limit": 2}, "x")
+    assert "| `limit` | 0 | a finite number >= 0 (0 = none) | a limit |" in table(Example)
