@@ -37,7 +37,7 @@ def _targets(node, key: str):
 
 def classes() -> dict[str, tuple[str, list[str]]]:
     """Class path -> (config key, the config files naming it), in config order."""
-    found: dict[str, tuple[str, list[str]]] = {}
+    found: dict[str, tuple[str, list[str]]] = {"learners.settings.RunSettings": ("", ["config.yaml"])}
     for folder, key in GROUPS:
         for path in sorted((conf_dir() / folder).glob("*.yaml")):
             node = OmegaConf.to_container(OmegaConf.load(path))
@@ -55,7 +55,8 @@ def tables() -> str:
         if not (dataclasses.is_dataclass(cls) and specs(cls)):
             continue
         doc = (cls.__doc__ or "").strip().splitlines()[0]
-        parts.append(f"#### `{key}`: `{target}` ({', '.join(f'`conf/{f}`' for f in files)})\n\n"
+        where = f"`{key}`" if key else "top level"
+        parts.append(f"#### {where}: `{target}` ({', '.join(f'`conf/{f}`' for f in files)})\n\n"
                      f"{doc}\n\n{table(cls)}\n")
     return "\n".join(parts)
 

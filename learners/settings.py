@@ -2,10 +2,8 @@
 
 :func:`check_run_config` checks a composed run config:
 
-- the top-level keys of ``conf/config.yaml`` (``seed``, ``num_envs``, ``mode``,
-  ``checkpoint``, ``checkpoint_every``, ``resume``, ``eval_episodes``,
-  ``eval_every``, ``quiet``, ``video``, ``video_steps``, ``torch_threads``) and
-  ``logger``, by hand;
+- the top-level keys of ``conf/config.yaml``, declared in :class:`RunSettings`,
+  and ``logger``;
 - the ``robot``, ``task`` and ``learner`` nodes (and nested ``_target_`` nodes
   such as ``learner.epsilon``) against their class's declared parameters
   (:mod:`params.declare`): every key must be declared, and every value must
@@ -28,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import inspect
-import math
 import typing
 from typing import Any, Callable
 
@@ -36,7 +33,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from params import ConfigError
-from params.declare import check_values, describe, is_integer, mismatch, specs
+from params.declare import check_values, describe, mismatch, param, specs
 
 MODES = ("train", "eval")
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
@@ -58,33 +55,36 @@ def check_run_config(cfg: DictConfig) -> None:
 
 
 # -- top level ---------------------------------------------------------------
+@dataclasses.dataclass
+class RunSettings:
+    """The run's own settings: the top level of ``conf/config.yaml``."""
+
+    seed: int = param(0, "seeds torch, numpy, the env and the evaluations", ge=0, lt=SEED_LIMIT)
+    num_envs: int = param(1, "physics copies stepped per env call", ge=1)
+    mode: str = param("train", "train, or evaluate a saved model", choices=MODES)
+    checkpoint: str | None = param(None, "a saved model.pt to start from (train) or to evaluate (eval)")
+    checkpoint_every: int = param(50, "episodes between saves of the whole training state "
+                                      "(checkpoint.pt)", ge=0, note="0 = only at the end")
+    resume: str | None = param(None, "a run folder to continue from its checkpoint.pt "
+                                     "(with its own config)")
+    eval_episodes: int = param(20, "greedy episodes (batched copies) per evaluation", ge=0)
+    eval_every: int = param(100, "training episodes between greedy evaluations", ge=0,
+                            note="0 = only after training")
+    quiet: bool = param(False, "no per-episode lines")
+    video: bool = param(False, "write policy.mp4 of the greedy policy at the end")
+    video_steps: int = param(500, "env steps in that video", ge=0)
+    torch_threads: int = param(1, "intra-op threads; small networks are fastest on one", ge=1)
+
+
 def _check_top_level(conf: dict) -> None:
-    _integer(conf, "seed", 0, SEED_LIMIT, "an integer in [0, 2**63)")
-    _integer(conf, "num_envs", 1)
-    mode = conf.get("mode")
-    if mode not in MODES:
-        raise ConfigError(f"mode must be train or eval; got {mode!r}")
+    declared = {s.name for s in specs(RunSettings)}
+    check_values(RunSettings, {k: v for k, v in conf.items() if k in declared}, "")
     # Whether the file exists and fits is load_checkpoint's (it says so in one line).
-    checkpoint = conf.get("checkpoint")
-    if checkpoint is not None and not isinstance(checkpoint, str):
-        raise ConfigError(f"checkpoint must be null or the path of a saved model.pt; got {checkpoint!r}")
-    if not checkpoint and mode == "eval":
+    if not conf.get("checkpoint") and conf.get("mode") == "eval":
         raise ConfigError("mode=eval needs checkpoint=<path to a saved model.pt>")
-    if "checkpoint_every" in conf:
-        _integer(conf, "checkpoint_every", 0, allowed="an integer >= 0 (0 = only at the end)")
-    resume = conf.get("resume")
-    if resume is not None and not isinstance(resume, str):
-        raise ConfigError(f"resume must be null or the path of a run folder; got {resume!r}")
-    _integer(conf, "eval_episodes", 0)
-    _integer(conf, "eval_every", 0, allowed="an integer >= 0 (0 = only after training)")
     if "win" in conf:
         raise ConfigError("win is the task's now: set task.win.threshold, task.win.min_episodes, ... "
                           f"(see conf/task/<task>.yaml); got win={conf['win']!r}")
-    for key in ("quiet", "video"):
-        if not isinstance(conf.get(key), bool):
-            raise ConfigError(f"{key} must be true or false; got {conf.get(key)!r}")
-    _integer(conf, "video_steps", 0)
-    _integer(conf, "torch_threads", 1)
     _check_logger(conf.get("logger"))
 
 
@@ -104,15 +104,6 @@ def _check_logger(logger: Any) -> None:
     options = {k: v for k, v in logger.items() if k != "kind"}
     _check_against(make_logger, options, "logger",
                    skip=("kind", "run_dir", "exp_name"), what="make_logger")
-
-
-def _integer(conf: dict, key: str, low: int, high: float = math.inf, allowed: str | None = None,
-             name: str | None = None) -> None:
-    name = name or key
-    value = conf.get(key)
-    if not (is_integer(value) and low <= value < high):
-        allowed = allowed or f"an integer >= {low}"
-        raise ConfigError(f"{name} must be {allowed}; got {value!r}")
 
 
 # -- robot, task, learner: the target's signature is the schema --------------

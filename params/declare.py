@@ -110,18 +110,24 @@ class Spec:
     def check(self, value: Any, prefix: str) -> Any:
         """``value`` as the owner keeps it (an int as int, a float as float), or
         :class:`ConfigError` ``"<prefix>.<name> must be <allowed>; got <value>"``."""
-        bad = mismatch(value, self.hint, f"{prefix}.{self.name}")
+        full = key_of(prefix, self.name)
+        bad = mismatch(value, self.hint, full)
         if bad is not None:
             key, hint, got = bad
-            if key != f"{prefix}.{self.name}":  # an entry of a mapping
+            if key != full:  # an entry of a mapping
                 raise ConfigError(f"{key} must be {describe(hint)}; got {got!r}")
         if bad is not None or not self.range.holds(value):
-            raise ConfigError(f"{prefix}.{self.name} must be {self.allowed()}; got {value!r}")
+            raise ConfigError(f"{full} must be {self.allowed()}; got {value!r}")
         if self.hint is float or (self.hint == (float | None) and value is not None):
             return float(value)
         if self.hint is int:
             return int(value)
         return value
+
+
+def key_of(prefix: str, name: str) -> str:
+    """``"task.pos_step"``; just ``"seed"`` at the top level (``prefix`` empty)."""
+    return f"{prefix}.{name}" if prefix else name
 
 
 def specs(cls: type) -> tuple[Spec, ...]:
@@ -152,16 +158,17 @@ def check_values(cls: type, values: typing.Mapping[str, Any], prefix: str,
     declared = {s.name: s for s in specs(cls)}
     for key, value in values.items():
         if key not in declared:
-            raise ConfigError(f"{prefix}.{key} is not a parameter of {cls.__module__}.{cls.__name__}; "
-                              f"allowed: {', '.join(declared)}; got {prefix}.{key}={value!r}")
+            raise ConfigError(f"{key_of(prefix, key)} is not a parameter of {cls.__module__}."
+                              f"{cls.__name__}; allowed: {', '.join(declared)}; "
+                              f"got {key_of(prefix, key)}={value!r}")
     for name, spec in declared.items():
         if name not in values:
             if spec.required:
-                raise ConfigError(f"{prefix}.{name} is missing; {cls.__name__} needs it")
+                raise ConfigError(f"{key_of(prefix, name)} is missing; {cls.__name__} needs it")
             continue
         value = values[name]
         if isinstance(value, dict) and "_target_" in value and nested is not None:
-            nested(value, f"{prefix}.{name}")
+            nested(value, key_of(prefix, name))
         else:
             spec.check(value, prefix)
 

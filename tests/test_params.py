@@ -33,6 +33,14 @@ def _base_configs():
 CONFIGS = list(_base_configs())
 
 
+def test_top_level_keys_are_declared_with_the_yaml_values():
+    from learners.settings import RunSettings
+
+    top = OmegaConf.to_container(OmegaConf.load(conf_dir() / "config.yaml"))
+    for spec in specs(RunSettings):
+        assert spec.name in top and _same(top[spec.name], spec.default), spec.name
+
+
 @pytest.mark.parametrize("name, node", CONFIGS, ids=[c[0] for c in CONFIGS])
 def test_every_yaml_key_is_declared(name, node):
     cls = get_object(node["_target_"])
