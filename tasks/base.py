@@ -18,7 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from params import finite, require, whole
-from params.declare import check_fields
+from params.declare import check_fields, param
 from robots.base import Robot
 from robots.physics import BatchedPhysics
 
@@ -260,3 +260,29 @@ def setup(task: Task, robot: type, robot_name: str, success: Success,
             type(task.robot).__name__)
     task.n_substeps = substeps_for(task.running_step, task.physics_timestep)
     task.success = Success.from_config(task.win, success, measures)
+
+
+class common:
+    """Declarations of the parameters every task has; each task picks its default."""
+
+    @staticmethod
+    def running_step(default: float) -> Any:
+        return param(default, "simulated time per step, s", gt=0)
+
+    @staticmethod
+    def physics_timestep(default: float) -> Any:
+        return param(default, "physics step, s (running_step must be a whole multiple)", gt=0)
+
+    @staticmethod
+    def max_episode_steps(default: int) -> Any:
+        return param(default, "time limit, steps (the episode is truncated)", ge=1)
+
+    @staticmethod
+    def tabular_state(when_null: str) -> Any:
+        return param(None, f"observation entries a tabular learner bins: name: [low, high] "
+                           f"(null: {when_null})")
+
+    @staticmethod
+    def win(when_null: str) -> Any:
+        return param(None, f"what solved means: measure, threshold, judge, window, min_episodes "
+                           f"(null: {when_null})")

@@ -43,7 +43,7 @@ from params import require
 from params.declare import param
 from robots.physics import BatchedPhysics
 from robots.turtlebot import TurtleBot
-from tasks.base import Bounds, PerCopy, Success, Task, setup
+from tasks.base import Bounds, PerCopy, Success, Task, common, setup
 from tasks.maze_arena import Maze, maze_arena
 
 SUCCESS = Success("laps", "laps", "laps round the maze without a collision", 2.0, "greedy", 100, 100)
@@ -79,16 +79,14 @@ class MazeTask(Task):
     forwards_reward: float = param(5.0, "reward of a forward step")
     turn_reward: float = param(1.0, "reward of a turning step")
     end_episode_points: float = param(200.0, "the colliding step's reward is minus this", ge=0)
-    running_step: float = param(0.5, "simulated time per step, s", gt=0)
-    max_episode_steps: int = param(500, "time limit, steps (the episode is truncated)", ge=1)
-    physics_timestep: float = param(0.02, "physics step, s", gt=0)
+    running_step: float = common.running_step(0.5)
+    max_episode_steps: int = common.max_episode_steps(500)
+    physics_timestep: float = common.physics_timestep(0.02)
     start_position_noise: float = param(0.2, "uniform start offset in x and y, m", ge=0)
     start_yaw_noise: float = param(0.3, "uniform start heading offset, rad", ge=0)
-    tabular_state: Mapping[str, Sequence[float]] | None = param(
-        None, "observation entries a tabular learner bins: name: [low, high] "
-              "(null: every sector over [min_range, laser range])")
-    win: Mapping[str, object] | None = param(None, "what solved means: measure, threshold, judge, "
-                                                   "window, min_episodes (null: 2 greedy laps)")
+    tabular_state: Mapping[str, Sequence[float]] | None = common.tabular_state(
+        "every sector over [min_range, laser range]")
+    win: Mapping[str, object] | None = common.win("2 greedy laps")
 
     def __post_init__(self) -> None:
         setup(self, TurtleBot, "turtlebot", SUCCESS, MEASURES)

@@ -57,7 +57,7 @@ from params.declare import param
 from robots.cube import Cube
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, PerCopy, Success, Task, setup
+from tasks.base import Bounds, PerCopy, Success, Task, common, setup
 
 SUCCESS = Success("distance_walked", "m", "distance walked", 1.0, "greedy", 100, 100)
 
@@ -74,7 +74,7 @@ class OneDiskWalk(Task):
         "wheel_speed", "y_distance", "roll", "pitch", "y_speed", "yaw")
 
     robot: Cube
-    running_step: float = param(0.06, "simulated time per step, s", gt=0)
+    running_step: float = common.running_step(0.06)
     n_actions: int = param(5, "wheel actions: +fixed, -fixed, stop, +increment, -increment",
                            choices=(5,))
     init_roll_vel: float = param(0.0, "wheel speed at reset, rad/s (within +-roll_speed_fixed_value)")
@@ -94,12 +94,10 @@ class OneDiskWalk(Task):
                                                         "towards -y")
     y_axis_angle_reward_weight: float = param(1000.0, "penalty per |sin yaw|")
     reset_noise: float = param(0.005, "uniform start yaw perturbation, rad", ge=0)
-    max_episode_steps: int = param(1000, "time limit, steps (the episode is truncated)", ge=1)
-    physics_timestep: float = param(0.001, "physics step, s", gt=0)
-    tabular_state: dict | None = param(None, "observation entries a tabular learner bins: "
-                                             "name: [low, high] (null: the course's reduced state)")
-    win: dict | None = param(None, "what solved means: measure, threshold, judge, window, "
-                                   "min_episodes (null: the greedy policy walks 1 m)")
+    max_episode_steps: int = common.max_episode_steps(1000)
+    physics_timestep: float = common.physics_timestep(0.001)
+    tabular_state: dict | None = common.tabular_state("the course's reduced state")
+    win: dict | None = common.win("the greedy policy walks 1 m")
 
     def __post_init__(self) -> None:
         # The rewarded walking direction along y: the speed weight's sign (else the distance's).

@@ -29,7 +29,7 @@ from params.declare import param
 from robots.cartpole import CONTROL_TYPES, CartPole
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, PerCopy, Success, Task, setup
+from tasks.base import Bounds, PerCopy, Success, Task, common, setup
 
 # The seeds' win rule: judged on the training episodes, as they did.
 SUCCESS = Success("length", "steps", "steps balanced", 250.0, "training", 100, 100)
@@ -51,17 +51,15 @@ class StayUp(Task):
     min_base_pose_x: float = param(-1.0, "cart position at or below which the episode terminates, m")
     max_base_pose_x: float = param(1.0, "cart position at or above which the episode terminates, m")
     pos_step: float = param(1.0, "change of the cart command per action (m/s, m or N)", gt=0)
-    running_step: float = param(0.04, "simulated time per step, s", gt=0)
+    running_step: float = common.running_step(0.04)
     init_pos: float = param(0.0, "cart position at reset, m")
     control_type: str = param("velocity", "cart controller", choices=CONTROL_TYPES)
     reset_noise: float = param(0.05, "uniform start perturbation of each joint position and velocity",
                                ge=0)
-    max_episode_steps: int = param(1000, "time limit, steps (the episode is truncated)", ge=1)
-    physics_timestep: float = param(0.002, "physics step, s", gt=0)
-    tabular_state: dict | None = param(None, "observation entries a tabular learner bins: "
-                                             "name: [low, high] (null: all four, wide ranges)")
-    win: dict | None = param(None, "what solved means: measure, threshold, judge, window, "
-                                   "min_episodes (null: the seeds' rule)")
+    max_episode_steps: int = common.max_episode_steps(1000)
+    physics_timestep: float = common.physics_timestep(0.002)
+    tabular_state: dict | None = common.tabular_state("all four, wide ranges")
+    win: dict | None = common.win("the seeds' rule")
 
     def __post_init__(self) -> None:
         setup(self, CartPole, "cartpole", SUCCESS, {"length": ("steps", "steps balanced")})
