@@ -34,6 +34,7 @@ add uniform noise of the Q-values' magnitude and act greedily on the result).
 from __future__ import annotations
 
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator, Mapping, Sequence
 
@@ -45,6 +46,7 @@ from tensordict.nn import TensorDictModuleBase
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from learners.run import Run, drive
 from params import require
+from params.declare import check_fields, param
 from tasks.base import Bounds
 
 
@@ -136,48 +138,32 @@ class QTablePolicy(TensorDictModuleBase):
         return tensordict
 
 
+@dataclass(eq=False)
 class QLearn:
     """Tabular Q-learning; ``train`` runs it on a batched :class:`RobotTaskEnv`."""
 
-    def __init__(
-        self,
-        alpha: float = 0.1,
-        gamma: float = 0.7,
-        epsilon: float = 0.9,
-        epsilon_discount: float = 0.999,
-        epsilon_min: float = 0.05,
-        nepisodes: int = 500,
-        nsteps: int = 1000,
-        number_splits: int | Sequence[int] | Mapping[str, int] = 10,
-        first_visit_reward: bool = False,
-        bootstrap_terminal: bool = False,
-        noise_exploration: bool = False,
-        initial_q: float = 0.0,
-    ) -> None:
-        require(0 < alpha <= 1, "learner.alpha must be in (0, 1]", alpha)
-        require(0 <= gamma <= 1, "learner.gamma must be in [0, 1]", gamma)
-        require(0 <= epsilon <= 1, "learner.epsilon must be in [0, 1]", epsilon)
-        require(0 < epsilon_discount <= 1, "learner.epsilon_discount must be in (0, 1]", epsilon_discount)
-        require(0 <= epsilon_min <= 1, "learner.epsilon_min must be in [0, 1]", epsilon_min)
-        require(nepisodes >= 1, "learner.nepisodes must be >= 1", nepisodes)
-        require(nsteps >= 1, "learner.nsteps must be >= 1", nsteps)
-        self.alpha = float(alpha)
-        self.gamma = float(gamma)
-        self.epsilon_start = float(epsilon)
-        self.epsilon_discount = float(epsilon_discount)
-        self.epsilon_min = float(epsilon_min)
-        self.nepisodes = int(nepisodes)
-        self.nsteps = int(nsteps)
-        if isinstance(number_splits, Mapping):
-            self.number_splits = {str(k): int(v) for k, v in number_splits.items()}
-        elif isinstance(number_splits, (int, np.integer)):
-            self.number_splits = int(number_splits)
-        else:
-            self.number_splits = [int(v) for v in number_splits]
-        self.first_visit_reward = bool(first_visit_reward)
-        self.bootstrap_terminal = bool(bootstrap_terminal)
-        self.noise_exploration = bool(noise_exploration)
-        self.initial_q = float(initial_q)
+    alpha: float = param(0.1, "learning rate of the Q update", gt=0, le=1)
+    gamma: float = param(0.7, "discount of the next state's value", ge=0, le=1)
+    epsilon: float = param(0.9, "exploration probability at the start", ge=0, le=1)
+    epsilon_discount: float = param(0.999, "epsilon is multiplied by it after each episode", gt=0,
+                                    le=1)
+    epsilon_min: float = param(0.05, "epsilon stops decaying once at or below it", ge=0, le=1)
+    nepisodes: int = param(500, "training episodes (the budget)", ge=1)
+    nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1)
+    number_splits: int | Sequence[int] | Mapping[str, int] = param(
+        10, "bins per tabular_state entry: one int, a list, or name: bins (1 = ignored)")
+    first_visit_reward: bool = param(False, "original quirk: a pair's first update sets Q <- r")
+    bootstrap_terminal: bool = param(False, "original quirk: bootstrap through terminal states")
+    noise_exploration: bool = param(False, "original quirk: explore by noisy Q-values")
+    initial_q: float = param(0.0, "Q of unseen pairs (an optimistic value tries every action)")
+
+    def __post_init__(self) -> None:
+        check_fields(self, "learner")
+        self.epsilon_start = self.epsilon
+        if isinstance(self.number_splits, Mapping):
+            self.number_splits = {str(k): int(v) for k, v in self.number_splits.items()}
+        elif not isinstance(self.number_splits, (int, np.integer)):
+            self.number_splits = [int(v) for v in self.number_splits]
         self.policy: QTablePolicy | None = None
 
     # -- building ------------------------------------------------------------
