@@ -26,7 +26,7 @@ from pathlib import Path
 
 from sweep import fmt, job_summaries, run_sweep
 
-from learners.run import evaluate, measure_of
+from learners.evaluate import evaluate, measure_of
 from tasks.env import RobotTaskEnv
 from tasks.gym_env import compose_config
 

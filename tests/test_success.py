@@ -18,7 +18,9 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from learners.run import Run, drive, evaluate, verdict_lines
+from learners.evaluate import evaluate
+from learners.run import Run, drive
+from learners.verdict import verdict_lines
 from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.turtlebot import TurtleBot
