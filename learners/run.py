@@ -239,19 +239,3 @@ class Run:
         plot_reward_curve(self.run_dir / "metrics.csv", self.run_dir / "reward_curve.png",
                           self.success, self.run_dir / "evals.csv")
         return summary
-
-
-def drive(env, policy, run: Run, on_step, on_episode, stats) -> None:
-    """Steps ``env`` with ``policy`` until ``run`` is done.
-
-    ``on_step(td)`` sees each batched transition (``td`` holds ``next``);
-    ``on_episode(episode)`` each finished episode; ``stats()`` gives the
-    learner's numbers for the episode's console line and metrics row.
-    """
-    td = run.start(env)
-    while not run.done:
-        td, td_next = env.step_and_maybe_reset(policy(td))
-        on_step(td)
-        for episode in run.record_step(env, td, stats()):
-            on_episode(episode)
-        td = run.end_step(td_next)
