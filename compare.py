@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from learners.metrics_files import rolling_field
 from learners.summary import summarize_run
 
 COLUMNS = ("robot/task", "learner", "measure", "seeds", "solved", "failed", "episodes_to_solve",
@@ -97,9 +98,8 @@ def plot(sweep_dir: Path, rows: list[dict]) -> None:
                 if run["status"] != "ok":
                     continue
                 with open(Path(run["run_dir"]) / "metrics.csv") as f:
-                    reader = csv.DictReader(f)
-                    column = next(c for c in reader.fieldnames if c.startswith(f"{run['measure']}_mean"))
-                    curves.append(np.array([float(r[column]) for r in reader]))
+                    column = rolling_field(run["measure"], run["window"])
+                    curves.append(np.array([float(r[column]) for r in csv.DictReader(f)]))
                 thresholds.add(run["threshold"])
                 ylabel = f"{column} ({run['unit']}), training episodes"
             if not curves:

@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Iterator
 
 import hydra
-import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
@@ -39,10 +38,13 @@ from omegaconf import DictConfig, OmegaConf
 
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from learners.checkpoint import CheckpointError
+from learners.evaluate import describe_evaluation, greedy_evaluation, measure_of
 from learners.loggers import make_logger
 from learners.resume import load_training_state, save_training_state
-from learners.run import Run, evaluate, measure_of, seed_everything, verdict_lines
+from learners.run import Run
+from learners.seeding import seed_everything
 from learners.settings import check_run_config
+from learners.verdict import verdict_lines
 from learners.video import record_video
 from params import ConfigError
 from tasks.env import RobotTaskEnv
@@ -83,24 +85,6 @@ def stop_on_signals(record: Run) -> Iterator[None]:
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
-
-
-def greedy_evaluation(learner, env, seed: int) -> dict:
-    """The greedy policy, one episode in each copy of ``env``, from the same starts every time."""
-    env.set_seed(seed)
-    with learner.greedy():
-        return evaluate(env, learner.policy)
-
-
-def describe_evaluation(result: dict, success) -> str:
-    """``greedy evaluation over N episodes: <measure> m +- s <unit>, length ..., return ...``."""
-    values = result["lengths"] if success.measure == "length" else result["info"][success.measure]
-    extra = "".join(f", {k} {v:.3f}" for k, v in result["info_mean"].items() if k != success.measure)
-    return (f"greedy evaluation over {result['episodes']} episodes: {success.description} "
-            f"{measure_of(result, success.measure):.4g} +- {np.std(values):.3g} {success.unit} "
-            f"(solved at >= {success.threshold:g}), length {result['mean_length']:.1f} +- "
-            f"{result['std_length']:.1f}, return {result['mean_return']:.1f} +- "
-            f"{result['std_return']:.1f}{extra}")
 
 
 def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:

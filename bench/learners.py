@@ -25,7 +25,7 @@ from pathlib import Path
 
 from sweep import fmt, job_summaries, run_sweep
 
-from learners.run import evaluate, measure_of
+from learners.evaluate import evaluate, measure_of
 from tasks.factory import make_env
 
 ROBOTS = ["cartpole", "cube", "turtlebot"]

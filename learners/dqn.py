@@ -38,7 +38,7 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from learners.run import Run, drive
+from learners.run import Run
 from params import require
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
@@ -229,30 +229,38 @@ class DQN:
     def _ready(self) -> bool:
         return len(self.buffer) >= max(self.learning_starts, 1)
 
-    def on_step(self, tensordict: TensorDictBase) -> None:
-        self.store(tensordict)
-        n = tensordict.numel()
-        self.schedule.step(n)
-        if self.train_every == "step" and self._ready():
-            self._credit += self.updates * n
-            whole = int(self._credit)
-            self._credit -= whole
-            self.optimize(whole)
-        self.egreedy.eps.fill_(self.schedule.value)
+    def learn(self, updates: float) -> None:
+        """Adds ``updates`` minibatch updates to those owed (fractions carry over) and runs
+        the whole ones, once the buffer holds ``learning_starts`` transitions."""
+        if not self._ready():
+            return
+        self._credit += updates
+        whole = int(self._credit)
+        self._credit -= whole
+        self.optimize(whole)
 
-    def on_episode(self, episode) -> None:
-        self.schedule.episode_end()
-        if self.train_every == "episode" and self._ready():
-            self._credit += self.updates
-            whole = int(self._credit)
-            self._credit -= whole
-            self.optimize(whole)
+    def _sync_epsilon(self) -> None:
+        """The exploration module acts with the schedule's current epsilon."""
         self.egreedy.eps.fill_(self.schedule.value)
 
     def train(self, env, run: Run) -> None:
         """Collects from the batched ``env`` and learns until ``run`` is done."""
-        self.egreedy.eps.fill_(self.schedule.value)
-        drive(env, self.explorer, run, self.on_step, self.on_episode, lambda: self.stats)
+        self._sync_epsilon()
+        td = run.start(env)
+        while not run.done:
+            td = self.explorer(td)  # act: epsilon-greedy on the Q-network
+            td, td_next = env.step_and_maybe_reset(td)
+            self.store(td)
+            self.schedule.step(td.numel())
+            if self.train_every == "step":
+                self.learn(self.updates * td.numel())
+            self._sync_epsilon()
+            for _ in run.record_step(env, td, self.stats):
+                self.schedule.episode_end()
+                if self.train_every == "episode":
+                    self.learn(self.updates)
+                self._sync_epsilon()
+            td = run.end_step(td_next)
 
     # -- persistence ---------------------------------------------------------
     kind = "dqn"
@@ -278,7 +286,7 @@ class DQN:
         self._credit = float(state["credit"])
         self.last_loss = float(state["last_loss"])
         self.buffer.load_state_dict(state["buffer"])
-        self.egreedy.eps.fill_(self.schedule.value)
+        self._sync_epsilon()
 
     def _check_arch(self, arch: dict, path) -> None:
         if arch != self._arch():

@@ -44,7 +44,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from learners.run import Run, drive
+from learners.run import Run
 from params import require
 from params.declare import check_fields, param
 from tasks.base import Bounds
@@ -228,8 +228,14 @@ class QLearn:
 
     def train(self, env, run: Run) -> None:
         """Runs episodes on ``env`` until ``run`` is done (budget or win)."""
-        drive(env, self.policy, run, self.update, lambda _: self.end_episode(),
-              lambda: self.stats)
+        td = run.start(env)
+        while not run.done:
+            td = self.policy(td)  # act: epsilon-greedy on the table
+            td, td_next = env.step_and_maybe_reset(td)
+            self.update(td)  # learn from the batch of transitions
+            for _ in run.record_step(env, td, self.stats):
+                self.end_episode()  # epsilon decays once per finished episode
+            td = run.end_step(td_next)
 
     # -- persistence ---------------------------------------------------------
     kind = "qlearn"

@@ -52,6 +52,7 @@ def summarize_run(run_dir: Path | str) -> dict:
     out.update(
         status="ok",
         measure=summary["measure"], unit=summary["unit"], judge=summary["judge"],
+        window=summary["window"],
         threshold=summary["threshold"],
         episodes=summary["episodes"],
         solved=summary["solved"],

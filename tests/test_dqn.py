@@ -10,8 +10,10 @@ from omegaconf import OmegaConf
 
 from learners.checkpoint import CheckpointError
 from learners.dqn import DQN
-from learners.run import Run, evaluate, seed_everything
+from learners.evaluate import evaluate
+from learners.run import Run
 from learners.schedules import LinearEpsilon
+from learners.seeding import seed_everything
 from robots.cartpole import CartPole
 from tasks.env import RobotTaskEnv
 from tasks.stay_up import StayUp

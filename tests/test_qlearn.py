@@ -6,8 +6,10 @@ import torch
 from tensordict import TensorDict
 
 from learners.checkpoint import CheckpointError
+from learners.evaluate import evaluate
 from learners.qlearn import Discretizer, QLearn
-from learners.run import Run, evaluate, seed_everything
+from learners.run import Run
+from learners.seeding import seed_everything
 from robots.cartpole import CartPole
 from tasks.base import Bounds
 from tasks import factory

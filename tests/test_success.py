@@ -18,7 +18,9 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from learners.run import Run, drive, evaluate, verdict_lines
+from learners.evaluate import evaluate
+from learners.run import Run
+from learners.verdict import verdict_lines
 from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.turtlebot import TurtleBot
@@ -57,7 +59,11 @@ def judge(tmp_path, make_task, policy, episodes: int, num_envs: int = 2, eval_co
     eval_env = RobotTaskEnv(make_task(), num_envs=eval_copies, seed=10_000)
     run = Run(tmp_path, num_envs, episodes, env.task.success, quiet=True, eval_every=episodes // 2)
     run.greedy_eval = lambda: evaluate(eval_env, policy)
-    drive(env, policy, run, lambda td: None, lambda ep: None, lambda: {})
+    td = run.start(env)
+    while not run.done:
+        td, td_next = env.step_and_maybe_reset(policy(td))
+        run.record_step(env, td)
+        td = run.end_step(td_next)
     if run.solved_at is None:
         run.evaluate_greedy()  # the policy after the budget, as train.py's final evaluation
     summary = run.close()

@@ -1,0 +1,84 @@
+"""Greedy evaluation: one episode in each copy of an env with a fixed policy, and
+what it measured.
+
+:func:`evaluate` runs any policy; :func:`greedy_evaluation` runs a learner's
+greedy policy from the same starts every time; :func:`measure_of` reads the
+task's success measure from the result and :func:`describe_evaluation` puts it
+in one line.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+import torch
+
+from tasks.base import Success
+
+
+def _keep_info(info: dict[str, np.ndarray], info_fn, physics, copies: np.ndarray) -> None:
+    """Stores the task's ``episode_info`` of the ``copies`` (a mask) in ``info``."""
+    for key, value in info_fn(physics).items():
+        info.setdefault(key, np.zeros(len(copies)))[copies] = np.asarray(value)[copies]
+
+
+def evaluate(env, policy, max_steps: int | None = None) -> dict:
+    """Runs one episode in each copy of ``env`` with ``policy``; length and return stats.
+
+    If the task has ``episode_info(physics) -> dict[str, ndarray]`` (one value
+    per copy), each copy's values at its episode end are reported too, with
+    their mean under ``info_mean``.
+    """
+    n = env.num_envs
+    ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
+    alive = np.ones(n, dtype=bool)
+    info_fn = getattr(env.task, "episode_info", None)
+    info: dict[str, np.ndarray] = {}
+    td = env.reset()
+    steps = 0
+    with torch.no_grad():
+        while alive.any() and (max_steps is None or steps < max_steps):
+            td = env.step(policy(td))
+            nxt = td.get("next")
+            ret += nxt.get("reward").reshape(n).numpy() * alive
+            length += alive
+            ended = alive & nxt.get("done").reshape(n).numpy()
+            if info_fn is not None and ended.any():
+                _keep_info(info, info_fn, env.physics, ended)
+            alive &= ~ended
+            td = nxt.exclude("reward", "done", "terminated", "truncated")
+            steps += 1
+    if info_fn is not None and alive.any():  # cut off by max_steps
+        _keep_info(info, info_fn, env.physics, alive)
+    return {
+        "episodes": n,
+        "mean_length": float(length.mean()), "std_length": float(length.std()),
+        "mean_return": float(ret.mean()), "std_return": float(ret.std()),
+        "lengths": length.tolist(), "returns": ret.tolist(),
+        "info": {k: v.tolist() for k, v in info.items()},
+        "info_mean": {k: float(v.mean()) for k, v in info.items()},
+    }
+
+
+def measure_of(result: Mapping, measure: str) -> float:
+    """The mean of ``measure`` over the episodes of an :func:`evaluate` result."""
+    return float(result["mean_length"] if measure == "length" else result["info_mean"][measure])
+
+
+def greedy_evaluation(learner, env, seed: int) -> dict:
+    """The greedy policy, one episode in each copy of ``env``, from the same starts every time."""
+    env.set_seed(seed)
+    with learner.greedy():
+        return evaluate(env, learner.policy)
+
+
+def describe_evaluation(result: dict, success: Success) -> str:
+    """``greedy evaluation over N episodes: <measure> m +- s <unit>, length ..., return ...``."""
+    values = result["lengths"] if success.measure == "length" else result["info"][success.measure]
+    extra = "".join(f", {k} {v:.3f}" for k, v in result["info_mean"].items() if k != success.measure)
+    return (f"greedy evaluation over {result['episodes']} episodes: {success.description} "
+            f"{measure_of(result, success.measure):.4g} +- {np.std(values):.3g} {success.unit} "
+            f"(solved at >= {success.threshold:g}), length {result['mean_length']:.1f} +- "
+            f"{result['std_length']:.1f}, return {result['mean_return']:.1f} +- "
+            f"{result['std_return']:.1f}{extra}")

@@ -1,0 +1,76 @@
+"""The reward curve of a run folder (``reward_curve.png``), drawn from its CSV files."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from learners.metrics_files import rolling_field
+from tasks.base import Success
+
+
+def _read(path: Path) -> list[dict]:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def _column(rows: list[dict], key: str) -> np.ndarray:
+    return np.array([float(r[key]) for r in rows])
+
+
+def _panels(rows: list[dict], success: Success) -> list[tuple[str, str]]:
+    """(column, y label) per panel: the measure, the length unless it is the measure,
+    the return unless it is the length (+1 a step: the same curve)."""
+    panels = [(success.measure, f"{success.description} ({success.unit})")]
+    if success.measure != "length":
+        panels.append(("length", "episode length (steps)"))
+    if not rows or not np.array_equal(_column(rows, "reward"), _column(rows, "length")):
+        panels.append(("reward", "episode return"))
+    return panels
+
+
+def _mark_success(ax, rows: list[dict], evals: list[dict], success: Success) -> None:
+    """On the measure's panel: its rolling mean, the greedy evaluations and the threshold."""
+    if rows:
+        ax.plot(_column(rows, "episode"), _column(rows, rolling_field(success.measure, success.window)),
+                lw=2, label=f"mean of last {success.window}")
+    if evals:
+        ax.plot(_column(evals, "episode"), _column(evals, success.measure), "o-", ms=4, lw=1,
+                color="C3", label="greedy evaluation")
+    if np.isfinite(success.threshold):
+        ax.axhline(success.threshold, color="k", ls="--", lw=1,
+                   label=f"solved: {success.judge} >= {success.threshold:g}")
+    if ax.get_legend_handles_labels()[0]:  # an empty run with no threshold has nothing to label
+        ax.legend(loc="upper left", fontsize=8)
+
+
+def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
+                      evals_csv: Path | None = None) -> None:
+    """The task's measure per episode, its rolling mean, the threshold and the greedy
+    evaluations; the episode length (if it is not the measure) and return (if it is
+    not the length) below."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = _read(metrics_csv)
+    evals = _read(evals_csv) if evals_csv is not None and Path(evals_csv).is_file() else []
+    panels = _panels(rows, success)
+    fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.6), squeeze=False,
+                             sharex=True)
+    for ax, (key, label) in zip(axes[:, 0], panels):
+        if rows:
+            ax.plot(_column(rows, "episode"), _column(rows, key), lw=0.6, alpha=0.5,
+                    label="training episode")
+        ax.set_ylabel(label)
+    _mark_success(axes[0, 0], rows, evals, success)
+    axes[-1, 0].set_xlabel("episode")
+    fig.suptitle(f"{Path(out_png).parent.name}\nsolved when {success.describe()} "
+                 f"({'greedy policy' if success.judge == 'greedy' else 'training episodes'})",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=100)
+    plt.close(fig)
