@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import copy
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Any, Iterator
 
 import torch
 from tensordict import TensorDictBase
@@ -40,6 +41,7 @@ from torchrl.modules import MLP, EGreedyModule, QValueActor
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from learners.run import Run
 from params import require
+from params.declare import REQUIRED, check_fields, param
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
 LOSSES = {"l2": "l2", "mse": "l2", "huber": "smooth_l1", "smooth_l1": "smooth_l1"}
@@ -69,75 +71,58 @@ def td_loss(net: nn.Module, target_net: nn.Module, batch: TensorDictBase, gamma:
     return _DISTANCES[loss_function](q, target)
 
 
+@dataclass(eq=False)
 class DQN:
     """A configurable DQN; ``build`` makes its networks for a task, ``train`` runs it."""
 
-    def __init__(
-        self,
-        epsilon,
-        hidden: Sequence[int] = (64, 64),
-        activation: str = "relu",
-        lr: float = 1e-3,
-        lr_decay: float = 0.0,
-        gamma: float = 0.99,
-        loss: str = "huber",
-        double_dqn: bool = True,
-        target_update: int = 0,
-        tau: float = 0.01,
-        buffer_size: int = 50_000,
-        batch_size: int = 64,
-        train_every: str = "step",
-        updates: float = 1.0,
-        learning_starts: int = 0,
-        grad_clip: float = 0.0,
-        done_episode_reward: float | None = None,
-        nepisodes: int = 1000,
-        nsteps: int = 1000,
-        run_episodes: int = 0,
-    ) -> None:
-        require(lr > 0, "learner.lr must be > 0", lr)
-        require(lr_decay >= 0, "learner.lr_decay must be >= 0", lr_decay)
-        require(0 <= gamma <= 1, "learner.gamma must be in [0, 1]", gamma)
-        require(activation in ACTIVATIONS, f"learner.activation must be one of {sorted(ACTIVATIONS)}",
-                activation)
-        require(loss in LOSSES, f"learner.loss must be one of {sorted(LOSSES)}", loss)
-        require(len(hidden) >= 1 and all(int(h) >= 1 for h in hidden),
-                "learner.hidden must list layer widths >= 1", list(hidden))
-        require(target_update >= 0, "learner.target_update must be >= 0 (0 = none)", target_update)
-        require(0 <= tau < 1, "learner.tau must be in [0, 1) (0 = none)", tau)
-        require(not (target_update and tau), "learner.target_update and learner.tau exclude each other",
-                (target_update, tau))
-        require(not double_dqn or target_update or tau,
-                "learner.double_dqn needs a target network (target_update or tau)", double_dqn)
-        require(buffer_size >= batch_size >= 1, "learner.batch_size must be in [1, buffer_size]",
-                (batch_size, buffer_size))
-        require(train_every in ("step", "episode"), "learner.train_every must be step or episode",
-                train_every)
-        require(updates > 0, "learner.updates must be > 0", updates)
-        require(learning_starts >= 0, "learner.learning_starts must be >= 0", learning_starts)
-        require(nepisodes >= 1, "learner.nepisodes must be >= 1", nepisodes)
-        require(nsteps >= 1, "learner.nsteps must be >= 1", nsteps)
-        require(run_episodes >= 0, "learner.run_episodes must be >= 0", run_episodes)
-        require(learning_starts <= buffer_size,
-                f"learner.learning_starts must be <= learner.buffer_size ({buffer_size}), "
-                "else it never trains", learning_starts)
-        require(grad_clip >= 0, "learner.grad_clip must be >= 0 (0 = no clipping)", grad_clip)
-        require(all(hasattr(epsilon, k) for k in ("value", "step", "episode_end")),
+    epsilon: Any = param(REQUIRED, "exploration schedule: a node with _target_ "
+                                   "learners.schedules.LinearEpsilon, MultiplicativeEpsilon or "
+                                   "LogEpisodeEpsilon")
+    hidden: list[int] = param([64, 64], "widths of the Q-network's hidden layers")
+    activation: str = param("relu", "hidden layers' activation", choices=tuple(ACTIVATIONS))
+    lr: float = param(1e-3, "Adam's learning rate", gt=0)
+    lr_decay: float = param(0.0, "Keras-style decay: lr / (1 + lr_decay * updates)", ge=0)
+    gamma: float = param(0.99, "discount of the next state's value", ge=0, le=1)
+    loss: str = param("huber", "TD error's loss", choices=tuple(LOSSES))
+    double_dqn: bool = param(True, "the online network picks the next action, the target values it")
+    target_update: int = param(0, "hard copies of the target network every N updates", ge=0,
+                               note="0 = none")
+    tau: float = param(0.01, "Polyak averaging rate of the target network", ge=0, lt=1,
+                       note="0 = none")
+    buffer_size: int = param(50_000, "replay buffer capacity, transitions", ge=1)
+    batch_size: int = param(64, "transitions per minibatch", ge=1)
+    train_every: str = param("step", "when it trains: per collected transition or per finished "
+                                     "episode", choices=("step", "episode"))
+    updates: float = param(0.5, "minibatches per transition (train_every=step) or per episode",
+                           gt=0)
+    learning_starts: int = param(500, "transitions in the buffer before the first update", ge=0)
+    grad_clip: float = param(10.0, "gradient norm clip", ge=0, note="0 = no clipping")
+    done_episode_reward: float | None = param(None, "reward that replaces a terminating "
+                                                    "transition's (null: keep it)")
+    nepisodes: int = param(1000, "training episodes (the budget)", ge=1)
+    nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1)
+    run_episodes: int = param(0, "greedy episodes after training (ruippeixotog's run phase)", ge=0)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "learner")
+        require(len(self.hidden) >= 1 and all(h >= 1 for h in self.hidden),
+                "learner.hidden must list layer widths >= 1", self.hidden)
+        require(not (self.target_update and self.tau),
+                "learner.target_update and learner.tau exclude each other",
+                (self.target_update, self.tau))
+        require(not self.double_dqn or self.target_update or self.tau,
+                "learner.double_dqn needs a target network (target_update or tau)", self.double_dqn)
+        require(self.batch_size <= self.buffer_size, "learner.batch_size must be in [1, buffer_size]",
+                (self.batch_size, self.buffer_size))
+        require(self.learning_starts <= self.buffer_size,
+                f"learner.learning_starts must be <= learner.buffer_size ({self.buffer_size}), "
+                "else it never trains", self.learning_starts)
+        require(all(hasattr(self.epsilon, k) for k in ("value", "step", "episode_end")),
                 "learner.epsilon must be a schedule node (_target_: learners.schedules."
-                "LinearEpsilon, MultiplicativeEpsilon or LogEpisodeEpsilon)", epsilon)
-        self.schedule = epsilon
-        self.hidden = [int(h) for h in hidden]
-        self.activation = activation
-        self.lr, self.lr_decay, self.gamma = float(lr), float(lr_decay), float(gamma)
-        self.loss_function = LOSSES[loss]
-        self.double_dqn = bool(double_dqn)
-        self.target_update, self.tau = int(target_update), float(tau)
-        self.buffer_size, self.batch_size = int(buffer_size), int(batch_size)
-        self.train_every, self.updates = train_every, float(updates)
-        self.learning_starts = int(learning_starts)
-        self.grad_clip = float(grad_clip)
-        self.done_episode_reward = done_episode_reward
-        self.nepisodes, self.nsteps, self.run_episodes = int(nepisodes), int(nsteps), int(run_episodes)
+                "LinearEpsilon, MultiplicativeEpsilon or LogEpisodeEpsilon)", self.epsilon)
+        self.schedule = self.epsilon
+        self.hidden = [int(h) for h in self.hidden]
+        self.loss_function = LOSSES[self.loss]
         self.optimizer_steps = 0
         self._credit = 0.0
         self._greedy = False

@@ -8,27 +8,43 @@ copies ``value`` into TorchRL's ``EGreedyModule`` before acting.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
-from params import finite, require, whole
+from params import require
+from params.declare import check_fields, param
 
-
-def _check(epsilon: float, epsilon_min: float) -> None:
-    require(finite(epsilon) and 0 <= epsilon <= 1, "learner.epsilon.epsilon must be in [0, 1]",
-            epsilon)
-    require(finite(epsilon_min) and 0 <= epsilon_min <= epsilon,
-            f"learner.epsilon.epsilon_min must be in [0, epsilon] = [0, {epsilon}]", epsilon_min)
+PREFIX = "learner.epsilon"
 
 
+def _start(default: float) -> Any:
+    return param(default, "epsilon at the start", ge=0, le=1)
+
+
+def _floor(default: float) -> Any:
+    return param(default, "epsilon never goes below it (at most the start)", ge=0, le=1)
+
+
+def _checked(schedule: Any) -> None:
+    check_fields(schedule, PREFIX)
+    require(schedule.epsilon_min <= schedule.epsilon,
+            f"{PREFIX}.epsilon_min must be in [0, epsilon] = [0, {schedule.epsilon}]",
+            schedule.epsilon_min)
+
+
+@dataclass(eq=False)
 class LogEpisodeEpsilon:
     """n1try: per episode e, max(min, min(cap, 1 - log10((e + 1) * decay))); the cap
     itself shrinks by ``epsilon_decay`` after each episode while above ``epsilon_min``."""
 
-    def __init__(self, epsilon: float = 1.0, epsilon_min: float = 0.01,
-                 epsilon_decay: float = 0.995) -> None:
-        _check(epsilon, epsilon_min)
-        require(finite(epsilon_decay) and 0 < epsilon_decay <= 1,
-                "learner.epsilon.epsilon_decay must be in (0, 1]", epsilon_decay)
-        self.cap, self.epsilon_min, self.decay = float(epsilon), float(epsilon_min), float(epsilon_decay)
+    epsilon: float = _start(1.0)
+    epsilon_min: float = _floor(0.01)
+    epsilon_decay: float = param(0.995, "the cap's factor per episode; also scales the log", gt=0,
+                                 le=1)
+
+    def __post_init__(self) -> None:
+        _checked(self)
+        self.cap, self.decay = self.epsilon, self.epsilon_decay
         self.episode = 0
 
     @property
@@ -51,17 +67,19 @@ class LogEpisodeEpsilon:
         self.cap, self.episode = state["cap"], state["episode"]
 
 
+@dataclass(eq=False)
 class MultiplicativeEpsilon:
     """epsilon <- max(epsilon_min, epsilon * decay) after every step (mbalunovic)
     or every episode (ruippeixotog), as ``per`` says."""
 
-    def __init__(self, epsilon: float = 1.0, epsilon_min: float = 0.1, decay: float = 0.99,
-                 per: str = "episode") -> None:
-        _check(epsilon, epsilon_min)
-        require(finite(decay) and 0 < decay <= 1, "learner.epsilon.decay must be in (0, 1]", decay)
-        require(per in ("step", "episode"), "learner.epsilon.per must be step or episode", per)
-        self.value, self.epsilon_min, self.decay, self.per = (
-            float(epsilon), float(epsilon_min), float(decay), per)
+    epsilon: float = _start(1.0)
+    epsilon_min: float = _floor(0.1)
+    decay: float = param(0.99, "epsilon's factor per step or episode", gt=0, le=1)
+    per: str = param("episode", "when it decays", choices=("step", "episode"))
+
+    def __post_init__(self) -> None:
+        _checked(self)
+        self.value = self.epsilon
 
     def _decay(self, times: int) -> None:
         self.value = max(self.epsilon_min, self.value * self.decay**times)
@@ -81,13 +99,17 @@ class MultiplicativeEpsilon:
         self.value = state["value"]
 
 
+@dataclass(eq=False)
 class LinearEpsilon:
     """From ``epsilon`` to ``epsilon_min`` linearly over ``steps`` env transitions."""
 
-    def __init__(self, epsilon: float = 1.0, epsilon_min: float = 0.05, steps: int = 10_000) -> None:
-        _check(epsilon, epsilon_min)
-        require(whole(steps) and steps >= 1, "learner.epsilon.steps must be an integer >= 1", steps)
-        self.start, self.epsilon_min, self.steps = float(epsilon), float(epsilon_min), int(steps)
+    epsilon: float = _start(1.0)
+    epsilon_min: float = _floor(0.02)
+    steps: int = param(3000, "env transitions from the start to the floor", ge=1)
+
+    def __post_init__(self) -> None:
+        _checked(self)
+        self.start = self.epsilon
         self.done_steps = 0
 
     @property
