@@ -33,11 +33,9 @@ sys.path.insert(0, str(ROOT))
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from hydra import compose, initialize_config_dir  # noqa: E402
 from mujoco import rollout  # noqa: E402
 
-import train  # noqa: E402
-from tasks import factory
+from tasks import factory  # noqa: E402
 from robots.physics import default_threads  # noqa: E402
 
 SIZES = (1, 16, 64, 256)
@@ -125,16 +123,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="per measurement")
     parser.add_argument("--robots", nargs="+",
-                        default=sorted(p.stem for p in (ROOT / "conf" / "robot").glob("*.yaml")))
+                        default=factory.robot_names())
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(f"torch threads: {torch.get_num_threads()}; rollout threads: {default_threads()}; "
           f"cores: {os.cpu_count()}; {args.seconds:.1f} s per measurement")
     ratios = []
     for robot in args.robots:
-        with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[f"robot={robot}"], return_hydra_config=True)
-        task_name = cfg.hydra.runtime.choices.task
+        cfg, task_name = factory.compose(robot), factory.default_task(robot)
         probe = factory.build_env(cfg, 1, seed=0)
         model, substeps = probe.model, probe.task.n_substeps
         probe.close()
