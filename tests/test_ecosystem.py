@@ -78,7 +78,7 @@ def test_a_failing_job_does_not_cost_the_sweep_and_compare_reports_it(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir())
     assert len(jobs) == 2
-    assert "learner.alpha must be in (0, 1]" in (jobs[0] / "error.txt").read_text()
+    assert "learner.alpha must be a finite number in (0, 1]" in (jobs[0] / "error.txt").read_text()
     assert (jobs[1] / "metrics.csv").exists() and (jobs[1] / "model.pt").exists()
     proc = run(["compare.py", str(sweep)])
     assert proc.returncode == 0, proc.stderr[-2000:]

@@ -62,11 +62,11 @@ def test_saved_model_loads_for_eval_and_training(short_run):
 
 
 @pytest.mark.parametrize("overrides, expected", [
-    (["learner.alpha=-0.5"], "learner.alpha must be in (0, 1]; got -0.5"),
+    (["learner.alpha=-0.5"], "learner.alpha must be a finite number in (0, 1]; got -0.5"),
     (["mode=eval"], "mode=eval needs checkpoint="),
     (["checkpoint=/nonexistent/model.pt"], "checkpoint /nonexistent/model.pt does not exist"),
-    (["mode=fly"], "mode must be train or eval"),
-    (["learner=dqn", "learner.lr=-1"], "learner.lr must be > 0; got -1"),
+    (["mode=fly"], "mode must be one of train, eval; got 'fly'"),
+    (["learner=dqn", "learner.lr=-1"], "learner.lr must be a finite number > 0; got -1"),
 ])
 def test_bad_input_is_one_clear_line(tmp_path, overrides, expected):
     proc = train(tmp_path, "learner.nepisodes=2", *overrides)
