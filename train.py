@@ -19,14 +19,16 @@ value=<v> threshold=<v> best_rolling100=<v> greedy=<v> wall_s=<v> run_dir=<path>
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import json
+import os
 import signal
 import sys
 import threading
 import traceback
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import hydra
 import torch
@@ -60,37 +62,45 @@ def _if_run_folder(path, yes, no):
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
 # a wrong path gets a fresh folder and the one-line error from ``resumed_config``.
 OmegaConf.register_new_resolver("if_run_folder", _if_run_folder, replace=True)
-INTERRUPTED = 130  # exit code of a run stopped by Ctrl-C, as shells report SIGINT
+# Default run and sweep folders end in the process id: two runs started in the same second
+# get two folders.
+OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True)
+# A stopped run exits 128 + the signal's number, as shells report it: 130 (Ctrl-C), 143 (SIGTERM).
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
 RESUME_OVERRIDES = ("resume", "quiet", "torch_threads", "video", "video_steps", "eval_episodes")
 
 
 @contextmanager
-def stop_on_signals(record: Run) -> Iterator[None]:
-    """Ctrl-C / SIGTERM ask ``record`` to stop after the current step; a second Ctrl-C aborts."""
+def stop_on_signals(record: Run) -> Iterator[dict]:
+    """Ctrl-C / SIGTERM ask ``record`` to stop after the current step; a second Ctrl-C aborts.
+    Yields ``{"signal": None}``, where the stopping signal's number is put."""
+    stopped: dict = {"signal": None}
     if threading.current_thread() is not threading.main_thread():
-        yield  # signal handlers live in the main thread only (e.g. joblib workers)
+        yield stopped  # signal handlers live in the main thread only (e.g. joblib workers)
         return
 
     def handler(signum, frame):
         if record.stop_requested and signum == signal.SIGINT:
             raise KeyboardInterrupt
+        stopped["signal"] = signum
         record.request_stop()
         print(f"\n{signal.Signals(signum).name}: stopping after this step and saving a checkpoint "
               "(Ctrl-C again aborts without saving)", file=sys.stderr)
 
     previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        yield
+        yield stopped
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
 
 
-def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
+def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
+        start: Callable[[], None] | None = None) -> dict:
     """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict).
 
-    ``resume``: continue the run in ``run_dir`` from its ``checkpoint.pt``.
+    ``resume``: continue the run in ``run_dir`` from its ``checkpoint.pt``. ``start()`` is
+    called once the learner and env are built (every value checked), before any file is written.
     """
     check_run_config(cfg)  # every key, one line, before anything is built
     torch.set_num_threads(int(cfg.torch_threads))
@@ -103,6 +113,8 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
         learner.load(Path(cfg.checkpoint))
     elif cfg.mode == "eval":
         raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
+    if start is not None:
+        start()
     (run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(success), indent=1))
     eval_seed = int(cfg.seed) + 10_000
     n_eval = int(getattr(learner, "run_episodes", 0) or cfg.eval_episodes)
@@ -129,7 +141,7 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
         record.greedy_eval = lambda: greedy(int(cfg.eval_episodes))
         finished = False
         try:
-            with stop_on_signals(record):
+            with stop_on_signals(record) as stopped:
                 learner.train(env, record)
                 if n_eval > 0 and not record.stop_requested:
                     # The trained policy, judged like the evaluations during training (an
@@ -152,6 +164,7 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False) -> dict:
             print(f"stopped after episode {record.n_episodes}; the whole training state is in "
                   f"{state_path}\nresume with: python train.py resume={run_dir}")
             summary["interrupted"] = True
+            summary["signal"] = stopped["signal"] or signal.SIGINT
             (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
             return summary
     elif n_eval > 0:
@@ -205,30 +218,74 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
     return saved, run_dir
 
 
+@contextmanager
+def run_lock(run_dir: Path) -> Iterator[None]:
+    """Holds ``run_dir/.lock`` exclusively while the run lives; another process asking for
+    it gets a :class:`ConfigError`. The OS drops the lock when its holder dies, so a killed
+    run's folder is taken over by the next run (or resume) without ceremony."""
+    fd = os.open(run_dir / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise ConfigError(f"run folder {run_dir} is in use by another run (pid {holder}); let it "
+                          "finish or pick another folder") from None
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        yield
+    finally:
+        os.close(fd)
+
+
+def start_run(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> None:
+    """A new run's folder: refused if it already holds a run; then config.yaml and run.json."""
+    if (run_dir / "config.yaml").exists() or (run_dir / "run.json").exists():
+        raise ConfigError(f"hydra.run.dir={run_dir} already holds a run; continue it with "
+                          f"resume={run_dir}, or pick another folder")
+    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    choices = HydraConfig.get().runtime.choices
+    (run_dir / "run.json").write_text(json.dumps(
+        {group: choices.get(group) for group in ("robot", "task", "learner", "tuned")}
+        | {"seed": int(cfg.seed), "overrides": overrides}, indent=1))
+
+
+def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
+    """Prints ``message``; a sweep job keeps it in ``error.txt`` and lets the sweep go on."""
+    print(message, file=sys.stderr)
+    if not in_sweep:
+        sys.exit(2)
+    try:
+        (run_dir / "error.txt").write_text(message + "\n")
+    except OSError:
+        pass
+
+
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> None:
+    global _IN_JOB
+    _IN_JOB = True  # from here on, an unexpected exception is a bug: its trace is shown
     in_sweep = HydraConfig.get().mode == RunMode.MULTIRUN
-    overrides = list(HydraConfig.get().overrides.task)
+    # Unresolved: an override such as seed=${oops} is the validator's to report, not a crash here.
+    overrides = list(OmegaConf.to_container(HydraConfig.get().overrides.task, resolve=False))
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     resume = bool(cfg.get("resume"))
     try:
         if resume:
+            if not isinstance(cfg.resume, str):
+                raise ConfigError(f"resume must be the path of a run folder; got {cfg.resume!r}")
             cfg, run_dir = resumed_config(cfg, overrides)
-        else:
-            run_dir.mkdir(parents=True, exist_ok=True)
-            OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-            choices = HydraConfig.get().runtime.choices
-            (run_dir / "run.json").write_text(json.dumps(
-                {group: choices.get(group) for group in ("robot", "task", "learner", "tuned")}
-                | {"seed": int(cfg.seed), "overrides": overrides}, indent=1))
-        summary = run(cfg, run_dir, resume=resume)
+        check_run_config(cfg)  # every key, one line, before anything is written
+        run_dir.mkdir(parents=True, exist_ok=True)
+        with run_lock(run_dir):
+            summary = run(cfg, run_dir, resume=resume,
+                          start=None if resume else lambda: start_run(cfg, run_dir, overrides))
     except (ConfigError, CheckpointError, InstantiationException) as err:
-        message = f"error: {_one_line(err)}"
-        print(message, file=sys.stderr)
-        if not in_sweep:
-            sys.exit(2)
-        (run_dir / "error.txt").write_text(message + "\n")
-        return
+        return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)
+    except OSError as err:  # the run folder: missing, read-only, full
+        where = f"{err.filename}: " if err.filename else ""
+        return _fail(f"error: cannot write the run: {where}{err.strerror or err}", run_dir, in_sweep)
     except Exception:
         if not in_sweep:
             raise
@@ -238,8 +295,31 @@ def main(cfg: DictConfig) -> None:
         (run_dir / "error.txt").write_text(trace)
         return
     if summary.get("interrupted"):  # in a sweep too: Ctrl-C stops the sweep, not just this job
-        sys.exit(INTERRUPTED)
+        sys.exit(128 + int(summary.get("signal", signal.SIGINT)))
+
+
+_IN_JOB = False
+
+
+def cli() -> None:
+    """``main`` with Hydra's own errors (an override it cannot parse or apply, an unknown
+    config choice, a run folder it cannot create) as one ``error:`` line and exit 2."""
+    os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
+    try:
+        main()
+    except Exception as err:  # noqa: BLE001 - before a job starts, any failure is the input's
+        if _IN_JOB:
+            raise
+        text = " ".join(line.strip() for line in str(err).splitlines() if line.strip())
+        text = text.split(" Config search path:")[0]
+        if isinstance(err, OSError) and err.filename:
+            text = f"cannot create the run folder {err.filename}: {err.strerror}"
+        cause = err.__cause__ or err.__context__
+        if cause is not None and str(cause).strip() and str(cause).strip() not in text:
+            text += f" ({' '.join(str(cause).split())})"
+        print(f"error: {text or type(err).__name__}", file=sys.stderr)
+        sys.exit(2)
 
 
 if __name__ == "__main__":
-    main()
+    cli()

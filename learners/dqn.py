@@ -89,8 +89,8 @@ class DQN:
                                note="0 = none")
     tau: float = param(0.01, "Polyak averaging rate of the target network", ge=0, lt=1,
                        note="0 = none")
-    buffer_size: int = param(50_000, "replay buffer capacity, transitions", ge=1)
-    batch_size: int = param(64, "transitions per minibatch", ge=1)
+    buffer_size: int = param(50_000, "replay buffer capacity, transitions", ge=1, le=10**7)
+    batch_size: int = param(64, "transitions per minibatch", ge=1, le=65_536)
     train_every: str = param("step", "when it trains: per collected transition or per finished "
                                      "episode", choices=("step", "episode"))
     updates: float = param(0.5, "minibatches per transition (train_every=step) or per episode",
@@ -99,14 +99,15 @@ class DQN:
     grad_clip: float = param(10.0, "gradient norm clip", ge=0, note="0 = no clipping")
     done_episode_reward: float | None = param(None, "reward that replaces a terminating "
                                                     "transition's (null: keep it)")
-    nepisodes: int = param(1000, "training episodes (the budget)", ge=1)
-    nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1)
-    run_episodes: int = param(0, "greedy episodes after training (ruippeixotog's run phase)", ge=0)
+    nepisodes: int = param(1000, "training episodes (the budget)", ge=1, le=10**8)
+    nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1, le=10**7)
+    run_episodes: int = param(0, "greedy episodes after training (ruippeixotog's run phase)", ge=0,
+                              le=4096)
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
-        require(len(self.hidden) >= 1 and all(h >= 1 for h in self.hidden),
-                "learner.hidden must list layer widths >= 1", self.hidden)
+        require(1 <= len(self.hidden) <= 16 and all(1 <= h <= 65_536 for h in self.hidden),
+                "learner.hidden must list 1 to 16 layer widths in [1, 65536]", self.hidden)
         require(not (self.target_update and self.tau),
                 "learner.target_update and learner.tau exclude each other",
                 (self.target_update, self.tau))

@@ -33,6 +33,7 @@ add uniform noise of the Q-values' magnitude and act greedily on the result).
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +49,9 @@ from learners.run import Run
 from params import require
 from params.declare import check_fields, param
 from tasks.base import Bounds
+
+
+TABLE_BYTES = 2 * 2**30  # the largest Q-table a run may allocate
 
 
 class Discretizer:
@@ -70,7 +74,7 @@ class Discretizer:
             require(s >= 1, f"learner.number_splits.{name} must be an integer >= 1 (1 = ignored)", s)
         self.bounds = bounds
         self.splits = splits
-        self.n_states = int(np.prod(splits))
+        self.n_states = math.prod(splits)  # Python ints: no overflow before the size check
         self._index = torch.as_tensor(bounds.indices)
         self._low = torch.as_tensor(bounds.low)
         self._width = torch.as_tensor(bounds.high - bounds.low)
@@ -148,8 +152,8 @@ class QLearn:
     epsilon_discount: float = param(0.999, "epsilon is multiplied by it after each episode", gt=0,
                                     le=1)
     epsilon_min: float = param(0.05, "epsilon stops decaying once at or below it", ge=0, le=1)
-    nepisodes: int = param(500, "training episodes (the budget)", ge=1)
-    nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1)
+    nepisodes: int = param(500, "training episodes (the budget)", ge=1, le=10**8)
+    nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1, le=10**7)
     number_splits: int | Sequence[int] | Mapping[str, int] = param(
         10, "bins per tabular_state entry: one int, a list, or name: bins (1 = ignored)")
     first_visit_reward: bool = param(False, "original quirk: a pair's first update sets Q <- r")
@@ -170,6 +174,11 @@ class QLearn:
     def build(self, task, generator: torch.Generator | None = None) -> QTablePolicy:
         """Creates the Q-table policy for ``task``'s tabular state and actions."""
         discretizer = Discretizer(task.tabular_bounds, self.number_splits)
+        table_bytes = discretizer.n_states * task.n_actions * 9  # float64 values + visited flags
+        require(table_bytes <= TABLE_BYTES,
+                f"learner.number_splits must keep the Q-table within {TABLE_BYTES / 2**30:g} GiB; "
+                f"{discretizer.splits} bins make {discretizer.n_states} states x {task.n_actions} "
+                f"actions = {table_bytes / 2**30:.3g} GiB", self.number_splits)
         self.policy = QTablePolicy(discretizer, task.n_actions, self.epsilon_start,
                                    self.noise_exploration, generator)
         self.policy.table.fill_(self.initial_q)

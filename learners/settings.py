@@ -60,25 +60,38 @@ class RunSettings:
     """The run's own settings: the top level of ``conf/config.yaml``."""
 
     seed: int = param(0, "seeds torch, numpy, the env and the evaluations", ge=0, lt=SEED_LIMIT)
-    num_envs: int = param(1, "physics copies stepped per env call", ge=1)
+    num_envs: int = param(1, "physics copies stepped per env call", ge=1, le=4096)
     mode: str = param("train", "train, or evaluate a saved model", choices=MODES)
     checkpoint: str | None = param(None, "a saved model.pt to start from (train) or to evaluate (eval)")
     checkpoint_every: int = param(50, "episodes between saves of the whole training state "
                                       "(checkpoint.pt)", ge=0, note="0 = only at the end")
     resume: str | None = param(None, "a run folder to continue from its checkpoint.pt "
                                      "(with its own config)")
-    eval_episodes: int = param(20, "greedy episodes (batched copies) per evaluation", ge=0)
+    eval_episodes: int = param(20, "greedy episodes (batched copies) per evaluation", ge=0,
+                               le=4096)
     eval_every: int = param(100, "training episodes between greedy evaluations", ge=0,
                             note="0 = only after training")
     quiet: bool = param(False, "no per-episode lines")
     video: bool = param(False, "write policy.mp4 of the greedy policy at the end")
-    video_steps: int = param(500, "env steps in that video", ge=0)
-    torch_threads: int = param(1, "intra-op threads; small networks are fastest on one", ge=1)
+    video_steps: int = param(500, "env steps in that video", ge=0, le=100_000)
+    torch_threads: int = param(1, "intra-op threads; small networks are fastest on one", ge=1,
+                               le=256)
+
+
+GROUPS = ("robot", "task", "learner", "logger")
 
 
 def _check_top_level(conf: dict) -> None:
-    declared = {s.name for s in specs(RunSettings)}
-    check_values(RunSettings, {k: v for k, v in conf.items() if k in declared}, "")
+    declared = [s.name for s in specs(RunSettings)]
+    unknown = sorted(set(conf) - set(declared) - set(GROUPS) - {"win"})
+    if unknown:
+        raise ConfigError(f"{unknown[0]} is not a setting; allowed: {', '.join(declared)} and the "
+                          f"groups {', '.join(GROUPS)}; got {unknown[0]}={conf[unknown[0]]!r}")
+    missing = [k for k in declared if k not in conf]
+    if missing:
+        raise ConfigError(f"{missing[0]} is missing: every run needs it (conf/config.yaml sets it; "
+                          f"do not remove it with ~{missing[0]})")
+    check_values(RunSettings, {k: conf[k] for k in declared}, "")
     # Whether the file exists and fits is load_checkpoint's (it says so in one line).
     if not conf.get("checkpoint") and conf.get("mode") == "eval":
         raise ConfigError("mode=eval needs checkpoint=<path to a saved model.pt>")

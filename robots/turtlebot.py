@@ -57,7 +57,7 @@ class Odometry:
 class TurtleBot(Robot):
     """A TurtleBot2-like robot; ``mjcf_model`` is attached to an arena by its task."""
 
-    laser_rays: int = param(31, "rangefinders in the laser fan, right to left", ge=1)
+    laser_rays: int = param(31, "rangefinders in the laser fan, right to left", ge=1, le=1024)
     laser_fov: float = param(math.pi, "angle the fan covers, centred on the heading, rad",
                              gt=0, le=2 * math.pi)
     laser_max_range: float = param(6.0, "laser range, m; no hit reads this (original max_laser_value)",

@@ -23,6 +23,9 @@ from robots.base import Robot
 from robots.physics import BatchedPhysics
 
 
+MAX_SUBSTEPS = 10_000  # a step of more would take seconds of simulation per call
+
+
 def substeps_for(running_step: float, timestep: float) -> int:
     """How many physics steps of ``timestep`` make one control step."""
     require(finite(running_step) and running_step > 0,
@@ -30,6 +33,9 @@ def substeps_for(running_step: float, timestep: float) -> int:
     require(finite(timestep) and timestep > 0,
             "task.physics_timestep must be a finite number > 0", timestep)
     n = round(running_step / timestep)
+    require(n <= MAX_SUBSTEPS,
+            f"task.running_step / task.physics_timestep must be at most {MAX_SUBSTEPS} physics steps "
+            f"per env step (task.physics_timestep = {timestep:g})", running_step / timestep)
     require(
         n >= 1 and abs(n * timestep - running_step) < 1e-9,
         f"task.running_step must be a whole multiple of task.physics_timestep ({timestep})",
@@ -275,7 +281,7 @@ class common:
 
     @staticmethod
     def max_episode_steps(default: int) -> Any:
-        return param(default, "time limit, steps (the episode is truncated)", ge=1)
+        return param(default, "time limit, steps (the episode is truncated)", ge=1, le=10**7)
 
     @staticmethod
     def tabular_state(when_null: str) -> Any:

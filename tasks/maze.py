@@ -71,7 +71,7 @@ class MazeTask(Task):
     cell_size: float = param(0.5, "edge of a layout cell, m", gt=0)
     wall_height: float = param(0.5, "height of the walls, m", gt=0)
     n_actions: int = param(3, "actions: forward, turn left, turn right", choices=(3,))
-    n_observations: int = param(6, "laser sectors in the observation", ge=1)
+    n_observations: int = param(6, "laser sectors in the observation", ge=1, le=1024)
     linear_forward_speed: float = param(0.5, "speed of the forward action, m/s", gt=0)
     linear_turn_speed: float = param(0.1, "speed while turning, m/s")
     angular_speed: float = param(0.3, "turn rate of the turn actions, rad/s", gt=0)

@@ -1,0 +1,79 @@
+"""Run folders cannot collide: unique default names, a lock held for the life of a run,
+nothing written into an existing run, and SIGTERM stops a run resumably with exit 143."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+QUICK = ["learner.nepisodes=20", "eval_episodes=0", "quiet=true"]
+
+
+def train(*args: str, cwd: Path = ROOT, **kw) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, str(ROOT / "train.py"), *args], cwd=cwd, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
+
+
+def test_two_runs_started_together_get_two_complete_folders(tmp_path):
+    procs = [train(f"seed={s}", *QUICK, cwd=tmp_path) for s in (1, 2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], [o[1][-1500:] for o in outs]
+    folders = sorted(tmp_path.glob("outputs/*/*"))
+    assert len(folders) == 2, folders
+    for folder in folders:
+        assert (folder / "model.pt").is_file() and (folder / "summary.json").is_file()
+    seeds = sorted((f / "config.yaml").read_text().split("seed: ")[1].split()[0] for f in folders)
+    assert seeds == ["1", "2"]
+
+
+def test_a_folder_locked_by_a_live_run_is_refused_with_one_line(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    with open(run_dir / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        lock.write("4242")
+        lock.flush()
+        proc = train(f"hydra.run.dir={run_dir}", *QUICK)
+        _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 2
+    lines = [ln for ln in err.splitlines() if not ln.startswith("[")]
+    assert lines == [f"error: run folder {run_dir} is in use by another run (pid 4242); "
+                     "let it finish or pick another folder"], err[-1500:]
+    assert not (run_dir / "config.yaml").exists()
+
+
+def test_an_existing_run_is_neither_overwritten_nor_damaged_by_a_rejected_one(tmp_path):
+    run_dir = tmp_path / "run"
+    first = train(f"hydra.run.dir={run_dir}", *QUICK)
+    assert first.wait(timeout=300) == 0
+    before = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file() and p.name not in ("train.log", ".lock")}
+    for bad in (["learner.alpha=-1"], QUICK):  # a bad value, then a valid run into the same folder
+        proc = train(f"hydra.run.dir={run_dir}", *bad)
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 2, err[-1500:]
+        assert err.strip().splitlines()[-1].startswith("error: "), err[-1500:]
+    after = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file() and p.name not in ("train.log", ".lock")}
+    assert after == before
+    resumed = train(f"resume={run_dir}", "quiet=true")  # still a resumable run
+    assert resumed.wait(timeout=300) == 0
+
+
+def test_sigterm_stops_with_143_and_the_run_resumes(tmp_path):
+    run_dir = tmp_path / "run"
+    proc = train(f"hydra.run.dir={run_dir}", "learner.nepisodes=100000", "eval_episodes=0",
+                 "quiet=true")
+    deadline = time.time() + 120
+    while not (run_dir / "metrics.csv").is_file() or (run_dir / "metrics.csv").stat().st_size < 200:
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.2)
+    os.kill(proc.pid, signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err[-1500:]
+    assert f"resume with: python train.py resume={run_dir}" in out
+    assert (run_dir / "checkpoint.pt").is_file()
