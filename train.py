@@ -46,6 +46,7 @@ from learners.resume import load_training_state, save_training_state
 from learners.run import Run
 from learners.seeding import seed_everything
 from learners.settings import check_run_config
+from learners.sweep_state import SWEEP
 from learners.verdict import verdict_lines
 from learners.video import record_video
 from params import ConfigError
@@ -271,6 +272,8 @@ def main(cfg: DictConfig) -> None:
     overrides = list(OmegaConf.to_container(HydraConfig.get().overrides.task, resolve=False))
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     resume = bool(cfg.get("resume"))
+    if in_sweep and sweep_stopped():
+        return  # the sweep was stopped before this job began: it never starts
     try:
         if resume:
             if not isinstance(cfg.resume, str):
@@ -294,31 +297,95 @@ def main(cfg: DictConfig) -> None:
         print(trace, file=sys.stderr)
         (run_dir / "error.txt").write_text(trace)
         return
-    if summary.get("interrupted"):  # in a sweep too: Ctrl-C stops the sweep, not just this job
+    if summary.get("interrupted") and os.getpid() == _LAUNCHER_PID:
+        # In a sweep too: Ctrl-C stops the sweep, not just this job (cli reports the jobs). A job
+        # in a worker process (joblib) just returns: its launcher has the signal as well.
         sys.exit(128 + int(summary.get("signal", signal.SIGINT)))
 
 
 _IN_JOB = False
+_LAUNCHER_PID = None  # the process that runs Hydra's launcher (jobs in a joblib worker differ)
+_SWEEP_STOP: dict = {"signal": None}
+
+
+def _sweep_dir() -> Path | None:
+    """The running sweep's folder: a job's own, else what the launcher recorded."""
+    try:
+        return Path(str(HydraConfig.get().sweep.dir))
+    except Exception:  # noqa: BLE001 - the launching process has no job config
+        return SWEEP["dir"]
+
+
+def _stop_sweep(signum, frame) -> None:
+    """The launcher's Ctrl-C / SIGTERM during a sweep: running jobs (which get the signal
+    too) stop after their step and save; jobs not started yet are skipped (``.stop``)."""
+    if _SWEEP_STOP["signal"] is not None and signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    _SWEEP_STOP["signal"] = signum
+    folder = _sweep_dir()
+    if folder is not None and folder.is_dir():
+        (folder / ".stop").write_text(signal.Signals(signum).name + "\n")
+    print(f"\n{signal.Signals(signum).name}: the sweep's running jobs stop after their step and "
+          "save a checkpoint; jobs not started are skipped (Ctrl-C again aborts)", file=sys.stderr)
+
+
+def sweep_stopped() -> bool:
+    """Inside a job: whether its sweep was asked to stop before the job began."""
+    folder = _sweep_dir()
+    return folder is not None and (folder / ".stop").exists()
+
+
+def report_stopped_sweep(folder: Path) -> None:
+    """One resume command per job the stop left unfinished."""
+    for job in sorted(p for p in folder.iterdir() if p.is_dir()):
+        summary = job / "summary.json"
+        done = summary.is_file() and not json.loads(summary.read_text() or "{}").get("interrupted")
+        if (job / "checkpoint.pt").is_file() and not done:
+            print(f"resume with: python train.py resume={job}")
+        elif not (job / "run.json").exists() and not (job / "error.txt").exists():
+            print(f"not started: {job.name}")
 
 
 def cli() -> None:
     """``main`` with Hydra's own errors (an override it cannot parse or apply, an unknown
-    config choice, a run folder it cannot create) as one ``error:`` line and exit 2."""
+    config choice, a run folder it cannot create) as one ``error:`` line and exit 2; a
+    sweep stopped by Ctrl-C or SIGTERM lists how to resume each unfinished job."""
+    global _LAUNCHER_PID
+    _LAUNCHER_PID = os.getpid()
     os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
+    sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
+    if sweep:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _stop_sweep)
     try:
         main()
+    except SystemExit as stop:  # a job in this process was stopped: the sweep stops too
+        if sweep and stop.code in (128 + signal.SIGINT, 128 + signal.SIGTERM):
+            _SWEEP_STOP["signal"] = stop.code - 128
+        else:
+            raise
     except Exception as err:  # noqa: BLE001 - before a job starts, any failure is the input's
         if _IN_JOB:
             raise
-        text = " ".join(line.strip() for line in str(err).splitlines() if line.strip())
-        text = text.split(" Config search path:")[0]
-        if isinstance(err, OSError) and err.filename:
-            text = f"cannot create the run folder {err.filename}: {err.strerror}"
-        cause = err.__cause__ or err.__context__
-        if cause is not None and str(cause).strip() and str(cause).strip() not in text:
-            text += f" ({' '.join(str(cause).split())})"
-        print(f"error: {text or type(err).__name__}", file=sys.stderr)
+        print(f"error: {_hydra_error(err)}", file=sys.stderr)
         sys.exit(2)
+    if sweep and _SWEEP_STOP["signal"] is not None:
+        folder = _sweep_dir()
+        if folder is not None and folder.is_dir():
+            report_stopped_sweep(folder)
+        sys.exit(128 + int(_SWEEP_STOP["signal"]))
+
+
+def _hydra_error(err: Exception) -> str:
+    """One line of what Hydra (or the OS, creating the run folder) refused."""
+    text = " ".join(line.strip() for line in str(err).splitlines() if line.strip())
+    text = text.split(" Config search path:")[0]
+    if isinstance(err, OSError) and err.filename:
+        text = f"cannot create the run folder {err.filename}: {err.strerror}"
+    cause = err.__cause__ or err.__context__
+    if cause is not None and str(cause).strip() and str(cause).strip() not in text:
+        text += f" ({' '.join(str(cause).split())})"
+    return text or type(err).__name__
 
 
 if __name__ == "__main__":
