@@ -1,0 +1,254 @@
+"""compare.py tells the truth about a sweep: one row per setting of the swept
+hyperparameters, every job that did not finish listed as what it is, and no
+traceback on a damaged job folder.
+
+The fast tests build fake sweep folders (multirun.yaml and job folders as
+train.py writes them) in ``tmp_path``; one test runs a real tiny sweep.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from itertools import product
+from pathlib import Path
+
+import pytest
+
+import compare
+
+ROOT = Path(__file__).resolve().parents[1]
+BASE = ["learner.nepisodes=5", "eval_episodes=0", "quiet=True"]
+
+
+def write_multirun(sweep: Path, task_overrides: list[str]) -> None:
+    """A multirun.yaml as Hydra saves it, with the parts compare.py reads."""
+    sweep.mkdir(parents=True, exist_ok=True)
+    lines = ["hydra:", "  sweeper:",
+             "    _target_: hydra._internal.core_plugins.basic_sweeper.BasicSweeper",
+             "    max_batch_size: null", "    params: null",
+             "  overrides:", "    task:", *(f"    - {o}" for o in task_overrides),
+             "  runtime:", "    choices:", "      learner: qlearn", "      robot: cartpole",
+             "      task: stay_up", "seed: 0"]
+    (sweep / "multirun.yaml").write_text("\n".join(lines) + "\n")
+
+
+def write_job(sweep: Path, num: int, overrides: list[str], status: str = "finished",
+              episodes: int = 5, solved_at: int | None = None) -> Path:
+    """Job folder ``num`` as train.py leaves it: ``finished``, ``failed`` (error.txt),
+    ``interrupted`` (Ctrl-C: summary.json says so), ``killed`` (metrics.csv and
+    checkpoint.pt, no summary.json) or ``hydra-only`` (Hydra made it, train.py did not run)."""
+    given = dict(o.split("=", 1) for o in overrides)
+    job = sweep / f"{num}_cartpole_qlearn_seed{given.get('seed', 0)}"
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "overrides.yaml").write_text("".join(f"- {o}\n" for o in overrides))
+    if status == "hydra-only":
+        return job
+    (job / "config.yaml").write_text(f"seed: {given.get('seed', 0)}\n")
+    (job / "run.json").write_text(json.dumps({"robot": "cartpole", "task": "stay_up", "learner": "qlearn",
+                                              "tuned": "cartpole_qlearn", "seed": int(given.get("seed", 0)),
+                                              "overrides": overrides}))
+    if status == "failed":
+        (job / "error.txt").write_text("error: learner.alpha must be a finite number in (0, 1]; got -1\n")
+        return job
+    with open(job / "metrics.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["episode", "env_index", "reward", "length", "terminated", "env_steps", "length_mean100"])
+        w.writerows([i, 0, 10.0 * i, 10 * i, 1, 55 * i, 5.0 * i] for i in range(1, episodes + 1))
+    with open(job / "timing.csv", "w", newline="") as f:
+        csv.writer(f).writerows([["episode", "wall_s"], *([i, 0.1 * i] for i in range(1, episodes + 1))])
+    (job / "checkpoint.pt").write_bytes(b"fake")
+    if status != "killed":
+        (job / "summary.json").write_text(json.dumps(summary(episodes, solved_at, status == "interrupted")))
+    return job
+
+
+def summary(episodes: int, solved_at: int | None, interrupted: bool) -> dict:
+    out = {"solved": solved_at is not None, "decided_by": "training", "episodes": episodes,
+           "solved_at": solved_at, "measure": "length", "unit": "steps", "description": "steps balanced",
+           "threshold": 250.0, "judge": "training", "window": 100, "min_episodes": 100,
+           "value": 7.0, "best_rolling": 7.0, "last_rolling": 7.0, "greedy": None, "evaluations": 0,
+           "env_steps": 55 * episodes, "wall_s": 0.5, "divergences": 0}
+    return out | ({"interrupted": True} if interrupted else {})
+
+
+def fake_sweep(sweep: Path, sweeps: dict[str, list[str]], statuses: dict[int, str] | None = None) -> list:
+    """multirun.yaml sweeping ``sweeps`` (key -> values) and one job folder per job, in
+    BasicSweeper's order; ``statuses``: job number -> status (``missing``: no folder)."""
+    write_multirun(sweep, [f"{k}={','.join(v)}" for k, v in sweeps.items()] + BASE)
+    jobs = [[f"{k}={v}" for k, v in zip(sweeps, values)] + BASE for values in product(*sweeps.values())]
+    for num, overrides in enumerate(jobs):
+        status = (statuses or {}).get(num, "finished")
+        if status != "missing":
+            write_job(sweep, num, overrides, status)
+    return jobs
+
+
+def table(sweep: Path, capsys) -> tuple[list[dict], str]:
+    """compare.py's main on ``sweep``: comparison.csv's rows and what it printed."""
+    assert compare.main([str(sweep)]) == 0
+    out = capsys.readouterr().out
+    assert "Traceback" not in out
+    with open(sweep / "comparison.csv") as f:
+        return list(csv.DictReader(f)), out
+
+
+def test_two_values_of_a_swept_hyperparameter_are_two_rows_not_two_seeds(tmp_path, capsys):
+    fake_sweep(tmp_path, {"seed": ["0", "1"], "learner.alpha": ["0.05", "1.0"]})
+    rows, out = table(tmp_path, capsys)
+    assert [(r["swept"], r["seeds"], r["finished"]) for r in rows] == [
+        ("learner.alpha=0.05", "2", "2"), ("learner.alpha=1.0", "2", "2")]
+    assert "learner.alpha=1.0" in out and "| learner.alpha=0.05 |" in (tmp_path / "comparison.md").read_text()
+
+
+def test_seeds_alone_are_one_row(tmp_path, capsys):
+    fake_sweep(tmp_path, {"seed": ["0", "1", "2"]})
+    rows, _ = table(tmp_path, capsys)
+    assert [(r["swept"], r["seeds"], r["finished"], r["solved"]) for r in rows] == [("-", "3", "3", "0/3")]
+
+
+def test_every_swept_key_but_the_seed_makes_the_group(tmp_path, capsys):
+    fake_sweep(tmp_path, {"learner.alpha": ["0.1", "0.5"], "learner.gamma": ["0.9", "0.99"], "seed": ["0", "1"]})
+    rows, _ = table(tmp_path, capsys)
+    assert len(rows) == 4 and all(r["seeds"] == "2" for r in rows)
+    assert rows[0]["swept"] == "learner.alpha=0.1 learner.gamma=0.9"
+
+
+def test_failed_interrupted_killed_and_never_started_jobs_are_listed_as_such(tmp_path, capsys):
+    statuses = {1: "failed", 2: "interrupted", 3: "killed", 4: "missing", 5: "hydra-only"}
+    jobs = fake_sweep(tmp_path, {"seed": [str(s) for s in range(6)]}, statuses)
+    rows, out = table(tmp_path, capsys)
+    assert len(rows) == 1
+    row = rows[0]
+    assert (row["seeds"], row["finished"], row["failed"], row["interrupted"], row["never_started"]) == \
+        ("6", "1", "1", "2", "2")
+    assert row["solved"] == "0/1"  # only the finished job is judged
+    lines = out.split("jobs that did not finish")[1]
+    assert "failed: " in lines and "learner.alpha must be a finite number" in lines
+    assert f"interrupted: {tmp_path / '2_cartpole_qlearn_seed2'}: stopped after episode 5 (Ctrl-C)" in lines
+    assert f"resume with: python train.py resume={tmp_path / '3_cartpole_qlearn_seed3'}" in lines
+    assert f"never started: job 4 ({' '.join(jobs[4])}): no folder 4_* in {tmp_path}" in lines
+    assert f"never started: {tmp_path / '5_cartpole_qlearn_seed5'}" in lines
+    assert "Jobs that did not finish" in (tmp_path / "comparison.md").read_text()
+
+
+def test_a_partial_interrupted_job_does_not_enter_the_numbers(tmp_path, capsys):
+    write_multirun(tmp_path, ["seed=0,1", *BASE])
+    write_job(tmp_path, 0, ["seed=0", *BASE], episodes=5)
+    write_job(tmp_path, 1, ["seed=1", *BASE], status="interrupted", episodes=300, solved_at=None)
+    rows, _ = table(tmp_path, capsys)
+    assert rows[0]["finished"] == "1" and rows[0]["interrupted"] == "1"
+    assert rows[0]["final_mean_return"].startswith("30 ")  # episodes 1..5 of the finished job only
+
+
+def test_a_sweep_where_no_job_started_is_all_never_started(tmp_path, capsys):
+    write_multirun(tmp_path, ["learner.alpha=0.05,1.0", *BASE])
+    rows, out = table(tmp_path, capsys)
+    assert [(r["swept"], r["never_started"], r["finished"]) for r in rows] == [
+        ("learner.alpha=0.05", "1", "0"), ("learner.alpha=1.0", "1", "0")]
+    assert out.count("never started: job") == 2
+
+
+def test_without_multirun_yaml_the_jobs_own_overrides_tell_the_groups(tmp_path, capsys):
+    fake_sweep(tmp_path, {"learner.alpha": ["0.05", "1.0"]})
+    (tmp_path / "multirun.yaml").unlink()
+    rows, out = table(tmp_path, capsys)
+    assert [r["swept"] for r in rows] == ["learner.alpha=0.05", "learner.alpha=1.0"]
+    assert "multirun.yaml is missing" in out
+
+
+def test_a_folder_of_another_sweep_is_not_taken_for_a_planned_job(tmp_path, capsys):
+    write_multirun(tmp_path, ["learner.alpha=0.05", *BASE])
+    write_job(tmp_path, 0, ["learner.alpha=0.5", *BASE])  # left by an earlier sweep into the same folder
+    rows, out = table(tmp_path, capsys)
+    assert sorted((r["swept"], r["finished"], r["never_started"]) for r in rows) == [
+        ("learner.alpha=0.05", "0", "1"), ("learner.alpha=0.5", "1", "0")]
+    assert "not one of multirun.yaml's jobs" in out
+
+
+def test_job_folders_named_otherwise_are_found_by_their_overrides(tmp_path, capsys):
+    fake_sweep(tmp_path, {"learner.alpha": ["0.05", "1.0"]})
+    for job in list(tmp_path.glob("*_cartpole_*")):
+        job.rename(tmp_path / f"run_{job.name.split('_')[0]}")  # another hydra.sweep.subdir
+    rows, out = table(tmp_path, capsys)
+    assert [(r["swept"], r["finished"]) for r in rows] == [("learner.alpha=0.05", "1"), ("learner.alpha=1.0", "1")]
+    assert "did not finish" not in out
+
+
+GARBAGE = [
+    ("summary.json", "{\"solved\": tr", "summary.json is not valid JSON"),
+    ("summary.json", "", "summary.json is empty"),
+    ("summary.json", "[1, 2]", "summary.json holds no JSON object"),
+    ("summary.json", "{\"solved\": false}", "summary.json: measure is missing"),
+    ("summary.json", json.dumps(summary(5, 9, False)), "metrics.csv has 5 episodes, summary.json says solved at 9"),
+    ("metrics.csv", "", "metrics.csv is empty"),
+    ("metrics.csv", None, "no metrics.csv"),
+    ("metrics.csv", "episode,reward\n1,2\n", "metrics.csv has no column length, env_steps, length_mean100"),
+    ("metrics.csv", "reward,length,env_steps,length_mean100\nx,1,2,3\n", "a reward cell is not a number"),
+    ("metrics.csv", b"\xff\xfe\x00garbage", "metrics.csv is unreadable (UnicodeDecodeError)"),
+    ("error.txt", "", "error.txt is empty"),
+    ("run.json", "{{{", "run.json is not valid JSON"),
+    ("run.json", None, None),
+    ("config.yaml", ": : :\n\t-", None),
+    ("timing.csv", "nonsense", None),
+    ("eval.json", "{]", "eval.json is not valid JSON"),
+    ("checkpoint.pt", None, None),
+    ("summary.json", None, "no summary.json: killed before it finished, or still running; resume with"),
+]
+
+
+@pytest.mark.parametrize("name, content, message", GARBAGE)
+def test_a_damaged_job_is_one_line_and_the_others_are_tabulated(tmp_path, capsys, name, content, message):
+    fake_sweep(tmp_path, {"learner.alpha": ["0.05", "1.0"], "seed": ["0", "1"]})
+    bad = next(tmp_path.glob("3_*"))
+    path = bad / name
+    if content is None:
+        path.unlink()
+    elif isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    rows, out = table(tmp_path, capsys)
+    assert [r["swept"] for r in rows] == ["learner.alpha=0.05", "learner.alpha=1.0"]
+    assert rows[0]["finished"] == "2"  # the healthy jobs' row
+    if message:
+        assert sum(str(bad) in line for line in out.splitlines()) == 1
+        assert message in out
+    if name in ("summary.json", "metrics.csv", "error.txt"):  # never counted as finished
+        assert rows[1]["finished"] == "1" and int(rows[1]["failed"]) + int(rows[1]["interrupted"]) == 1
+
+
+@pytest.mark.parametrize("content", ["not: [yaml", "", "hydra: 3\n", b"\x00\xff"])
+def test_a_damaged_multirun_yaml_falls_back_on_the_job_folders(tmp_path, capsys, content):
+    fake_sweep(tmp_path, {"learner.alpha": ["0.05", "1.0"]})
+    path = tmp_path / "multirun.yaml"
+    path.write_bytes(content) if isinstance(content, bytes) else path.write_text(content)
+    rows, out = table(tmp_path, capsys)
+    assert [r["swept"] for r in rows] == ["learner.alpha=0.05", "learner.alpha=1.0"]
+    assert "multirun.yaml is unreadable" in out and "jobs that never started cannot be listed" in out
+
+
+def test_a_folder_without_jobs_is_an_error(tmp_path, capsys):
+    assert compare.main([str(tmp_path)]) == 2
+    assert "holds no run folders" in capsys.readouterr().err
+
+
+def test_a_real_sweep_over_two_alphas_then_compare(tmp_path):
+    """train.py -m over two values of learner.alpha, then compare.py: two rows."""
+    sweep = tmp_path / "sweep"
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    run = lambda args: subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True,  # noqa: E731
+                                      text=True, timeout=600, env=env)
+    proc = run(["train.py", "-m", "learner.alpha=0.05,1.0", "learner.nepisodes=5", "eval_episodes=0",
+                "quiet=true", f"hydra.sweep.dir={sweep}"])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    proc = run(["compare.py", str(sweep)])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = list(csv.DictReader(open(sweep / "comparison.csv")))
+    assert [(r["robot/task"], r["learner"], r["swept"], r["seeds"], r["finished"]) for r in rows] == [
+        ("cartpole/stay_up", "qlearn", "learner.alpha=0.05", "1", "1"),
+        ("cartpole/stay_up", "qlearn", "learner.alpha=1.0", "1", "1")]
+    assert "did not finish" not in proc.stdout
