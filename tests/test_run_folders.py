@@ -77,3 +77,33 @@ def test_sigterm_stops_with_143_and_the_run_resumes(tmp_path):
     assert proc.returncode == 143, err[-1500:]
     assert f"resume with: python train.py resume={run_dir}" in out
     assert (run_dir / "checkpoint.pt").is_file()
+
+
+def test_ctrl_c_on_a_joblib_sweep_leaves_every_started_job_resumable(tmp_path):
+    sweep = tmp_path / "sweep"
+    proc = train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1,2",
+                 "learner.nepisodes=100000", "eval_episodes=0", "quiet=true",
+                 f"hydra.sweep.dir={sweep}", start_new_session=True)
+    deadline = time.time() + 180
+    while len(list(sweep.glob("*/metrics.csv"))) < 2 or any(
+            p.stat().st_size < 200 for p in sweep.glob("*/metrics.csv")):
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the whole process group
+    out, err = proc.communicate(timeout=180)
+    assert proc.returncode == 130, err[-2000:]
+    assert "Traceback" not in err, err[-2000:]
+    started = sorted(p.parent for p in sweep.glob("*/run.json"))
+    assert len(started) == 2
+    for job in started:
+        assert (job / "checkpoint.pt").is_file() and (job / "model.pt").is_file()
+        assert f"resume with: python train.py resume={job}" in out.splitlines()
+    assert "not started: 2_cartpole_qlearn_seed2" in out
+    # The job goes on where it stopped (and is stopped again once it has added an episode).
+    size = (started[0] / "metrics.csv").stat().st_size
+    resumed = train(f"resume={started[0]}", "quiet=true")
+    while (started[0] / "metrics.csv").stat().st_size <= size and resumed.poll() is None:
+        time.sleep(0.2)
+    resumed.terminate()
+    out, err = resumed.communicate(timeout=120)
+    assert resumed.returncode == 143 and f"resuming {started[0]}" in out, err[-1500:]
