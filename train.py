@@ -42,7 +42,8 @@ import robots  # noqa: F401  (sets a headless GL backend before dm_control loads
 from learners.checkpoint import CheckpointError
 from learners.evaluate import describe_evaluation, greedy_evaluation, measure_of
 from learners.loggers import make_logger
-from learners.resume import load_training_state, save_training_state
+from learners.resume import (check_checkpoint, check_targets, load_run_config, load_training_state,
+                             read_run_json, save_training_state)
 from learners.run import Run
 from learners.seeding import seed_everything
 from learners.settings import check_run_config
@@ -212,10 +213,13 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
     if others:
         raise ConfigError(f"resume= continues a run with its own config; drop {' '.join(others)} "
                           f"(allowed with resume: {', '.join(RESUME_OVERRIDES[1:])})")
-    saved = OmegaConf.load(run_dir / "config.yaml")
+    read_run_json(run_dir)  # a damaged run.json is refused now, not when model.pt is written
+    saved = load_run_config(run_dir)
     for key in RESUME_OVERRIDES[1:]:
         if any(o.startswith(f"{key}=") for o in overrides):
             saved[key] = cfg[key]
+    check_targets(saved)  # config.yaml is data: it may build only the project's own classes
+    check_checkpoint(run_dir, saved)  # this run's, intact: refused before any file is touched
     return saved, run_dir
 
 

@@ -1,22 +1,93 @@
-"""Saving and loading learner state: atomic writes, one-line errors."""
+"""Saving and loading learner state: atomic, durable writes; checksummed contents; one-line errors.
+
+Every checkpoint is a dict of tensors and plain values (so it loads with
+``torch.load(weights_only=True)``) with a ``"kind"`` and a ``"checksum"``:
+``"sha256:<hex>"`` of :func:`content_checksum` over every other entry (the
+bytes of each tensor, every value, every key). Loading recomputes it, so a
+damaged file is refused even where torch would read it (torch's zip reader
+does not check its records' CRCs, and a flipped byte in a tensor's data reads
+back as a different number). Checkpoints written before checksums existed
+(no ``"checksum"`` entry) still load; :mod:`learners.resume` requires one.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
+import numpy as np
 import torch
+
+CHECKSUM = "checksum"  # the payload entry that holds content_checksum(everything else)
 
 
 class CheckpointError(ValueError):
-    """A checkpoint that is missing, unreadable, or does not fit the run."""
+    """A checkpoint that is missing, unreadable, damaged, or does not fit the run."""
+
+
+def _feed(h, obj) -> None:
+    """Feeds ``obj`` to the hash ``h`` unambiguously: a type tag, a length where needed, the value."""
+    if obj is None:
+        h.update(b"N")
+    elif isinstance(obj, bool):
+        h.update(b"T" if obj else b"F")
+    elif isinstance(obj, int):
+        h.update(b"i%d;" % obj)
+    elif isinstance(obj, float):
+        h.update(b"f" + obj.hex().encode() + b";")
+    elif isinstance(obj, str):
+        data = obj.encode("utf-8", "surrogatepass")
+        h.update(b"s%d:" % len(data) + data)
+    elif isinstance(obj, (bytes, bytearray)):
+        h.update(b"b%d:" % len(obj) + bytes(obj))
+    elif isinstance(obj, torch.Tensor):
+        t = obj.detach().cpu().resolve_conj().resolve_neg().contiguous()
+        h.update(f"t{t.dtype}{tuple(t.shape)}:".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy())
+    elif isinstance(obj, np.ndarray):
+        a = np.ascontiguousarray(obj)
+        h.update(f"a{a.dtype.str}{a.shape}:".encode())
+        h.update(a.reshape(-1).view(np.uint8))
+    elif isinstance(obj, Mapping):
+        h.update(b"d%d:" % len(obj))
+        for key, value in obj.items():
+            _feed(h, key)
+            _feed(h, value)
+    elif isinstance(obj, (list, tuple)):
+        h.update(b"%s%d:" % (b"l" if isinstance(obj, list) else b"u", len(obj)))
+        for item in obj:
+            _feed(h, item)
+    else:  # torch.dtype, torch.device, complex, ...: small values whose repr is exact
+        h.update(f"o{type(obj).__qualname__}:{obj!r};".encode())
+
+
+def content_checksum(payload: Mapping) -> str:
+    """``"sha256:<hex>"`` of ``payload``'s entries other than ``"checksum"``, as they load back."""
+    h = hashlib.sha256()
+    _feed(h, {k: v for k, v in payload.items() if k != CHECKSUM})
+    return "sha256:" + h.hexdigest()
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Makes a rename in ``folder`` durable (the folder's entry, not only the file's bytes)."""
+    if os.name != "posix":  # Windows cannot open a folder; its rename is journaled by NTFS
+        return
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def save_checkpoint(path: Path | str, payload: dict) -> None:
-    """Writes ``payload`` to ``path`` via a temporary file and a rename."""
+    """Writes ``payload`` with its checksum to ``path``: a temporary file, fsynced, renamed
+    over ``path``, then the folder fsynced, so a crash leaves the old checkpoint or the new one."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {**{k: v for k, v in payload.items() if k != CHECKSUM}, CHECKSUM: content_checksum(payload)}
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
     try:
         umask = os.umask(0)
@@ -30,10 +101,12 @@ def save_checkpoint(path: Path | str, payload: dict) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    _fsync_dir(path.parent)
 
 
 def load_checkpoint(path: Path | str, kind: str) -> dict:
-    """Reads a checkpoint written by :func:`save_checkpoint` for learner ``kind``."""
+    """Reads a checkpoint written by :func:`save_checkpoint` for learner ``kind``, checking its
+    checksum (when it has one: older checkpoints have none). Reads only; touches no file."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"checkpoint {path} does not exist")
@@ -43,6 +116,8 @@ def load_checkpoint(path: Path | str, kind: str) -> dict:
         raise CheckpointError(f"checkpoint {path} is not a readable checkpoint ({type(err).__name__})") from None
     if not isinstance(payload, dict) or "kind" not in payload:
         raise CheckpointError(f"checkpoint {path} is not a checkpoint of this toolkit")
+    if CHECKSUM in payload and payload[CHECKSUM] != content_checksum(payload):
+        raise CheckpointError(f"checkpoint {path} is damaged: its contents do not match its checksum")
     if payload["kind"] != kind:
         raise CheckpointError(
             f"checkpoint {path} holds a {payload['kind']!r} learner, but this run's learner is {kind!r}"

@@ -83,9 +83,11 @@ class MetricsFiles:
         rows (0: afresh) and writes evals.csv from ``evals``.
 
         Rows past ``keep_rows`` (episodes after the last checkpoint of a killed
-        run) are dropped.
+        run) are dropped. Both files are read and checked before either is
+        rewritten, so a refusal leaves them as they were.
         """
-        for name, header in (("metrics.csv", self.fields), ("timing.csv", TIMING_FIELDS)):
+        kept = {}
+        for name in ("metrics.csv", "timing.csv"):
             path = self.run_dir / name
             rows = []
             if keep_rows and path.is_file():
@@ -93,7 +95,10 @@ class MetricsFiles:
                     rows = list(csv.reader(f))[1 : keep_rows + 1]
             if len(rows) != keep_rows:
                 raise ValueError(f"{path} has {len(rows)} episode rows, the checkpoint needs {keep_rows}")
-            _rewrite(path, [header, *rows])
+            kept[name] = rows
+        for name, header in (("metrics.csv", self.fields), ("timing.csv", TIMING_FIELDS)):
+            path = self.run_dir / name
+            _rewrite(path, [header, *kept[name]])
             # Line-buffered: every finished episode is on disk, even if the run is killed.
             self._files.append(open(path, "a", newline="", buffering=1))
         self._metrics, self._timing = (csv.writer(f) for f in self._files)

@@ -10,24 +10,146 @@ the next step depends on, so a resumed run continues bit for bit:
   state (their ``state_dict()``);
 - the observation tensordict the next step acts on;
 - the run's bookkeeping (episodes so far, partial returns; see ``Run``);
-- the global torch, numpy and ``random`` generators.
+- the global torch, numpy and ``random`` generators;
+- the run's identity (:func:`run_identity`: the run folder's ``run_id`` and a
+  hash of its ``config.yaml``), so another run's checkpoint copied into the
+  folder is refused, and a checksum of all of it (:mod:`learners.checkpoint`).
 
 Everything is stored as tensors and plain Python values, so it loads with
 ``torch.load(weights_only=True)``.
+
+Resuming refuses a checkpoint before any file of the run folder is touched:
+:func:`read_training_state` (read-only) checks the format, the checksum, the
+learner and the identity; :func:`load_training_state` then restores every part
+in memory, and only once all of it has loaded cuts the metrics files back to
+the checkpoint's episodes. ``train.py``'s ``resumed_config`` calls
+:func:`check_targets` and :func:`read_training_state` before the run starts.
 """
 
 from __future__ import annotations
 
+import hashlib
+import importlib
+import json
 import random
+import uuid
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
+from omegaconf import DictConfig, ListConfig, OmegaConf
 from tensordict import TensorDict, TensorDictBase
 
-from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from learners.checkpoint import CHECKSUM, CheckpointError, load_checkpoint, save_checkpoint
+from params import ConfigError
 
-FORMAT = 2  # 2: the task's and robot's declared state_dict (1: scanned attributes)
+# 3: the run's identity and a checksum; 2: the task's and robot's declared state_dict;
+# 1: scanned attributes.
+FORMAT = 3
+# The packages whose classes a resumed run's config.yaml may name as ``_target_``.
+ALLOWED_TARGET_PACKAGES = ("robots", "tasks", "learners")
+
+
+# -- the run folder: identity, run.json, config.yaml ------------------------
+def new_run_identity() -> dict:
+    """``{"run_id": <random hex>}``, for a new run's ``run.json`` (its checkpoints carry it)."""
+    return {"run_id": uuid.uuid4().hex}
+
+
+def read_run_json(run_dir: Path | str) -> dict:
+    """The run folder's ``run.json``, refused in one line unless it is a JSON object."""
+    path = Path(run_dir) / "run.json"
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise CheckpointError(f"{path} is not readable JSON ({type(err).__name__}: "
+                              f"{str(err).splitlines()[0] if str(err) else ''})") from None
+    if not isinstance(data, dict):
+        raise CheckpointError(f"{path} must hold a JSON object; got {type(data).__name__}")
+    if "run_id" in data and not (isinstance(data["run_id"], str) and data["run_id"]):
+        raise CheckpointError(f"{path}: run_id must be a non-empty string; got {data['run_id']!r}")
+    return data
+
+
+def load_run_config(run_dir: Path | str) -> DictConfig:
+    """The run folder's ``config.yaml``, refused in one line if it does not parse as a mapping."""
+    path = Path(run_dir) / "config.yaml"
+    try:
+        cfg = OmegaConf.load(path)
+    except Exception as err:  # noqa: BLE001 - yaml and OmegaConf raise many types
+        raise CheckpointError(f"{path} does not parse ({type(err).__name__}: "
+                              f"{str(err).strip().splitlines()[0] if str(err).strip() else ''})") from None
+    if not isinstance(cfg, DictConfig):
+        raise CheckpointError(f"{path} must hold a mapping of settings; got a list")
+    return cfg
+
+
+def run_identity(run_dir: Path | str) -> dict:
+    """What a checkpoint must match to continue the run in ``run_dir``: ``run_id`` (run.json's;
+    runs made before it existed: ``config-`` and a hash of config.yaml's bytes) and
+    ``config_sha256``, a hash of config.yaml's settings (key order and layout aside)."""
+    run_dir = Path(run_dir)
+    config = run_dir / "config.yaml"
+    try:
+        raw = config.read_bytes()
+    except OSError as err:
+        raise CheckpointError(f"{config} is not readable ({type(err).__name__})") from None
+    run_id = read_run_json(run_dir).get("run_id") or "config-" + hashlib.sha256(raw).hexdigest()[:32]
+    settings = OmegaConf.to_container(load_run_config(run_dir), resolve=False)
+    canonical = json.dumps(settings, sort_keys=True, separators=(",", ":"), default=repr)
+    return {"run_id": run_id, "config_sha256": hashlib.sha256(canonical.encode()).hexdigest()}
+
+
+def check_targets(cfg: Any, where: str = "") -> None:
+    """Refuses (:class:`ConfigError`, one line) any ``_target_`` in ``cfg`` but a class defined
+    in the project's own packages (``robots.``, ``tasks.``, ``learners.``).
+
+    A run folder's config.yaml is data, and Hydra's ``instantiate`` would call whatever a
+    ``_target_`` names (``os.system``, ``builtins.eval``): checked as written, interpolations
+    unresolved, and nothing outside those packages is imported to check it.
+    """
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        cfg = OmegaConf.to_container(cfg, resolve=False)
+    if isinstance(cfg, dict):
+        for key, value in cfg.items():
+            name = f"{where}.{key}" if where else str(key)
+            if key == "_target_":
+                _check_target(value, name)
+            else:
+                check_targets(value, name)
+    elif isinstance(cfg, list):
+        for i, value in enumerate(cfg):
+            check_targets(value, f"{where}[{i}]")
+
+
+def _check_target(target: Any, key: str) -> None:
+    allowed = ", ".join(f"{p}." for p in ALLOWED_TARGET_PACKAGES)
+    refusal = ConfigError(f"{key}={target!r} is not allowed: a resumed run builds only classes "
+                          f"of the project's own packages ({allowed})")
+    if not isinstance(target, str) or target.split(".", 1)[0] not in ALLOWED_TARGET_PACKAGES:
+        raise refusal
+    module_name, _, attr = target.rpartition(".")
+    if not (module_name and all(part.isidentifier() for part in target.split("."))):
+        raise refusal
+    try:  # the module itself, not an attribute path through it (learners.checkpoint.os.system)
+        module = importlib.import_module(module_name)
+    except Exception:  # noqa: BLE001 - no such module in the project
+        raise refusal from None
+    obj = getattr(module, attr, None)
+    if not (isinstance(obj, type)
+            and str(obj.__module__).split(".", 1)[0] in ALLOWED_TARGET_PACKAGES):
+        raise refusal
+
+
+def _learner_kind(cfg: DictConfig) -> str | None:
+    """The ``kind`` of the learner class ``cfg.learner._target_`` names (after :func:`check_targets`)."""
+    target = OmegaConf.select(cfg, "learner._target_")
+    if not isinstance(target, str):
+        return None
+    module_name, _, attr = target.rpartition(".")
+    kind = getattr(getattr(importlib.import_module(module_name), attr, None), "kind", None)
+    return kind if isinstance(kind, str) else None
 
 
 def _tensors(state: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
@@ -95,10 +217,11 @@ def load_global_rng_state(state: dict) -> None:
 
 
 def save_training_state(path: Path, learner, env, run, td: TensorDictBase) -> None:
-    """Writes the run's whole state to ``path`` atomically."""
+    """Writes the run's whole state, with the identity of its run folder, to ``path`` atomically."""
     save_checkpoint(path, {
         "kind": "training_state",
         "format": FORMAT,
+        "identity": run_identity(run.run_dir),
         "learner_kind": learner.kind,
         "learner": learner.training_state(),
         "env": env_state(env),
@@ -108,29 +231,58 @@ def save_training_state(path: Path, learner, env, run, td: TensorDictBase) -> No
     })
 
 
-def load_training_state(path: Path, learner, env, run) -> TensorDictBase:
-    """Restores what :func:`save_training_state` wrote; returns the next step's input.
-
-    A temporary file left by a save that a kill interrupted is removed: the
-    rename never happened, so ``path`` is the last complete checkpoint.
-    """
-    for leftover in Path(path).parent.glob(Path(path).name + ".*.tmp"):
-        leftover.unlink(missing_ok=True)
+def read_training_state(path: Path | str, run_dir: Path | str, learner_kind: str | None) -> dict:
+    """Reads ``path`` and checks it may continue the run in ``run_dir``: readable, this
+    format, intact (its checksum), ``learner_kind``'s (None: not checked) and this run's
+    (:func:`run_identity`). Reads only; raises :class:`CheckpointError` with one line."""
     state = load_checkpoint(path, kind="training_state")
     if state.get("format") != FORMAT:
         raise CheckpointError(f"checkpoint {path} has format {state.get('format')}, this code reads {FORMAT}")
-    if state["learner_kind"] != learner.kind:
-        raise CheckpointError(f"checkpoint {path} holds a {state['learner_kind']!r} learner, "
-                              f"but this run's learner is {learner.kind!r}")
+    if CHECKSUM not in state:
+        raise CheckpointError(f"checkpoint {path} has no checksum, so its contents cannot be trusted")
+    if learner_kind is not None and state.get("learner_kind") != learner_kind:
+        raise CheckpointError(f"checkpoint {path} holds a {state.get('learner_kind')!r} learner, "
+                              f"but this run's learner is {learner_kind!r}")
+    theirs, ours = state.get("identity"), run_identity(run_dir)
+    if not isinstance(theirs, dict):
+        raise CheckpointError(f"checkpoint {path} does not say which run it belongs to")
+    if theirs.get("run_id") != ours["run_id"]:
+        raise CheckpointError(f"checkpoint {path} belongs to another run (run_id {theirs.get('run_id')}; "
+                              f"this run folder's is {ours['run_id']}): it was copied in from elsewhere")
+    if theirs.get("config_sha256") != ours["config_sha256"]:
+        raise CheckpointError(f"checkpoint {path} was saved under another config: "
+                              f"{Path(run_dir) / 'config.yaml'} changed since, or the checkpoint "
+                              "is another run's")
+    return state
+
+
+def check_checkpoint(run_dir: Path | str, cfg: DictConfig) -> None:
+    """Checks, reading only, that ``run_dir/checkpoint.pt`` may continue the run of ``cfg``
+    (its resumed config, after :func:`check_targets`); see :func:`read_training_state`."""
+    read_training_state(Path(run_dir) / "checkpoint.pt", run_dir, _learner_kind(cfg))
+
+
+def load_training_state(path: Path, learner, env, run) -> TensorDictBase:
+    """Restores what :func:`save_training_state` wrote; returns the next step's input.
+
+    Every part is checked and loaded before any file changes: only then are the
+    temporary files of a save that a kill interrupted removed (the rename never
+    happened, so ``path`` is the last complete checkpoint) and the metrics files
+    cut back to the checkpoint's episodes (``run.reopen``).
+    """
+    state = read_training_state(path, run.run_dir, learner.kind)
     try:
         load_env_state(env, state["env"], path)
         learner.load_training_state(state["learner"])
-        run.load_state_dict(state["run"])
+        run.load_state_dict(state["run"], reopen=False)
         load_global_rng_state(state["rng"])
         td = TensorDict(state["td"], batch_size=[env.num_envs])
+        for leftover in Path(path).parent.glob(Path(path).name + ".*.tmp"):
+            leftover.unlink(missing_ok=True)
+        run.reopen()
     except CheckpointError:
         raise
-    except (KeyError, RuntimeError, ValueError, TypeError) as err:
+    except (KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError) as err:
         raise CheckpointError(f"checkpoint {path} does not fit this run ({type(err).__name__}: "
                               f"{str(err).splitlines()[0] if str(err) else ''})") from None
     return td

@@ -208,8 +208,9 @@ class Run:
                 "wall_s": self.wall_s,
                 "ret": torch.from_numpy(self._ret.copy()), "len": torch.from_numpy(self._len.copy())}
 
-    def load_state_dict(self, state: Mapping) -> None:
-        """Continues from ``state``; metrics files are cut back to its episodes."""
+    def load_state_dict(self, state: Mapping, reopen: bool = True) -> None:
+        """Continues from ``state``; metrics files are cut back to its episodes (with
+        ``reopen=False`` not yet: :meth:`reopen` does, once every other part has loaded)."""
         if len(state["ret"]) != self.num_envs:
             raise ValueError(f"the checkpoint has {len(state['ret'])} copies, this run {self.num_envs}")
         self.n_episodes = self._last_checkpoint = int(state["n_episodes"])
@@ -223,8 +224,15 @@ class Run:
         self._ret[:] = state["ret"].numpy()
         self._len[:] = state["len"].numpy()
         self._t0 = time.perf_counter() - float(state["wall_s"])
-        self.console.skip(self.n_episodes)
+        if reopen:
+            self.reopen()
+
+    def reopen(self) -> None:
+        """Continues a resumed run's outputs after its loaded episodes: metrics.csv and
+        timing.csv cut back to them (rows of episodes after the checkpoint dropped),
+        evals.csv rewritten, the progress bar moved past them."""
         self.files.open(self.n_episodes, self.evals)
+        self.console.skip(self.n_episodes)
 
     def summary(self) -> dict:
         """Solved or not and by which judge; the measure's headline numbers; the cost."""
