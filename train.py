@@ -43,7 +43,7 @@ from learners.checkpoint import CheckpointError
 from learners.evaluate import describe_evaluation, greedy_evaluation, measure_of
 from learners.loggers import make_logger
 from learners.resume import (check_checkpoint, check_targets, load_run_config, load_training_state,
-                             read_run_json, save_training_state)
+                             new_run_identity, read_run_json, save_training_state)
 from learners.run import Run
 from learners.seeding import seed_everything
 from learners.settings import check_run_config
@@ -253,7 +253,7 @@ def start_run(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> None:
     choices = HydraConfig.get().runtime.choices
     (run_dir / "run.json").write_text(json.dumps(
         {group: choices.get(group) for group in ("robot", "task", "learner", "tuned")}
-        | {"seed": int(cfg.seed), "overrides": overrides}, indent=1))
+        | {"seed": int(cfg.seed), "overrides": overrides} | new_run_identity(), indent=1))
 
 
 def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:

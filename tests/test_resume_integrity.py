@@ -51,14 +51,16 @@ def killed(tmp_path_factory) -> Path:
 
 def clone(src: Path, dst: Path, run_id: str | None = None) -> Path:
     """A copy of run folder ``src``; with ``run_id``, as a run created with that id (run.json
-    holds it, and so does its checkpoint, as every checkpoint of such a run does)."""
+    holds it, and so does its checkpoint, as every checkpoint of such a run does); with
+    ``run_id=""``, as a run folder from before run ids (none in run.json)."""
     dst.mkdir(parents=True)
     for path in src.iterdir():
         if path.is_file():
             shutil.copy2(path, dst / path.name)
     if run_id is not None:
         names = json.loads((dst / "run.json").read_text())
-        (dst / "run.json").write_text(json.dumps({**names, "run_id": run_id}, indent=1))
+        names = {**names, "run_id": run_id} if run_id else {k: v for k, v in names.items() if k != "run_id"}
+        (dst / "run.json").write_text(json.dumps(names, indent=1))
         state = torch.load(dst / "checkpoint.pt", weights_only=True)
         save_checkpoint(dst / "checkpoint.pt", {**state, "identity": run_identity(dst)})
     return dst
@@ -66,9 +68,10 @@ def clone(src: Path, dst: Path, run_id: str | None = None) -> Path:
 
 def files(run_dir: Path) -> dict[str, bytes]:
     """Every file of the run folder and its bytes, Hydra's own aside: .hydra-resume/ (written
-    before train.py runs) and train.log (Hydra's job log, where libraries log as they load)."""
+    before train.py runs) and train.log (Hydra's job log, where libraries log as they load);
+    and .lock, which holds the pid of the last process that held the folder."""
     return {str(p.relative_to(run_dir)): p.read_bytes() for p in sorted(run_dir.rglob("*"))
-            if p.is_file() and ".hydra-resume" not in p.parts and p.name != "train.log"}
+            if p.is_file() and ".hydra-resume" not in p.parts and p.name not in ("train.log", ".lock")}
 
 
 def assert_refused(run_dir: Path, expected: str) -> str:
@@ -98,7 +101,7 @@ def test_a_checkpoint_of_the_run_itself_resumes(tmp_path, killed):
 def test_a_checkpoint_of_another_run_is_refused(tmp_path, killed, with_run_id):
     """Same config, same shapes, a consistent file: only the run id tells it apart."""
     source = clone(killed, tmp_path / "source", run_id=new_run_identity()["run_id"])
-    target = clone(killed, tmp_path / "target", run_id=new_run_identity()["run_id"] if with_run_id else None)
+    target = clone(killed, tmp_path / "target", run_id=new_run_identity()["run_id"] if with_run_id else "")
     assert (source / "config.yaml").read_bytes() == (target / "config.yaml").read_bytes()
     shutil.copy2(source / "checkpoint.pt", target / "checkpoint.pt")
     assert_refused(target, "belongs to another run")
@@ -115,9 +118,10 @@ def test_a_checkpoint_saved_under_another_config_is_refused(tmp_path, killed):
 def test_new_run_identities_differ_and_older_runs_fall_back_to_the_config(tmp_path, killed):
     ids = {new_run_identity()["run_id"] for _ in range(3)}
     assert len(ids) == 3 and all(re.fullmatch("[0-9a-f]{32}", i) for i in ids)
-    assert "run_id" not in json.loads((killed / "run.json").read_text())
-    assert run_identity(killed)["run_id"].startswith("config-")
+    assert re.fullmatch("[0-9a-f]{32}", json.loads((killed / "run.json").read_text())["run_id"])
     assert run_identity(killed) == load_checkpoint(killed / "checkpoint.pt", "training_state")["identity"]
+    older = clone(killed, tmp_path / "older", run_id="")  # a run folder from before run ids
+    assert run_identity(older)["run_id"].startswith("config-")
 
 
 # -- integrity ---------------------------------------------------------------------
