@@ -1,0 +1,63 @@
+"""Every bad command line is one ``error:`` line and exit 2, with nothing written.
+
+The table holds what a skeptical user tried (values of the wrong type, integers with
+no upper bound, removed keys, unknown keys with and without ``+``, Hydra grammar and
+interpolation errors, unknown config choices, a task that does not fit the robot,
+folders that cannot be created) plus every case of tests/test_validation.py, run
+through the real entry point (``train.cli``) in this process: a case costs a
+fraction of a second.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+from hydra.core.global_hydra import GlobalHydra
+
+import train
+from test_validation import CASES
+
+TRIED = [
+    ["seed=abc"], ["seed=null"], ["seed=nan"], ["seed=[1,2]"], ["seed=-1"], ["seed=1e30"],
+    ["resume=5"], ["resume=true"], ["resume=/nonexistent/run"], ["seed=${oops}"], ["~seed"],
+    ["~num_envs"], ["num_envs=1e308"], ["torch_threads=1099511627776"], ["eval_episodes=1e308"],
+    ["learner=dqn", "learner.hidden=[1e10]"], ["learner=dqn", "learner.hidden=[]"],
+    ["learner=dqn", "learner.buffer_size=1e12"], ["learner.number_splits=65536"],
+    ["learner.number_splits=[1000,1000,1000,1000]"], ["task.physics_timestep=1e-9"],
+    ["video=true", "video_steps=1e308"], ["robot=turtlebot", "robot.laser_rays=1e9"],
+    ["robot=turtlebot", "task.n_observations=1e6"], ["task.max_episode_steps=1e300"],
+    ["learner.alpah=0.1"], ["+learner.alpah=0.1"], ["learner.gama=0.9"], ["robot=submarine"],
+    ["learner=bogus"], ["task=bogus"], ["logger=bogus"], ["~robot"], ["~learner"],
+    ["seed=[1,2"], ["learner.alpha="], ["=5"], ["seed==3"], ["+foo=1"], ["foo=1"],
+    ["robot=cartpole", "task=maze"], ["robot=turtlebot", "task=stay_up"],
+    ["checkpoint=/nonexistent/model.pt"], ["mode=eval"], ["hydra.run.dir=/proc/nope"],
+    ["learner=dqn", "learner.epsilon._target_=os.system"],
+]
+ALL = TRIED + [overrides for overrides, _, _ in CASES]
+
+
+def cli(args: list[str], tmp_path, monkeypatch) -> int:
+    """``python train.py <args>`` in this process; its exit code."""
+    GlobalHydra.instance().clear()
+    monkeypatch.setattr(train, "_IN_JOB", False)
+    run_dir = [] if any(a.startswith("hydra.run.dir=") for a in args) else [f"hydra.run.dir={tmp_path / 'run'}"]
+    # Hydra's logging set-up would hold on to pytest's captured streams: none here.
+    quiet = [*(["quiet=true"] if not any(a.startswith("quiet=") for a in args) else []),
+             "hydra/job_logging=none", "hydra/hydra_logging=none"]
+    monkeypatch.setattr(sys, "argv", ["train.py", *args, *run_dir, *quiet])
+    with pytest.raises(SystemExit) as stop:
+        train.cli()
+    return stop.value.code
+
+
+@pytest.mark.parametrize("args", ALL, ids=[" ".join(a) for a in ALL])
+def test_a_bad_command_line_is_one_error_line_and_exit_2(args, tmp_path, monkeypatch, capsys):
+    code = cli(args, tmp_path, monkeypatch)
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    assert not (tmp_path / "run" / "config.yaml").exists(), "a rejected run wrote its config"
+
+
+def test_the_table_covers_what_was_tried():
+    assert len(ALL) >= 129
