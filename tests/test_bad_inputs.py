@@ -13,6 +13,7 @@ from __future__ import annotations
 import sys
 
 import pytest
+import torch
 from hydra.core.global_hydra import GlobalHydra
 
 import train
@@ -61,3 +62,25 @@ def test_a_bad_command_line_is_one_error_line_and_exit_2(args, tmp_path, monkeyp
 
 def test_the_table_covers_what_was_tried():
     assert len(ALL) >= 129
+
+
+def test_a_full_disk_mid_run_is_one_line_and_the_last_checkpoint_survives(tmp_path, monkeypatch,
+                                                                          capsys):
+    """The second checkpoint write fails as on a full disk: one line, exit 2, and the first
+    checkpoint still loads (saves are atomic: write a temporary file, then rename)."""
+    saves = []
+
+    def save(path, *args):
+        saves.append(path)
+        if len(saves) == 2:
+            raise OSError(28, "No space left on device", str(path))
+        real_save(path, *args)
+
+    real_save = train.save_training_state
+    monkeypatch.setattr(train, "save_training_state", save)
+    code = cli(["learner.nepisodes=200", "checkpoint_every=20", "eval_episodes=0"], tmp_path,
+               monkeypatch)
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
+    assert code == 2 and err == [f"error: cannot write the run: {saves[-1]}: No space left on device"]
+    state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    assert state["run"]["n_episodes"] == 20
