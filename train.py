@@ -372,6 +372,10 @@ def cli() -> None:
         if _IN_JOB:
             raise
         print(f"error: {_hydra_error(err)}", file=sys.stderr)
+        folder = _sweep_dir() if sweep else None
+        if folder is not None and folder.is_dir():  # e.g. a joblib worker killed from outside
+            report_stopped_sweep(folder)
+            sys.exit(1)
         sys.exit(2)
     if sweep and _SWEEP_STOP["signal"] is not None:
         folder = _sweep_dir()

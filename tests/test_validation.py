@@ -242,13 +242,13 @@ def real(test):
 
 # key -> (robot, learner, which part to build, valid(value))
 RANGES = {
-    "num_envs": ("cartpole", "qlearn", "none", integer_in(1)),
+    "num_envs": ("cartpole", "qlearn", "none", integer_in(1, 4096)),
     "seed": ("cartpole", "qlearn", "none", integer_in(0, 2**63 - 1)),
-    "eval_episodes": ("cartpole", "qlearn", "none", integer_in(0)),
+    "eval_episodes": ("cartpole", "qlearn", "none", integer_in(0, 4096)),
     "task.win.threshold": ("cartpole", "qlearn", "task",  # inf: never solved, whole budget
                            lambda x: not isinstance(x, (bool, str, type(None))) and not math.isnan(x)),
     "eval_every": ("cartpole", "qlearn", "none", integer_in(0)),
-    "torch_threads": ("cartpole", "qlearn", "none", integer_in(1)),
+    "torch_threads": ("cartpole", "qlearn", "none", integer_in(1, 256)),
     "robot.velocity_gain": ("cartpole", "qlearn", "task", real(lambda x: x > 0)),
     "robot.force_limit": ("cartpole", "qlearn", "task", real(lambda x: x >= 0)),
     "robot.laser_fov": ("turtlebot", "qlearn", "task", real(lambda x: 0 < x <= 2 * math.pi)),
@@ -256,7 +256,7 @@ RANGES = {
     "task.reset_noise": ("cartpole", "qlearn", "task", real(lambda x: x >= 0)),
     "task.min_pole_angle": ("cartpole", "qlearn", "task", real(lambda x: -1.57 <= x < 0.7)),
     "task.init_pos": ("cartpole", "qlearn", "task", real(lambda x: -1 < x < 1)),
-    "task.max_episode_steps": ("cartpole", "qlearn", "task", integer_in(1)),
+    "task.max_episode_steps": ("cartpole", "qlearn", "task", integer_in(1, 10**7)),
     "task.n_actions": ("cartpole", "qlearn", "task", lambda x: _is_int(x) and x in (2, 4)),
     "task.max_pitch_angle": ("cube", "qlearn", "task", real(lambda x: x > 0)),
     "task.init_roll_vel": ("cube", "qlearn", "task", real(lambda x: abs(x) <= 100)),
@@ -314,7 +314,7 @@ def _train(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
 @pytest.mark.parametrize("overrides, line", [
     (["task.pos_step=-1"], "error: task.pos_step must be a finite number > 0; got -1"),
     (["robot=cube", "task=stay_up"], "error: task stay_up needs robot=cartpole; got 'Cube'"),
-    (["num_envs=-3"], "error: num_envs must be an integer >= 1; got -3"),
+    (["num_envs=-3"], "error: num_envs must be an integer in [1, 4096]; got -3"),
 ])
 def test_command_line_prints_one_error_line_and_exits_2(tmp_path, overrides, line):
     proc = _train(tmp_path, *overrides)
