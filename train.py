@@ -101,10 +101,10 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
         start: Callable[[], None] | None = None) -> dict:
     """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict).
 
-    ``resume``: continue the run in ``run_dir`` from its ``checkpoint.pt``. ``start()`` is
-    called once the learner and env are built (every value checked), before any file is written.
+    ``cfg`` has passed :func:`check_run_config` (``main`` checks it before the run folder is
+    touched). ``resume``: continue the run in ``run_dir`` from its ``checkpoint.pt``. ``start()``
+    is called once the learner and env are built (every value checked), before any file is written.
     """
-    check_run_config(cfg)  # every key, one line, before anything is built
     torch.set_num_threads(int(cfg.torch_threads))
     generator = seed_everything(int(cfg.seed))
     learner = instantiate(cfg.learner, _convert_="all")
