@@ -22,6 +22,7 @@ import dataclasses
 import fcntl
 import json
 import os
+import re
 import signal
 import sys
 import threading
@@ -50,9 +51,9 @@ from learners.settings import check_run_config
 from learners.sweep_state import SWEEP
 from learners.verdict import verdict_lines
 from learners.video import record_video
-from params import ConfigError
+from params import ConfigError, did_you_mean
 from tasks.env import RobotTaskEnv
-from tasks.factory import build_env
+from tasks.factory import build_env, compose
 
 
 
@@ -384,8 +385,33 @@ def cli() -> None:
         sys.exit(128 + int(_SWEEP_STOP["signal"]))
 
 
+def _unknown_key(err: Exception) -> str | None:
+    """Hydra's "Could not override 'learner.gama'" as our line: the key, the closest one
+    there is and the keys of its node (composed with the command line's robot, task, learner)."""
+    found = re.search(r"Could not override '([^']+)'", str(err))
+    if found is None:
+        return None
+    key = found.group(1)
+    picks = [a for a in sys.argv[1:] if a.split("=", 1)[0] in ("robot", "task", "learner")]
+    try:
+        cfg = compose(overrides=picks)
+    except Exception:  # noqa: BLE001 - the suggestion is a courtesy
+        return None
+    parent = key.rpartition(".")[0]
+    node = OmegaConf.select(cfg, parent) if parent else cfg
+    names = [k for k in node if not str(k).startswith("_")] if isinstance(node, DictConfig) else []
+    if not names:
+        return None
+    where = f"{parent}." if parent else ""
+    hint = did_you_mean(key.rpartition(".")[2], names, where)
+    return f"{key} is not a setting; {hint}allowed{' in ' + parent if parent else ''}: {', '.join(map(str, names))}"
+
+
 def _hydra_error(err: Exception) -> str:
     """One line of what Hydra (or the OS, creating the run folder) refused."""
+    unknown = _unknown_key(err)
+    if unknown is not None:
+        return unknown
     text = " ".join(line.strip() for line in str(err).splitlines() if line.strip())
     text = text.split(" Config search path:")[0]
     if isinstance(err, OSError) and err.filename:

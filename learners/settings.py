@@ -32,7 +32,7 @@ from typing import Any, Callable
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from params import ConfigError
+from params import ConfigError, did_you_mean
 from params.declare import check_values, describe, mismatch, param, specs
 
 MODES = ("train", "eval")
@@ -85,8 +85,9 @@ def _check_top_level(conf: dict) -> None:
     declared = [s.name for s in specs(RunSettings)]
     unknown = sorted(set(conf) - set(declared) - set(GROUPS) - {"win"})
     if unknown:
-        raise ConfigError(f"{unknown[0]} is not a setting; allowed: {', '.join(declared)} and the "
-                          f"groups {', '.join(GROUPS)}; got {unknown[0]}={conf[unknown[0]]!r}")
+        hint = did_you_mean(unknown[0], declared + list(GROUPS))
+        raise ConfigError(f"{unknown[0]} is not a setting; {hint}allowed: {', '.join(declared)} and "
+                          f"the groups {', '.join(GROUPS)}; got {unknown[0]}={conf[unknown[0]]!r}")
     missing = [k for k in declared if k not in conf]
     if missing:
         raise ConfigError(f"{missing[0]} is missing: every run needs it (conf/config.yaml sets it; "

@@ -31,3 +31,11 @@ def finite(value: Any) -> bool:
 def whole(value: Any) -> bool:
     """Whether ``value`` is a finite number with an integer value (``3`` or ``3.0``)."""
     return finite(value) and float(value).is_integer()
+
+
+def did_you_mean(word: str, choices: "list[str] | tuple[str, ...]", prefix: str = "") -> str:
+    """``"did you mean <prefix><closest>? "`` for a mistyped name, or ``""``."""
+    import difflib
+
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f"did you mean {prefix}{close[0]}? " if close else ""

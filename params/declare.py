@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
-from params import ConfigError
+from params import ConfigError, did_you_mean
 
 _META = "param"
 REQUIRED = dataclasses.MISSING
@@ -158,8 +158,9 @@ def check_values(cls: type, values: typing.Mapping[str, Any], prefix: str,
     declared = {s.name: s for s in specs(cls)}
     for key, value in values.items():
         if key not in declared:
+            hint = did_you_mean(key, tuple(declared), key_of(prefix, ""))
             raise ConfigError(f"{key_of(prefix, key)} is not a parameter of {cls.__module__}."
-                              f"{cls.__name__}; allowed: {', '.join(declared)}; "
+                              f"{cls.__name__}; {hint}allowed: {', '.join(declared)}; "
                               f"got {key_of(prefix, key)}={value!r}")
     for name, spec in declared.items():
         if name not in values:

@@ -6,7 +6,7 @@ from dm_control import mjcf
 
 
 def floor_arena(name: str, timestep: float, size: float = 5.0) -> mjcf.RootElement:
-    """A lit, checkered floor at z = 0 with a tracking-free overview camera."""
+    """A lit, checkered floor at z = 0; offscreen rendering up to 1920 x 1080."""
     if not timestep > 0:
         raise ValueError(f"physics timestep must be > 0, got {timestep}")
     arena = mjcf.RootElement(model=name)
@@ -18,6 +18,9 @@ def floor_arena(name: str, timestep: float, size: float = 5.0) -> mjcf.RootEleme
     arena.visual.headlight.ambient = [0.4, 0.4, 0.4]
     arena.visual.headlight.diffuse = [0.6, 0.6, 0.6]
     arena.visual.quality.shadowsize = 2048
+    # Offscreen frames up to full HD (MuJoCo's default buffer is 640 x 480).
+    offscreen = getattr(arena.visual, "global")
+    offscreen.offwidth, offscreen.offheight = 1920, 1080
     arena.asset.add(
         "texture", name="grid", type="2d", builtin="checker", width=512, height=512,
         rgb1=[0.2, 0.3, 0.4], rgb2=[0.1, 0.2, 0.3],

@@ -112,8 +112,6 @@ def maze_arena(name: str, maze: Maze, timestep: float,
     """A floor with ``maze``'s walls (brick red) and a top-down camera ``top``."""
     require(wall_height > 0, "task.wall_height must be > 0", wall_height)
     arena = floor_arena(name, timestep, size=maze.half_extent + 1.0)
-    offscreen = getattr(arena.visual, "global")  # room for frames up to 1280 x 960
-    offscreen.offwidth, offscreen.offheight = 1280, 960
     arena.asset.add("material", name="brick", rgba=[0.7, 0.33, 0.22, 1])
     for i, (x, y, hx, hy, yaw) in enumerate(maze.walls):
         arena.worldbody.add("geom", name=f"wall_{i}", type="box", pos=[x, y, wall_height / 2],

@@ -84,3 +84,17 @@ def test_a_full_disk_mid_run_is_one_line_and_the_last_checkpoint_survives(tmp_pa
     assert code == 2 and err == [f"error: cannot write the run: {saves[-1]}: No space left on device"]
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
     assert state["run"]["n_episodes"] == 20
+
+
+@pytest.mark.parametrize("args, suggestion", [
+    (["learner.gama=0.9"], "did you mean learner.gamma?"),
+    (["+learner.gama=0.9"], "did you mean learner.gamma?"),
+    (["learner=dqn", "learner.lrr=0.1"], "did you mean learner.lr?"),
+    (["sed=3"], "did you mean seed?"),
+    (["+sed=3"], "did you mean seed?"),
+    (["robot=cube", "task.rol_speed_fixed_value=3"], "did you mean task.roll_speed_fixed_value?"),
+])
+def test_a_mistyped_key_gets_the_closest_one(args, suggestion, tmp_path, monkeypatch, capsys):
+    assert cli(args, tmp_path, monkeypatch) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
+    assert len(err) == 1 and suggestion in err[0], err
