@@ -48,6 +48,7 @@ from learners.resume import (check_checkpoint, check_targets, load_run_config, l
 from learners.run import Run
 from learners.seeding import seed_everything
 from learners.settings import check_run_config
+from learners.summary import summarize_run
 from learners.sweep_state import SWEEP
 from learners.verdict import verdict_lines
 from learners.video import record_video
@@ -343,11 +344,10 @@ def sweep_stopped() -> bool:
 def report_stopped_sweep(folder: Path) -> None:
     """One resume command per job the stop left unfinished."""
     for job in sorted(p for p in folder.iterdir() if p.is_dir()):
-        summary = job / "summary.json"
-        done = summary.is_file() and not json.loads(summary.read_text() or "{}").get("interrupted")
-        if (job / "checkpoint.pt").is_file() and not done:
-            print(f"resume with: python train.py resume={job}")
-        elif not (job / "run.json").exists() and not (job / "error.txt").exists():
+        state = summarize_run(job)  # the same reading of a job folder compare.py uses
+        if state.get("resume"):
+            print(f"resume with: {state['resume']}")
+        elif state["status"] == "never started":
             print(f"not started: {job.name}")
 
 
