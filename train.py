@@ -40,7 +40,9 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
+from learners.banner import banner_lines, tuned_changes
 from learners.checkpoint import CheckpointError
+from learners.console import tee_console
 from learners.evaluate import describe_evaluation, greedy_evaluation, measure_of
 from learners.loggers import make_logger
 from learners.resume import (check_checkpoint, check_targets, load_run_config, load_training_state,
@@ -71,7 +73,9 @@ OmegaConf.register_new_resolver("if_run_folder", _if_run_folder, replace=True)
 OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True)
 # A stopped run exits 128 + the signal's number, as shells report it: 130 (Ctrl-C), 143 (SIGTERM).
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
-RESUME_OVERRIDES = ("resume", "quiet", "torch_threads", "video", "video_steps", "eval_episodes")
+RESUME_OVERRIDES = ("resume", "quiet", "verbose", "log_every", "torch_threads", "video", "video_steps",
+                    "eval_episodes")
+PICKS = ("robot", "task", "learner")  # the config groups a run folder fixes
 
 
 @contextmanager
@@ -100,12 +104,14 @@ def stop_on_signals(record: Run) -> Iterator[dict]:
 
 
 def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
-        start: Callable[[], None] | None = None) -> dict:
+        start: Callable[[], None] | None = None, choices: dict | None = None,
+        changes: list[str] | None = None) -> dict:
     """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict).
 
     ``cfg`` has passed :func:`check_run_config` (``main`` checks it before the run folder is
     touched). ``resume``: continue the run in ``run_dir`` from its ``checkpoint.pt``. ``start()``
     is called once the learner and env are built (every value checked), before any file is written.
+    ``choices`` (robot, task, learner, tuned) and the tuned file's ``changes`` go into the banner.
     """
     torch.set_num_threads(int(cfg.torch_threads))
     generator = seed_everything(int(cfg.seed))
@@ -114,11 +120,13 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
     success = env.task.success
     learner.build(env.task, generator)
     if cfg.checkpoint and not resume:
-        learner.load(Path(cfg.checkpoint))
+        learner.load(model_path(cfg.checkpoint))
     elif cfg.mode == "eval":
         raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
     if start is not None:
         start()
+    for line in banner_lines(cfg, choices or {}, changes, success, run_dir, learner.nepisodes):
+        print(line)
     (run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(success), indent=1))
     eval_seed = int(cfg.seed) + 10_000
     n_eval = int(getattr(learner, "run_episodes", 0) or cfg.eval_episodes)
@@ -134,7 +142,8 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
     if cfg.mode == "train":
         state_path = run_dir / "checkpoint.pt"
         record = Run(run_dir, env.num_envs, learner.nepisodes, success, extra_fields=tuple(learner.stats),
-                     quiet=bool(cfg.quiet), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
+                     quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
+                     log_every=int(cfg.get("log_every", 0)), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
                      eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume)
         if resume:
             record.resume_td = load_training_state(state_path, learner, env, record)
@@ -143,6 +152,7 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
                                     **{k: v for k, v in cfg.logger.items() if k != "kind"})
         record.checkpoint = lambda td: save_training_state(state_path, learner, env, record, td)
         record.greedy_eval = lambda: greedy(int(cfg.eval_episodes))
+        record.train_stats = getattr(learner, "train_stats", None)
         finished = False
         try:
             with stop_on_signals(record) as stopped:
@@ -225,6 +235,45 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
     return saved, run_dir
 
 
+def model_path(checkpoint: str | Path) -> Path:
+    """``checkpoint=``'s model file: the path itself, or a run folder's model.pt."""
+    path = Path(checkpoint)
+    if path.is_dir():
+        if not (path / "model.pt").is_file():
+            raise CheckpointError(f"checkpoint={path} is a folder without model.pt (a run folder "
+                                  "holds one once its run ends or stops)")
+        return path / "model.pt"
+    return path
+
+
+def run_folder_of(checkpoint: str | Path | None) -> Path | None:
+    """The run folder ``checkpoint=`` points into (the folder or a model.pt in it), if any."""
+    if not checkpoint:
+        return None
+    path = Path(checkpoint)
+    folder = path if path.is_dir() else path.parent
+    return folder if (folder / "config.yaml").is_file() and (folder / "run.json").is_file() else None
+
+
+def eval_config(cfg: DictConfig, overrides: list[str]) -> DictConfig:
+    """``mode=eval checkpoint=<run folder or its model.pt>``: the robot, task and learner of
+    the run's own config.yaml; the run settings (``eval_episodes``, ``seed``, ``video``, ...)
+    and every override of this command (a task parameter for a robustness test) on top."""
+    folder = run_folder_of(cfg.checkpoint)
+    saved = load_run_config(folder)
+    check_targets(saved)  # config.yaml is data: it may build only the project's own classes
+    evaluated = cfg.copy()
+    for group in PICKS:
+        if group in saved:
+            evaluated[group] = saved[group]
+    for override in overrides:  # robot./task./learner. values of this command, as composed
+        key = override.split("=", 1)[0].lstrip("+")
+        if "=" in override and not key.startswith("~") and key.split(".")[0] in PICKS and "." in key:
+            OmegaConf.update(evaluated, key, OmegaConf.select(cfg, key), merge=False, force_add=True)
+    evaluated.checkpoint = str(model_path(cfg.checkpoint))
+    return evaluated
+
+
 @contextmanager
 def run_lock(run_dir: Path) -> Iterator[None]:
     """Holds ``run_dir/.lock`` exclusively while the run lives; another process asking for
@@ -280,15 +329,20 @@ def main(cfg: DictConfig) -> None:
     resume = bool(cfg.get("resume"))
     if in_sweep and sweep_stopped():
         return  # the sweep was stopped before this job began: it never starts
+    choices = {k: v for k, v in HydraConfig.get().runtime.choices.items() if k in (*PICKS, "tuned")}
     try:
         if resume:
             if not isinstance(cfg.resume, str):
                 raise ConfigError(f"resume must be the path of a run folder; got {cfg.resume!r}")
             cfg, run_dir = resumed_config(cfg, overrides)
+            choices = read_run_json(run_dir)
+        elif cfg.mode == "eval" and run_folder_of(cfg.get("checkpoint")) is not None:
+            cfg = eval_config(cfg, overrides)
         check_run_config(cfg)  # every key, one line, before anything is written
+        changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
         run_dir.mkdir(parents=True, exist_ok=True)
-        with run_lock(run_dir):
-            summary = run(cfg, run_dir, resume=resume,
+        with run_lock(run_dir), tee_console(run_dir / "train.log"):
+            summary = run(cfg, run_dir, resume=resume, choices=choices, changes=changes,
                           start=None if resume else lambda: start_run(cfg, run_dir, overrides))
     except (ConfigError, CheckpointError, InstantiationException) as err:
         return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)
@@ -359,6 +413,11 @@ def cli() -> None:
     _LAUNCHER_PID = os.getpid()
     os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
     sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
+    try:
+        sys.argv[1:] = with_run_choices(sys.argv[1:])
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
     if sweep:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, _stop_sweep)
@@ -383,6 +442,22 @@ def cli() -> None:
         if folder is not None and folder.is_dir():
             report_stopped_sweep(folder)
         sys.exit(128 + int(_SWEEP_STOP["signal"]))
+
+
+def with_run_choices(args: list[str]) -> list[str]:
+    """``mode=eval checkpoint=<run folder>``: the run's robot, task and learner (run.json's)
+    put on the command line, so its other overrides compose as for that run; a different
+    choice given with it is refused."""
+    given = dict(a.split("=", 1) for a in args if "=" in a and not a.startswith(("+", "~", "-")))
+    folder = run_folder_of(given.get("checkpoint")) if given.get("mode") == "eval" else None
+    if folder is None:
+        return args
+    saved = read_run_json(folder)
+    clash = [f"{k}={given[k]}" for k in PICKS if k in given and given[k] != saved.get(k)]
+    if clash:
+        raise ConfigError(f"checkpoint={folder} is a {'/'.join(str(saved.get(k)) for k in PICKS)} "
+                          f"run, evaluated with its own robot, task and learner; drop {' '.join(clash)}")
+    return [*(f"{k}={saved[k]}" for k in PICKS if k not in given and saved.get(k)), *args]
 
 
 def _unknown_key(err: Exception) -> str | None:

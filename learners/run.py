@@ -58,7 +58,8 @@ class Run:
 
     def __init__(self, run_dir: Path | str, num_envs: int, max_episodes: int, success: Success,
                  extra_fields: tuple[str, ...] = (), quiet: bool = False, logger=None,
-                 checkpoint_every: int = 0, eval_every: int = 0, resume: bool = False) -> None:
+                 checkpoint_every: int = 0, eval_every: int = 0, resume: bool = False,
+                 verbose: bool = False, log_every: int = 0) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.num_envs, self.max_episodes, self.success = num_envs, int(max_episodes), success
@@ -66,6 +67,7 @@ class Run:
         self.checkpoint_every, self.eval_every = int(checkpoint_every), int(eval_every)
         self.checkpoint = None  # checkpoint(td): saves the whole run; set by the trainer
         self.greedy_eval = None  # greedy_eval() -> evaluate()'s result; set by the trainer
+        self.train_stats = None  # train_stats() -> the learner's current numbers (loss, ...); optional
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
         self.last_td: TensorDictBase | None = None  # where the next step would start
         self.n_episodes = 0
@@ -83,7 +85,7 @@ class Run:
         self._ret = np.zeros(num_envs)
         self._len = np.zeros(num_envs, dtype=np.int64)
         self._t0 = time.perf_counter()
-        self.console = Console(self.max_episodes, success, quiet)
+        self.console = Console(self.max_episodes, success, quiet, verbose, log_every)
         self.files = MetricsFiles(self.run_dir, success, self.extra_fields)
         if not resume:  # a resumed run opens its files in ``load_state_dict``
             self.files.open(0, self.evals)
@@ -166,7 +168,7 @@ class Run:
                      value=value, rolling=self.rolling(), extra=dict(stats or {}))
         self.files.write_episode(ep)
         log_episode(self.logger, ep, self.success)
-        self.console.episode(ep)
+        self.console.episode(ep, self.evals[-1] if self.evals else None, self.train_stats)
         if self.success.judge == "training" and self.success.met(ep.rolling, self.n_episodes):
             self._solve("training", ep.rolling)
         return ep

@@ -71,7 +71,11 @@ class RunSettings:
                                le=4096)
     eval_every: int = param(100, "training episodes between greedy evaluations", ge=0,
                             note="0 = only after training")
-    quiet: bool = param(False, "no per-episode lines")
+    quiet: bool = param(False, "no progress bar and no summary lines (the banner and the verdict "
+                               "only)")
+    verbose: bool = param(False, "also one line per episode and per greedy evaluation")
+    log_every: int = param(0, "episodes between summary lines", ge=0,
+                           note="0 = about 20 lines per run")
     video: bool = param(False, "write policy.mp4 of the greedy policy at the end")
     video_steps: int = param(500, "env steps in that video", ge=0, le=100_000)
     torch_threads: int = param(1, "intra-op threads; small networks are fastest on one", ge=1,

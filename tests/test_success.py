@@ -188,11 +188,22 @@ def train_cli(tmp_path, *overrides: str) -> dict:
     return verdict(proc.stdout.strip().splitlines())
 
 
-def test_the_default_run_is_solved(tmp_path):
-    """``python train.py`` (cartpole / stay_up / tuned qlearn), seed 0: solved by the seeds' rule
-    (seeds 0-2 take 1057-1292 episodes; see conf/tuned/cartpole_qlearn.yaml)."""
-    v = train_cli(tmp_path, "seed=0", "eval_every=0", "eval_episodes=5")
+def test_the_default_run_is_solved_and_says_so_in_few_lines(tmp_path):
+    """``python train.py`` as the README's quick start runs it (cartpole / stay_up / tuned
+    qlearn, seed 0): solved by the seeds' rule (seeds 0-2 take 1057-1292 episodes; see
+    conf/tuned/cartpole_qlearn.yaml), in fewer than 60 console lines, all of them also in
+    the run folder's train.log."""
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    proc = subprocess.run([sys.executable, "train.py", f"hydra.run.dir={tmp_path}"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=900, env=env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = (proc.stdout + proc.stderr).splitlines()
+    assert len(lines) < 60, lines
+    assert lines[0] == "cartpole / stay_up / qlearn, seed 0, 8 copies, up to 4000 episodes"
+    assert lines[1].startswith("tuned: conf/tuned/cartpole_qlearn.yaml changed num_envs 1 -> 8")
+    v = verdict(lines)
     assert v["solved"] == "true" and v["judge"] == "training" and float(v["value"]) >= 250
+    assert (tmp_path / "train.log").read_text().splitlines() == proc.stdout.splitlines()
 
 
 @pytest.mark.parametrize("weight, sign", [(1000, 1), (-1000, -1)])

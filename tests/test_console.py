@@ -1,0 +1,133 @@
+"""What a run prints: the banner, summary lines every ``log_every`` episodes, per-episode
+lines only when ``verbose``, the console copied into train.log; ``mode=eval`` from a run folder."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import pytest
+from hydra.core.global_hydra import GlobalHydra
+
+import train
+from learners.console import Console, Tee, summary_line, tee_console
+from learners.episode import Episode
+from tasks.base import Success
+
+SUCCESS = Success(measure="length", unit="steps", description="steps balanced", threshold=250,
+                  judge="training", window=100, min_episodes=100)
+
+
+def episode(n: int) -> Episode:
+    return Episode(episode=n, env_index=0, reward=float(n), length=n, terminated=True,
+                   env_steps=10 * n, wall_s=0.5 * n, value=float(n), rolling=float(n),
+                   extra={"epsilon": 0.5})
+
+
+@pytest.mark.parametrize("quiet, verbose, log_every, lines", [
+    (False, False, 0, 20),     # about 20 summary lines per run by default
+    (False, False, 50, 8),
+    (False, True, 50, 400 + 8),
+    (True, True, 50, 0),       # quiet wins
+])
+def test_lines_per_run(capsys, quiet, verbose, log_every, lines):
+    console = Console(400, SUCCESS, quiet=quiet, verbose=verbose, log_every=log_every)
+    asked = []
+    for n in range(1, 401):
+        console.episode(episode(n), None, lambda: asked.append(1) or {"loss": 0.25})
+    console.close()
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == lines
+    if lines and not verbose:
+        assert out[0].startswith(f"episode {log_every or 20}/400 | steps balanced: mean100")
+        assert "eps 0.5 | loss 0.25" in out[0]
+    # the learner's numbers are asked for only when shown (no bar off a terminal)
+    assert len(asked) == (0 if quiet else lines - (400 if verbose else 0))
+
+
+def test_summary_line_names_the_measure_the_evaluation_and_the_rate():
+    line = summary_line(episode(200), 4000, SUCCESS, best=210.0,
+                        last_eval={"episode": 100, "value": 80.2}, live={"loss": 0.012})
+    assert line == ("episode 200/4000 | steps balanced: mean100 200 steps, best 210 | greedy 80.2 "
+                    "at 100 | eps 0.5 | loss 0.012 | 2000 env steps, 20 steps/s, 100.0s")
+
+
+def test_tee_copies_stdout_and_stderr_into_the_log(tmp_path, capsys):
+    with tee_console(tmp_path / "train.log"):
+        print("one")
+        print("two", file=sys.stderr)
+        assert isinstance(sys.stdout, Tee)
+    print("after")
+    assert (tmp_path / "train.log").read_text() == "one\ntwo\n"
+    captured = capsys.readouterr()
+    assert captured.out == "one\nafter\n" and captured.err == "two\n"
+
+
+# -- mode=eval from a run folder --------------------------------------------------------
+def cli(args: list[str], monkeypatch) -> int:
+    """``python train.py <args>`` in this process; its exit code (0 when it returns)."""
+    GlobalHydra.instance().clear()
+    monkeypatch.setattr(train, "_IN_JOB", False)
+    monkeypatch.setattr(sys, "argv", ["train.py", *args, "hydra/job_logging=none",
+                                      "hydra/hydra_logging=none"])
+    try:
+        train.cli()
+    except SystemExit as stop:
+        return int(stop.code or 0)
+    return 0
+
+
+@pytest.fixture(scope="module")
+def dqn_run(tmp_path_factory):
+    """A short dqn cart-pole run's folder (its model.pt is what the evaluations load)."""
+    folder = tmp_path_factory.mktemp("dqn_run")
+    mp = pytest.MonkeyPatch()
+    try:
+        code = cli(["learner=dqn", "learner.nepisodes=10", "learner.learning_starts=16",
+                    "eval_episodes=0", "quiet=true", f"hydra.run.dir={folder}"], mp)
+    finally:
+        mp.undo()
+    assert code == 0 and (folder / "model.pt").is_file()
+    return folder
+
+
+@pytest.mark.parametrize("target", ["folder", "model.pt"])
+def test_eval_from_a_run_folder_needs_no_other_override(dqn_run, tmp_path, monkeypatch, capsys,
+                                                        target):
+    checkpoint = dqn_run if target == "folder" else dqn_run / "model.pt"
+    code = cli(["mode=eval", f"checkpoint={checkpoint}", f"hydra.run.dir={tmp_path}"], monkeypatch)
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert out.splitlines()[0] == "evaluate cartpole / stay_up / dqn, seed 0, 16 copies"
+    result = json.loads((tmp_path / "eval.json").read_text())
+    assert result["episodes"] == 20 and result["measure"] == "length"
+    assert "greedy evaluation over 20 episodes: steps balanced" in out
+    saved = (tmp_path / "config.yaml").read_text()
+    assert "_target_: learners.dqn.DQN" in saved and f"checkpoint: {dqn_run / 'model.pt'}" in saved
+
+
+def test_eval_from_a_run_folder_applies_the_other_overrides(dqn_run, tmp_path, monkeypatch, capsys):
+    """A robustness test: a longer pole-angle limit and 7 evaluation episodes."""
+    code = cli(["mode=eval", f"checkpoint={dqn_run}", "eval_episodes=7", "task.max_pole_angle=0.5",
+                f"hydra.run.dir={tmp_path}"], monkeypatch)
+    assert code == 0, capsys.readouterr()
+    assert json.loads((tmp_path / "eval.json").read_text())["episodes"] == 7
+    saved = (tmp_path / "config.yaml").read_text()
+    assert "max_pole_angle: 0.5" in saved and "eval_episodes: 7" in saved
+
+
+def test_eval_from_a_run_folder_refuses_another_robot(dqn_run, tmp_path, monkeypatch, capsys):
+    code = cli(["mode=eval", f"checkpoint={dqn_run}", "robot=cube", f"hydra.run.dir={tmp_path}"],
+               monkeypatch)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert err[0] == (f"error: checkpoint={dqn_run} is a cartpole/stay_up/dqn run, evaluated with "
+                      "its own robot, task and learner; drop robot=cube")
+
+
+def test_eval_of_a_folder_without_model_is_one_line(tmp_path, monkeypatch, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    code = cli(["mode=eval", f"checkpoint={empty}", f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "is a folder without model.pt" in err[0]
