@@ -51,7 +51,7 @@ from learners.run import Run
 from learners.seeding import seed_everything
 from learners.settings import check_run_config
 from learners.summary import summarize_run
-from learners.sweep_state import SWEEP
+from learners.sweep_state import SWEEP, compare_sweep
 from learners.verdict import verdict_lines
 from learners.video import record_video
 from params import ConfigError, did_you_mean
@@ -408,7 +408,8 @@ def report_stopped_sweep(folder: Path) -> None:
 def cli() -> None:
     """``main`` with Hydra's own errors (an override it cannot parse or apply, an unknown
     config choice, a run folder it cannot create) as one ``error:`` line and exit 2; a
-    sweep stopped by Ctrl-C or SIGTERM lists how to resume each unfinished job."""
+    sweep stopped by Ctrl-C or SIGTERM prints the comparison of the jobs that finished
+    and lists how to resume each unfinished job."""
     global _LAUNCHER_PID
     _LAUNCHER_PID = os.getpid()
     os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
@@ -434,12 +435,15 @@ def cli() -> None:
         print(f"error: {_hydra_error(err)}", file=sys.stderr)
         folder = _sweep_dir() if sweep else None
         if folder is not None and folder.is_dir():  # e.g. a joblib worker killed from outside
+            compare_sweep(folder)  # Hydra skips on_multirun_end when the launcher raises
             report_stopped_sweep(folder)
             sys.exit(1)
         sys.exit(2)
     if sweep and _SWEEP_STOP["signal"] is not None:
         folder = _sweep_dir()
         if folder is not None and folder.is_dir():
+            # What finished; done already unless a job's exit skipped on_multirun_end.
+            compare_sweep(folder, stopped=signal.Signals(int(_SWEEP_STOP["signal"])).name)
             report_stopped_sweep(folder)
         sys.exit(128 + int(_SWEEP_STOP["signal"]))
 

@@ -1,6 +1,8 @@
-"""compare.py tells the truth about a sweep: one row per setting of the swept
-hyperparameters, every job that did not finish listed as what it is, and no
-traceback on a damaged job folder.
+"""The comparison (learners.comparison; compare.py re-runs it) tells the truth about a
+sweep: one row per setting of the swept hyperparameters, the task's own measure per
+seed summarized by its IQM and a 95% bootstrap interval, every job that did not
+finish listed as what it is, and no traceback on a damaged job folder. A sweep
+prints it when it ends (learners.sweep_state's callback), never failing the sweep.
 
 The fast tests build fake sweep folders (multirun.yaml and job folders as
 train.py writes them) in ``tmp_path``; one test runs a real tiny sweep.
@@ -10,15 +12,21 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import subprocess
 import sys
+import warnings
 from itertools import product
 from pathlib import Path
 
 import pytest
+from omegaconf import OmegaConf
 
 import compare
+from learners import comparison
+from learners.stats import iqm, iqm_ci
+from learners.sweep_state import RecordSweep
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ["learner.nepisodes=5", "eval_episodes=0", "quiet=True"]
@@ -236,19 +244,123 @@ def test_a_folder_without_jobs_is_an_error(tmp_path, capsys):
     assert "holds no run folders" in capsys.readouterr().err
 
 
-def test_a_real_sweep_over_two_alphas_then_compare(tmp_path):
-    """train.py -m over two values of learner.alpha, then compare.py: two rows."""
+def test_iqm_is_the_mean_of_the_middle_half_and_few_values_are_their_mean():
+    assert iqm([1, 2, 3, 4]) == 2.5
+    assert iqm([4, 1, 100, 2, 3, -50, 2.5, 3.5]) == 2.75  # 2, 2.5, 3, 3.5
+    assert iqm([1, 2, 3]) == 2.0 and iqm([1, 2]) == 1.5
+    assert iqm([1, None, float("nan"), 3]) == 2.0 and math.isnan(iqm([]))
+
+
+def test_iqm_ci_holds_the_iqm_and_is_the_same_every_time():
+    centre, low, high = iqm_ci([1, 2, 3, 4, 10, 0.5])
+    assert centre == iqm([1, 2, 3, 4, 10, 0.5]) and 0.5 <= low < centre < high <= 10
+    assert iqm_ci([1, 2, 3, 4, 10, 0.5]) == (centre, low, high)
+    narrow = iqm_ci([1, 2, 3, 4, 10, 0.5], confidence=0.5)
+    assert low <= narrow[1] <= narrow[2] <= high
+    for few in ([1, 2], [1, 2, 3]):  # a percentile bootstrap of their mean
+        centre, low, high = iqm_ci(few)
+        assert min(few) <= low <= centre <= high <= max(few)
+
+
+def test_iqm_ci_of_one_seed_has_no_interval_and_equal_seeds_a_point():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no scipy warning on a degenerate sample
+        centre, low, high = iqm_ci([4.7])
+        assert centre == 4.7 and math.isnan(low) and math.isnan(high)
+        assert iqm_ci([5.0, 5.0, 5.0]) == (5.0, 5.0, 5.0)
+        assert all(math.isnan(v) for v in iqm_ci([]))
+    with pytest.raises(ValueError, match="confidence must be in"):
+        iqm_ci([1, 2], confidence=95)
+
+
+def set_scores(sweep: Path, scores: dict[int, float], **summary_fields) -> None:
+    """The summary.json of job ``num`` says its last rolling mean is ``scores[num]``."""
+    for num, value in scores.items():
+        path = next(sweep.glob(f"{num}_*")) / "summary.json"
+        path.write_text(json.dumps(json.loads(path.read_text()) | {"last_rolling": value} | summary_fields))
+
+
+def test_each_row_is_headed_by_the_iqm_of_its_seeds_with_a_bootstrap_interval(tmp_path, capsys):
+    fake_sweep(tmp_path, {"learner.alpha": ["0.05", "1.0"], "seed": ["0", "1", "2", "3"]})
+    set_scores(tmp_path, {0: 1.0, 1: 2.0, 2: 3.0, 3: 4.0, 4: 5.0, 5: 5.0, 6: 5.0, 7: 5.0})
+    rows, out = table(tmp_path, capsys)
+    assert [(r["score"], r["IQM [95% CI]"], r["iqm"]) for r in rows] == [
+        ("last-100 training mean", "2.5 [1, 4]", "2.5"), ("last-100 training mean", "5 [5, 5]", "5.0")]
+    assert float(rows[0]["ci_low"]) <= 2.5 <= float(rows[0]["ci_high"])
+    assert rows[0]["mean +- std"] == "2.5 +- 1.1"
+    assert "IQM [95% CI]" in out.splitlines()[0] and "2.5 [1, 4]" in out
+    assert "| 2.5 [1, 4] |" in (tmp_path / "comparison.md").read_text()
+
+
+def test_a_greedily_judged_task_is_scored_by_its_greedy_policy_and_tasks_are_never_pooled(tmp_path, capsys):
+    fake_sweep(tmp_path, {"robot": ["cartpole", "cube"], "seed": ["0", "1"]})
+    for num in (2, 3):  # the cube's jobs: another task, measure and judge
+        job = next(tmp_path.glob(f"{num}_*"))
+        names = json.loads((job / "run.json").read_text())
+        (job / "run.json").write_text(json.dumps(names | {"robot": "cube", "task": "one_disk_walk"}))
+    set_scores(tmp_path, {2: 0.1, 3: 0.2}, judge="greedy", greedy=None)
+    (next(tmp_path.glob("2_*")) / "eval.json").write_text(json.dumps({"value": 0.9, "mean_length": 5, "mean_return": 1}))
+    rows, _ = table(tmp_path, capsys)
+    assert [(r["robot/task"], r["score"], r["IQM [95% CI]"]) for r in rows] == [
+        ("cartpole/stay_up", "last-100 training mean", "7 [7, 7]"),
+        ("cube/one_disk_walk", "greedy policy; last-100 training mean (no greedy evaluation)", "0.55 [0.2, 0.9]")]
+
+
+def test_a_sweep_prints_its_comparison_when_it_ends(tmp_path, capsys):
+    fake_sweep(tmp_path, {"seed": ["0", "1", "2"]})
+    callback, config = RecordSweep(), OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}})
+    callback.on_multirun_start(config)
+    callback.on_multirun_end(config)
+    out = capsys.readouterr().out
+    assert "IQM [95% CI]" in out and "7 [7, 7]" in out and (tmp_path / "comparison.csv").is_file()
+    callback.on_multirun_end(config)  # once per sweep (train.py asks again after a stop)
+    assert capsys.readouterr().out == ""
+
+
+def test_a_broken_comparison_is_one_line_and_never_fails_the_sweep(tmp_path, capsys, monkeypatch):
+    callback, config = RecordSweep(), OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}})
+    callback.on_multirun_start(config)
+    callback.on_multirun_end(config)  # a sweep folder without jobs
+    assert capsys.readouterr().err == f"comparison failed: {tmp_path} holds no run folders of train.py\n"
+    fake_sweep(tmp_path, {"seed": ["0", "1"]})
+
+    def broken(folder, rows, lines):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(comparison, "write_outputs", broken)
+    callback.on_multirun_start(config)
+    callback.on_multirun_end(config)
+    out, err = capsys.readouterr()
+    assert "IQM [95% CI]" in out  # the table came first
+    assert err == "comparison failed: OSError: [Errno 28] No space left on device\n"
+
+
+def test_a_stopped_sweep_compares_what_finished(tmp_path, capsys):
+    fake_sweep(tmp_path, {"seed": ["0", "1", "2"]}, {1: "interrupted", 2: "missing"})
+    (tmp_path / ".stop").write_text("SIGINT\n")
+    rows, out = table(tmp_path, capsys)
+    assert out.startswith("the sweep was stopped (SIGINT)")
+    assert (rows[0]["finished"], rows[0]["interrupted"], rows[0]["never_started"]) == ("1", "1", "1")
+    assert rows[0]["IQM [95% CI]"] == "7 [1 seed: no CI]"
+
+
+def test_a_real_two_learner_three_seed_sweep_ends_with_its_comparison(tmp_path, capsys):
+    """train.py -m over two learners and three seeds prints the comparison last; compare.py
+    re-runs it to the same comparison.csv (the intervals are seeded)."""
     sweep = tmp_path / "sweep"
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    run = lambda args: subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True,  # noqa: E731
-                                      text=True, timeout=600, env=env)
-    proc = run(["train.py", "-m", "learner.alpha=0.05,1.0", "learner.nepisodes=5", "eval_episodes=0",
-                "quiet=true", f"hydra.sweep.dir={sweep}"])
+    proc = subprocess.run([sys.executable, "train.py", "-m", "learner=qlearn,n1try", "seed=0,1,2",
+                           "learner.nepisodes=5", "eval_episodes=0", "quiet=true", f"hydra.sweep.dir={sweep}"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    proc = run(["compare.py", str(sweep)])
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    rows = list(csv.DictReader(open(sweep / "comparison.csv")))
-    assert [(r["robot/task"], r["learner"], r["swept"], r["seeds"], r["finished"]) for r in rows] == [
-        ("cartpole/stay_up", "qlearn", "learner.alpha=0.05", "1", "1"),
-        ("cartpole/stay_up", "qlearn", "learner.alpha=1.0", "1", "1")]
-    assert "did not finish" not in proc.stdout
+    tail = proc.stdout.rsplit("VERDICT", 1)[1].splitlines()[2:]
+    assert tail[0].split()[:6] == ["robot/task", "learner", "swept", "measure", "score", "IQM"]
+    assert [line.split()[:2] for line in tail[1:3]] == [["cartpole/stay_up", "n1try"], ["cartpole/stay_up", "qlearn"]]
+    assert all("training mean" in line and "] " in line for line in tail[1:3])
+    assert tail[-1] == f"wrote {sweep / 'comparison.csv'}, comparison.md and comparison.png"
+    first = (sweep / "comparison.csv").read_text()
+    rows = list(csv.DictReader(first.splitlines()))
+    assert [(r["learner"], r["seeds"], r["finished"]) for r in rows] == [("n1try", "3", "3"), ("qlearn", "3", "3")]
+    assert all(float(r["ci_low"]) <= float(r["iqm"]) <= float(r["ci_high"]) for r in rows)
+    _, out = table(sweep, capsys)
+    assert (sweep / "comparison.csv").read_text() == first and "did not finish" not in out

@@ -53,7 +53,7 @@ def test_missing_logger_backend_is_a_one_line_error(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("launcher", ["joblib", "submitit_local"])
-def test_two_job_sweep_through_a_launcher_then_compare(tmp_path, launcher):
+def test_two_job_sweep_through_a_launcher_compares_itself_and_compare_reruns(tmp_path, launcher):
     sweep = tmp_path / "sweep"
     proc = run(["train.py", "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={sweep}",
                 "learner=qlearn", "seed=0,1", "learner.nepisodes=8", "eval_episodes=0",
@@ -61,6 +61,9 @@ def test_two_job_sweep_through_a_launcher_then_compare(tmp_path, launcher):
     assert proc.returncode == 0, proc.stderr[-3000:]
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and (p / "metrics.csv").exists())
     assert len(jobs) == 2
+    # The launching process compares the jobs when the launcher returns (Hydra's on_multirun_end).
+    assert "IQM [95% CI]" in proc.stdout and f"wrote {sweep / 'comparison.csv'}" in proc.stdout
+    (sweep / "comparison.csv").unlink()
     proc = run(["compare.py", str(sweep)])
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "cartpole/stay_up" in proc.stdout and "qlearn" in proc.stdout
