@@ -44,7 +44,7 @@ from learners.banner import banner_lines, tuned_changes
 from learners.checkpoint import CheckpointError
 from learners.console import tee_console
 from learners.evaluate import describe_evaluation, greedy_evaluation, measure_of
-from learners.loggers import make_logger
+from learners.loggers import log_hparams, make_logger
 from learners.resume import (check_checkpoint, check_targets, load_run_config, load_training_state,
                              new_run_identity, read_run_json, save_training_state)
 from learners.run import Run
@@ -150,9 +150,9 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
             print(f"resuming {run_dir} after episode {record.n_episodes} ({record.env_steps} env steps)")
         record.logger = make_logger(cfg.logger.kind, run_dir, exp_name=run_dir.name,
                                     **{k: v for k, v in cfg.logger.items() if k != "kind"})
+        log_hparams(record.logger, cfg)
         record.checkpoint = lambda td: save_training_state(state_path, learner, env, record, td)
         record.greedy_eval = lambda: greedy(int(cfg.eval_episodes))
-        record.train_stats = getattr(learner, "train_stats", None)
         finished = False
         try:
             with stop_on_signals(record) as stopped:

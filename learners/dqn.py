@@ -21,11 +21,17 @@ When it trains (``train_every``):
 ``done_episode_reward`` replaces the reward of terminating transitions
 (mbalunovic's -200). ``run_episodes`` greedy episodes follow training
 (ruippeixotog's "run" phase).
+
+:meth:`DQN.train_stats` gives the numbers the logger shows as ``train/*``:
+loss, mean Q of the taken actions, mean absolute TD error, gradient norm before
+clipping, epsilon, learning rate, updates and updates per second. An update
+only keeps its tensors for them (:class:`UpdateStats`: no host sync, ~1 us).
 """
 
 from __future__ import annotations
 
 import copy
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,7 +58,14 @@ _KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"),
 
 def td_loss(net: nn.Module, target_net: nn.Module, batch: TensorDictBase, gamma: float,
             double_dqn: bool, loss_function: str) -> torch.Tensor:
-    """Mean TD(0) error of ``net`` on ``batch``; ``target_net`` values the next state.
+    """Mean TD(0) error of ``net`` on ``batch``; ``target_net`` values the next state."""
+    return _DISTANCES[loss_function](*td_terms(net, target_net, batch, gamma, double_dqn))
+
+
+def td_terms(net: nn.Module, target_net: nn.Module, batch: TensorDictBase, gamma: float,
+             double_dqn: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(q, target)``, each ``[batch, 1]``: ``net``'s value of the taken actions and their
+    TD(0) targets (no gradient), where ``target_net`` values the next state.
 
     ``double_dqn``: the next action is ``net``'s argmax, valued by ``target_net``.
     Terminated transitions do not bootstrap; truncated ones do.
@@ -68,7 +81,70 @@ def td_loss(net: nn.Module, target_net: nn.Module, batch: TensorDictBase, gamma:
             next_value = next_q.amax(-1, keepdim=True)
         alive = (~batch.get(("next", "terminated"))).reshape(-1, 1)
         target = batch.get(("next", "reward")).reshape(-1, 1) + gamma * next_value * alive
-    return _DISTANCES[loss_function](q, target)
+    return q, target
+
+
+def grad_norm_of(params: list[nn.Parameter]) -> torch.Tensor:
+    """Total 2-norm of ``params``' gradients (what ``clip_grad_norm_`` measures), as a tensor."""
+    grads = [p.grad for p in params if p.grad is not None]
+    return torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads)))
+
+
+class UpdateStats:
+    """The updates' losses, Q of the taken actions, TD targets and gradient norms since the
+    last :meth:`read`. Per update it only keeps the tensors (no host sync, no arithmetic);
+    they are reduced to sums every ``FOLD`` updates and when read."""
+
+    FOLD = 256
+
+    def __init__(self) -> None:
+        self.latest: dict[str, float] = {}
+        self.restart(0)
+
+    def restart(self, updates: int) -> None:
+        """A new interval, starting now after ``updates`` optimizer steps."""
+        self.pending: list[tuple[torch.Tensor, torch.Tensor]] = []
+        self.norms: list[torch.Tensor] = []
+        self.loss_sum = self.q_sum = self.td_sum = self.norm_sum = 0.0
+        self.count = self.values = self.n_norms = 0
+        self.since, self.t0 = updates, time.perf_counter()
+
+    def add(self, loss: float, q: torch.Tensor, target: torch.Tensor,
+            grad_norm: torch.Tensor | None) -> None:
+        """One update: its loss, ``q`` and ``target`` (detached), its gradient norm if known."""
+        self.loss_sum += loss
+        self.count += 1
+        self.pending.append((q, target))
+        if grad_norm is not None:
+            self.norms.append(grad_norm)
+        if len(self.pending) >= self.FOLD:
+            self._fold()
+
+    def _fold(self) -> None:
+        if self.pending:
+            q, target = (torch.cat(parts) for parts in zip(*self.pending))
+            q_sum, td_sum = torch.stack((q.sum(), (target - q).abs_().sum())).tolist()
+            self.q_sum, self.td_sum = self.q_sum + q_sum, self.td_sum + td_sum
+            self.values += q.numel()
+            self.pending.clear()
+        if self.norms:
+            self.norm_sum += float(torch.stack(self.norms).sum())
+            self.n_norms += len(self.norms)
+            self.norms.clear()
+
+    def read(self, updates: int, reset: bool = True) -> dict[str, float]:
+        """The interval's means (see ``DQN.train_stats``); ``reset``: start a new one."""
+        self._fold()
+        if self.count:
+            self.latest = {"loss": self.loss_sum / self.count, "q_mean": self.q_sum / self.values,
+                           "td_error": self.td_sum / self.values}
+        if self.n_norms:
+            self.latest["grad_norm"] = self.norm_sum / self.n_norms
+        rate = (updates - self.since) / max(time.perf_counter() - self.t0, 1e-9)
+        stats = {**self.latest, "updates": float(updates), "updates_per_s": rate}
+        if reset:
+            self.restart(updates)
+        return stats
 
 
 @dataclass(eq=False)
@@ -128,6 +204,7 @@ class DQN:
         self._credit = 0.0
         self._greedy = False
         self.last_loss = float("nan")
+        self.tracker = UpdateStats()
 
     # -- building ------------------------------------------------------------
     def _arch(self) -> dict:
@@ -192,17 +269,34 @@ class DQN:
     def optimize(self, n: int) -> None:
         """``n`` gradient steps on minibatches from the replay buffer."""
         for _ in range(n):
-            loss = td_loss(self.net, self.target_net, self.buffer.sample(), self.gamma,
-                           self.double_dqn, self.loss_function)
+            q, target = td_terms(self.net, self.target_net, self.buffer.sample(), self.gamma,
+                                 self.double_dqn)
+            loss = _DISTANCES[self.loss_function](q, target)
             self.optimizer.zero_grad()
             loss.backward()
+            grad_norm = None  # without clipping, measured only when read (train_stats)
             if self.grad_clip > 0:
-                nn.utils.clip_grad_norm_(self._params, self.grad_clip)
+                grad_norm = nn.utils.clip_grad_norm_(self._params, self.grad_clip)
             self.optimizer.step()
             self.lr_schedule.step()
             self.optimizer_steps += 1
             self._update_target()
             self.last_loss = float(loss.detach())
+            self.tracker.add(self.last_loss, q.detach(), target, grad_norm)
+
+    def train_stats(self, reset: bool = True) -> dict[str, float]:
+        """``train/*``: ``loss``, ``q_mean`` (of the taken actions), ``td_error`` (mean
+        absolute) and ``grad_norm`` (before clipping), means over the updates since the last
+        reset (the previous values if none ran; absent before the first update), but with
+        ``grad_clip=0`` ``grad_norm`` is the latest update's (measured now, not per update);
+        ``epsilon``, ``lr``, ``updates`` (optimizer steps so far) and ``updates_per_s`` (per
+        wall-clock second since the last reset). ``reset=False`` reads without starting a
+        new interval (for a progress bar shown between the logger's reads)."""
+        stats = self.tracker.read(self.optimizer_steps, reset)
+        if self.grad_clip == 0 and self._params[0].grad is not None:
+            stats["grad_norm"] = float(grad_norm_of(self._params))
+        return {**stats, "epsilon": float(self.schedule.value),
+                "lr": float(self.optimizer.param_groups[0]["lr"])}
 
     def _update_target(self) -> None:
         """Polyak-averages (``tau``) or copies (every ``target_update`` steps) the target."""
@@ -232,6 +326,8 @@ class DQN:
     def train(self, env, run: Run) -> None:
         """Collects from the batched ``env`` and learns until ``run`` is done."""
         self._sync_epsilon()
+        run.train_stats = self.train_stats
+        self.tracker.restart(self.optimizer_steps)
         td = run.start(env)
         while not run.done:
             td = self.explorer(td)  # act: epsilon-greedy on the Q-network

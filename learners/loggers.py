@@ -5,11 +5,15 @@ and so on); choosing one that is not installed is a one-line error.
 W&B runs offline by default (no network needed); MLflow writes a local SQLite
 store (``logs/mlflow.db``). Everything lands in the run folder under ``logs/``.
 
-What a training run sends: ``episode/<name>`` scalars per finished episode
-(:func:`log_episode`), ``eval/<name>`` per greedy evaluation
-(:func:`log_evaluation`) and ``run/<name>`` at the end (:func:`finish_log`),
-each at the step of the episode count; with no logger (``None``) they do
-nothing.
+What a training run sends, every scalar at the step of the run's env steps
+(all copies' transitions so far): ``episode/<name>`` per finished episode
+(:func:`log_episode`, ``episode/index`` its number), ``eval/<name>`` per
+greedy evaluation (:func:`log_evaluation`), ``train/<name>`` the learner's
+``train_stats()`` (:func:`log_train`; when, :class:`~learners.run.Run` says),
+``run/<name>`` at the end (:func:`finish_log`) and the resolved config once at
+the start (:func:`log_hparams`). With no logger (``None``) they do nothing.
+W&B: TorchRL gives each group its own step metric (``episode/step``, ...),
+which holds these env steps.
 """
 
 from __future__ import annotations
@@ -17,7 +21,9 @@ from __future__ import annotations
 import importlib.util
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
+
+from omegaconf import DictConfig, OmegaConf
 
 from learners.episode import Episode
 from learners.metrics_files import rolling_field
@@ -60,29 +66,85 @@ def make_logger(kind: str | None, run_dir: Path, exp_name: str, offline: bool = 
 
 
 def log_episode(logger, ep: Episode, success: Success) -> None:
-    """``episode/<name>``: return, length, the measure and its rolling mean, env steps, the learner's."""
+    """``episode/<name>``: return, length, the measure and its rolling mean, env steps, the
+    learner's, and ``episode/index`` (the episode's number, to plot against episodes)."""
     if logger is None:
         return
     scalars = {"reward": ep.reward, "length": ep.length, success.measure: ep.value,
                rolling_field(success.measure, success.window): ep.rolling,
-               "env_steps": ep.env_steps, **ep.extra}
-    for key, value in scalars.items():
-        logger.log_scalar(f"episode/{key}", float(value), step=ep.episode)
+               "env_steps": ep.env_steps, "index": ep.episode, **ep.extra}
+    _log(logger, "episode", scalars, ep.env_steps)
 
 
 def log_evaluation(logger, row: dict, success: Success) -> None:
-    """``eval/<name>``: a greedy evaluation's measure, mean length and return (``row`` as ``Run.evals``)."""
+    """``eval/<name>``: a greedy evaluation's measure, mean length and return, and the training
+    episodes before it (``eval/episode``); ``row`` as ``Run.evals``."""
     if logger is None:
         return
-    for key, value in ((success.measure, row["value"]), ("length", row["length"]), ("return", row["return"])):
-        logger.log_scalar(f"eval/{key}", float(value), step=row["episode"])
+    scalars = {success.measure: row["value"], "length": row["length"], "return": row["return"],
+               "episode": row["episode"]}
+    _log(logger, "eval", scalars, row["env_steps"])
+
+
+def log_train(logger, stats: Mapping[str, float], env_steps: int) -> None:
+    """``train/<name>``: the learner's ``train_stats()`` (loss, epsilon, ...) at ``env_steps``."""
+    if logger is not None and stats:
+        _log(logger, "train", stats, env_steps)
 
 
 def finish_log(logger, summary: dict) -> None:
-    """``run/<name>``: the summary's headline numbers and whether it solved; then closes ``logger``."""
+    """``run/<name>``: the summary's headline numbers, its episodes and whether it solved;
+    then closes ``logger``."""
     if logger is None:
         return
-    for key in RUN_SCALARS:
-        logger.log_scalar(f"run/{key}", float(summary[key]), step=summary["episodes"])
-    logger.log_scalar("run/solved", float(summary["solved"]), step=summary["episodes"])
+    scalars = {key: summary[key] for key in RUN_SCALARS}
+    scalars |= {"episodes": summary["episodes"], "solved": summary["solved"]}
+    _log(logger, "run", scalars, summary["env_steps"])
     logger.close()
+
+
+def _log(logger, group: str, scalars: Mapping[str, Any], step: int) -> None:
+    """``<group>/<name>`` for each of ``scalars`` at ``step``, as one batch (one MLflow call,
+    one W&B row)."""
+    logger.log_metrics({f"{group}/{key}": float(value) for key, value in scalars.items()},
+                       step=int(step))
+
+
+def flat_config(cfg: DictConfig | Mapping) -> dict[str, int | float | str | bool]:
+    """``cfg`` resolved, as ``{"learner.lr": 0.001, ...}``: nested keys joined by dots, lists
+    as their text (``"[64, 64]"``), unset (``null``) values left out."""
+    tree = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+    flat: dict[str, int | float | str | bool] = {}
+
+    def walk(node: Mapping, prefix: str) -> None:
+        for key, value in node.items():
+            if isinstance(value, Mapping):
+                walk(value, f"{prefix}{key}.")
+            elif value is not None:
+                scalar = isinstance(value, (bool, int, float, str))
+                flat[f"{prefix}{key}"] = value if scalar else str(value)
+
+    walk(tree, "")
+    return flat
+
+
+def log_hparams(logger, cfg: DictConfig | Mapping) -> None:
+    """The resolved run config (:func:`flat_config`), once, at the start: TensorBoard's
+    HParams tab (its plugin data in the run's own event file, with the ``run/*`` scalars
+    as the metrics), W&B's config, MLflow's params, the CSV logger's ``texts/hparams0.txt``."""
+    if logger is None:
+        return
+    flat = flat_config(cfg)
+    from torchrl.record.loggers.tensorboard import TensorboardLogger
+
+    if not isinstance(logger, TensorboardLogger):
+        logger.log_hparams(flat)
+        return
+    # TorchRL's (SummaryWriter.add_hparams) writes them to a new run in a subfolder, away
+    # from this run's scalars; these summaries are the same, in this run's event file.
+    from torch.utils.tensorboard.summary import hparams
+
+    metrics = {f"run/{key}": 0.0 for key in (*RUN_SCALARS, "episodes", "solved")}
+    writer = logger.experiment._get_file_writer()
+    for summary in hparams(flat, metrics):
+        writer.add_summary(summary)

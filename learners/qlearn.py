@@ -188,6 +188,15 @@ class QLearn:
     def stats(self) -> dict[str, float]:
         return {"alpha": self.alpha, "gamma": self.gamma, "epsilon": self.policy.epsilon}
 
+    def train_stats(self, reset: bool = True) -> dict[str, float]:
+        """``train/*``: ``epsilon`` and ``visited_fraction``, the share of the table's
+        (state, action) pairs updated at least once (counted now: one pass over the visited
+        flags, less than one update's passes over the table). Reading changes nothing
+        (``reset`` is there for the learners' common signature)."""
+        visited = self.policy.visited
+        return {"epsilon": self.policy.epsilon,
+                "visited_fraction": int(visited.count_nonzero()) / visited.numel()}
+
     # -- learning ------------------------------------------------------------
     def update(self, tensordict: TensorDictBase) -> None:
         """One Q-update from a batch of transitions (``tensordict`` holds ``next``)."""
@@ -237,6 +246,7 @@ class QLearn:
 
     def train(self, env, run: Run) -> None:
         """Runs episodes on ``env`` until ``run`` is done (budget or win)."""
+        run.train_stats = self.train_stats
         td = run.start(env)
         while not run.done:
             td = self.policy(td)  # act: epsilon-greedy on the table

@@ -38,11 +38,15 @@ from tensordict import TensorDictBase
 from learners.console import Console
 from learners.episode import Episode
 from learners.evaluate import measure_of
-from learners.loggers import finish_log, log_episode, log_evaluation
+from learners.loggers import finish_log, log_episode, log_evaluation, log_train
 from learners.metrics_files import MetricsFiles
 from learners.plot import plot_reward_curve
 from learners.verdict import run_summary
 from tasks.base import Success
+
+# train/* scalars: at the step boundary after a step that finished an episode, and at least
+# every TRAIN_LOG_STEPS env steps (long episodes), and once at the end.
+TRAIN_LOG_STEPS = 1000
 
 
 class Run:
@@ -67,7 +71,9 @@ class Run:
         self.checkpoint_every, self.eval_every = int(checkpoint_every), int(eval_every)
         self.checkpoint = None  # checkpoint(td): saves the whole run; set by the trainer
         self.greedy_eval = None  # greedy_eval() -> evaluate()'s result; set by the trainer
-        self.train_stats = None  # train_stats() -> the learner's current numbers (loss, ...); optional
+        self.train_stats = None  # train_stats() -> the learner's train/* numbers; set by its train
+        self._train_logged: int | None = None  # env steps at the last train/* point
+        self._train_due = False  # an episode finished since
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
         self.last_td: TensorDictBase | None = None  # where the next step would start
         self.n_episodes = 0
@@ -122,6 +128,7 @@ class Run:
         episodes, then a checkpoint every ``checkpoint_every`` (so it holds the evaluation).
         Returns ``td``, the next step's input."""
         self.last_td = td
+        self.log_train()
         last_eval = self.evals[-1]["episode"] if self.evals else 0
         if (self.eval_every and self.greedy_eval is not None and not self.done
                 and self.n_episodes - last_eval >= self.eval_every):
@@ -154,6 +161,7 @@ class Run:
             finished.append(self._finish(int(i), bool(terminated[i]), stats, ended_info))
         self._ret[done] = 0.0
         self._len[done] = 0
+        self._train_due = self._train_due or bool(finished)
         return finished
 
     def _finish(self, i: int, terminated: bool, stats, ended_info) -> Episode:
@@ -168,7 +176,7 @@ class Run:
                      value=value, rolling=self.rolling(), extra=dict(stats or {}))
         self.files.write_episode(ep)
         log_episode(self.logger, ep, self.success)
-        self.console.episode(ep, self.evals[-1] if self.evals else None, self.train_stats)
+        self.console.episode(ep, self.evals[-1] if self.evals else None, self._peek_train_stats)
         if self.success.judge == "training" and self.success.met(ep.rolling, self.n_episodes):
             self._solve("training", ep.rolling)
         return ep
@@ -192,6 +200,20 @@ class Run:
 
     def _solve(self, judge: str, value: float) -> None:
         self.solved_at, self.decided_by, self.solved_value = self.n_episodes, judge, value
+
+    def _peek_train_stats(self) -> dict[str, float] | None:
+        """The learner's current numbers for the console, without starting a new interval."""
+        return None if self.train_stats is None else self.train_stats(reset=False)
+
+    def log_train(self, final: bool = False) -> None:
+        """``train/*`` (the ``train_stats`` hook's numbers) to the logger, if due (see
+        ``TRAIN_LOG_STEPS``); ``final``: the run's last point, unless one is at these steps."""
+        if self.logger is None or self.train_stats is None or self._train_logged == self.env_steps:
+            return
+        since = self.env_steps - (self._train_logged or 0)
+        if final or self._train_due or since >= TRAIN_LOG_STEPS:
+            log_train(self.logger, self.train_stats(), self.env_steps)
+            self._train_logged, self._train_due = self.env_steps, False
 
     @property
     def wall_s(self) -> float:
@@ -245,6 +267,7 @@ class Run:
         self.console.close()
         self.files.close()
         summary = self.summary()
+        self.log_train(final=True)
         finish_log(self.logger, summary)
         plot_reward_curve(self.run_dir / "metrics.csv", self.run_dir / "reward_curve.png",
                           self.success, self.run_dir / "evals.csv")

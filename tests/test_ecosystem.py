@@ -27,9 +27,11 @@ def test_tensorboard_logger_writes_event_files_with_the_episode_scalars(tmp_path
     acc = EventAccumulator(str(events[0].parent))
     acc.Reload()
     lengths = acc.Scalars("episode/length")
-    assert [e.step for e in lengths] == list(range(1, 13))
     rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    assert [e.step for e in lengths] == [int(r["env_steps"]) for r in rows]  # against env steps
     assert [e.value for e in lengths] == [float(r["length"]) for r in rows]
+    assert [e.value for e in acc.Scalars("episode/index")] == list(range(1, 13))
+    assert [e.step for e in acc.Scalars("train/visited_fraction")][-1] == int(rows[-1]["env_steps"])
 
 
 def test_csv_logger_is_the_default(tmp_path):

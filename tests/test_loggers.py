@@ -1,0 +1,172 @@
+"""What the loggers get: episode, eval, train and run scalars against env steps, and the
+resolved config as hyperparameters. Runs are short and in-process (no subprocess imports)."""
+
+import csv
+from pathlib import Path
+
+import pytest
+import torch
+from hydra.utils import instantiate
+
+from learners.dqn import UpdateStats
+from learners.evaluate import greedy_evaluation
+from learners.loggers import flat_config, log_hparams, make_logger
+from learners.run import Run
+from learners.seeding import seed_everything
+from tasks.factory import build_env, compose
+
+DQN_SHORT = ["learner.nepisodes=24", "learner.learning_starts=32", "learner.batch_size=32",
+             "eval_every=10"]
+
+
+def train(run_dir: Path, learner: str, logger: str, overrides: list[str]):
+    """``train.py``'s training path in miniature: the learner, env, Run and logger of the
+    composed config, the hyperparameters logged first; returns the trained learner."""
+    cfg = compose(learner=learner, overrides=[f"logger={logger}", "eval_episodes=2", *overrides])
+    learner = instantiate(cfg.learner, _convert_="all")
+    env = build_env(cfg, int(cfg.num_envs), int(cfg.seed), learner.nsteps)
+    eval_env = build_env(cfg, 2, int(cfg.seed) + 10_000, learner.nsteps)
+    learner.build(env.task, seed_everything(int(cfg.seed)))
+    record = Run(run_dir, env.num_envs, learner.nepisodes, env.task.success,
+                 extra_fields=tuple(learner.stats), quiet=True, eval_every=int(cfg.eval_every))
+    record.logger = make_logger(cfg.logger.kind, run_dir, exp_name="run")
+    log_hparams(record.logger, cfg)
+    record.greedy_eval = lambda: greedy_evaluation(learner, eval_env, int(cfg.seed) + 10_000)
+    try:
+        learner.train(env, record)
+        record.close()
+    finally:
+        env.close()
+        eval_env.close()
+    return learner
+
+
+def events(run_dir: Path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    files = list((run_dir / "logs").rglob("events.out.tfevents.*"))
+    assert len(files) == 1  # hparams too go to the run's own event file
+    acc = EventAccumulator(str(files[0].parent))
+    acc.Reload()
+    return acc
+
+
+def test_dqn_logs_train_scalars_and_hparams_to_tensorboard_against_env_steps(tmp_path):
+    pytest.importorskip("tensorboard")
+    train(tmp_path, "dqn", "tensorboard", DQN_SHORT)
+    acc = events(tmp_path)
+    rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    env_steps = [int(r["env_steps"]) for r in rows]
+    lengths = acc.Scalars("episode/length")
+    assert [e.step for e in lengths] == env_steps  # episodes against env steps
+    assert [e.value for e in acc.Scalars("episode/index")] == list(range(1, len(rows) + 1))
+    for name in ("loss", "q_mean", "td_error", "grad_norm", "epsilon", "lr", "updates",
+                 "updates_per_s"):
+        points = acc.Scalars(f"train/{name}")
+        steps = [e.step for e in points]
+        assert len(points) >= 3 and steps == sorted(set(steps)), name  # increasing env steps
+        assert set(steps) <= set(env_steps), name  # logged when episodes ended (and at the end)
+        assert all(e.value == e.value for e in points), name  # no NaN
+    updates = [e.value for e in acc.Scalars("train/updates")]
+    assert updates == sorted(updates) and updates[-1] > 0
+    assert all(e.value > 0 for e in acc.Scalars("train/loss"))
+    evals = list(csv.DictReader(open(tmp_path / "evals.csv")))
+    assert [e.step for e in acc.Scalars("eval/length")] == [int(r["env_steps"]) for r in evals]
+    assert [e.step for e in acc.Scalars("run/score")] == [env_steps[-1]]
+    from tensorboard.plugins.hparams import plugin_data_pb2
+
+    content = acc.PluginTagToContent("hparams")
+    assert {"_hparams_/experiment", "_hparams_/session_start_info"} <= set(content)
+    start = plugin_data_pb2.HParamsPluginData.FromString(
+        content["_hparams_/session_start_info"]).session_start_info
+    assert start.hparams["learner.lr"].number_value == pytest.approx(0.001)
+    assert start.hparams["learner._target_"].string_value == "learners.dqn.DQN"
+    assert start.hparams["learner.hidden"].string_value == "[64, 64]"
+    experiment = plugin_data_pb2.HParamsPluginData.FromString(
+        content["_hparams_/experiment"]).experiment
+    assert "run/score" in {m.name.tag for m in experiment.metric_infos}
+
+
+def test_logging_changes_no_training_result(tmp_path):
+    """Stats collection draws no random numbers and reorders nothing: a run with a logger
+    writes the same metrics.csv and ends with the same network as one without."""
+    quiet = train(tmp_path / "none", "dqn", "none", DQN_SHORT)
+    logged = train(tmp_path / "csv", "dqn", "csv", DQN_SHORT)
+    for name in ("metrics.csv", "evals.csv"):
+        assert (tmp_path / "none" / name).read_bytes() == (tmp_path / "csv" / name).read_bytes()
+    for a, b in zip(quiet.net.parameters(), logged.net.parameters()):
+        assert torch.equal(a, b)
+    assert logged.optimizer_steps == quiet.optimizer_steps > 0
+    scalars = tmp_path / "csv" / "logs" / "run" / "scalars"
+    assert (scalars / "train" / "loss.csv").read_text().strip()
+    hparams = (tmp_path / "csv" / "logs" / "run" / "texts" / "hparams0.txt").read_text()
+    assert "learner.lr: 0.001" in hparams.splitlines()
+
+
+def test_qlearn_logs_the_visited_fraction_of_its_table(tmp_path):
+    train(tmp_path, "qlearn", "csv", ["learner.nepisodes=15", "eval_episodes=0"])
+    scalars = tmp_path / "logs" / "run" / "scalars" / "train"
+    rows = [line.split(",") for line in (scalars / "visited_fraction.csv").read_text().split()]
+    steps, values = [int(s) for s, _ in rows], [float(v) for _, v in rows]
+    assert len(rows) >= 3 and steps == sorted(set(steps))
+    assert all(0 < v <= 1 for v in values) and values == sorted(values)
+    assert (scalars / "epsilon.csv").exists()
+
+
+def test_update_stats_average_each_interval_without_per_update_syncs():
+    stats = UpdateStats()
+    stats.FOLD = 2  # reduce in the middle of the interval too
+    q = [torch.tensor([[1.0], [3.0]]), torch.tensor([[5.0], [7.0]]), torch.tensor([[0.0], [0.0]])]
+    target = [x + 1 for x in q[:2]] + [torch.tensor([[-2.0], [2.0]])]
+    for i in range(3):
+        stats.add(float(i), q[i], target[i], torch.tensor(float(i + 1)))
+    peek = stats.read(updates=3, reset=False)
+    assert peek["loss"] == 1.0 and peek["q_mean"] == 16 / 6 and peek["td_error"] == 8 / 6
+    assert peek["grad_norm"] == 2.0 and peek["updates"] == 3.0
+    first = stats.read(updates=3)  # the same interval, now closed
+    assert {k: first[k] for k in peek if k != "updates_per_s"} == \
+        {k: peek[k] for k in peek if k != "updates_per_s"}
+    again = stats.read(updates=3)  # no update since: the latest means, no rate
+    assert again["loss"] == 1.0 and again["updates_per_s"] == 0.0
+
+
+def test_dqn_train_stats_without_clipping_measure_the_latest_gradient():
+    from learners.dqn import DQN, grad_norm_of
+    from learners.schedules import LinearEpsilon
+    from robots.cartpole import CartPole
+    from tasks.env import RobotTaskEnv
+    from tasks.stay_up import StayUp
+
+    learner = DQN(epsilon=LinearEpsilon(1.0, 0.1, 100), grad_clip=0.0, batch_size=8)
+    learner.build(StayUp(CartPole()))
+    assert set(learner.train_stats()) == {"epsilon", "lr", "updates", "updates_per_s"}
+    env = RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0)
+    td = env.reset()
+    for _ in range(4):
+        td, nxt = env.step_and_maybe_reset(learner.explorer(td))
+        learner.store(td)
+        td = nxt
+    env.close()
+    learner.optimize(3)
+    stats = learner.train_stats()
+    assert stats["grad_norm"] == pytest.approx(float(grad_norm_of(learner._params)))
+    assert stats["updates"] == 3 and stats["loss"] > 0
+
+
+def test_flat_config_joins_keys_and_keeps_scalars():
+    flat = flat_config({"a": {"b": 1, "c": [1, 2], "d": None}, "e": "x", "f": True})
+    assert flat == {"a.b": 1, "a.c": "[1, 2]", "e": "x", "f": True}
+
+
+def test_mlflow_gets_the_config_as_params_and_the_train_metrics(tmp_path):
+    mlflow = pytest.importorskip("mlflow")  # extra: pip install -e ".[mlflow]"
+    train(tmp_path, "qlearn", "mlflow", ["learner.nepisodes=10", "eval_episodes=0"])
+    mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'logs' / 'mlflow.db'}")
+    run_id = mlflow.search_runs(search_all_experiments=True).run_id[0]
+    client = mlflow.MlflowClient()
+    assert client.get_run(run_id).data.params["learner._target_"] == "learners.qlearn.QLearn"
+    history = client.get_metric_history(run_id, "train/visited_fraction")
+    assert len(history) >= 3 and all(0 < m.value <= 1 for m in history)
+    rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
+    steps = [m.step for m in client.get_metric_history(run_id, "episode/length")]
+    assert steps == [int(r["env_steps"]) for r in rows]
