@@ -156,14 +156,21 @@ def run_script(tmp_path: Path, source: str) -> list[str]:
 
 
 def test_plain_gymnasium_user_makes_it_after_import_tasks_or_with_the_prefix():
-    code = ("import gymnasium as gym\n"
-            "env = gym.make('tasks:MujocoRL/TurtleBot2Maze-v0')\n"  # imports tasks first
-            "obs, _ = env.reset(seed=1)\n"
-            "print(env.spec.id, obs.shape, obs in env.observation_space)\n"
-            "import tasks\n"
-            "print(gym.make('MujocoRL/CartPoleStayUp-v0').spec.id)\n")
-    assert run_python(["-c", code])[-2:] == ["MujocoRL/TurtleBot2Maze-v0 (6,) True",
-                                              "MujocoRL/CartPoleStayUp-v0"]
+    """No script file (``python -c``): a spawned worker has nothing to import again, so it
+    takes the prefixed id, which imports tasks there too."""
+    code = textwrap.dedent("""
+        import gymnasium as gym
+        env = gym.make("tasks:MujocoRL/TurtleBot2Maze-v0")  # imports tasks first
+        obs, _ = env.reset(seed=1)
+        print(env.spec.id, obs.shape, obs in env.observation_space)
+        import tasks
+        print(gym.make("MujocoRL/CartPoleStayUp-v0").spec.id)
+        envs = gym.vector.AsyncVectorEnv([lambda: gym.make("tasks:MujocoRL/CartPoleStayUp-v0")])
+        print(envs.reset(seed=0)[0].shape)
+        envs.close()
+        """)
+    assert run_python(["-c", code])[-3:] == ["MujocoRL/TurtleBot2Maze-v0 (6,) True",
+                                              "MujocoRL/CartPoleStayUp-v0", "(1, 4)"]
 
 
 def test_sb3_dqn_trains_on_the_bare_id_in_subprocess_workers(tmp_path):
