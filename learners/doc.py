@@ -1,9 +1,10 @@
-"""The README's parameter tables, made from the declarations (:mod:`params.declare`).
+"""The README's generated tables: parameters, made from the declarations
+(:mod:`params.declare`), and what there is to pick (:mod:`learners.discovery`).
 
     python -m learners.doc            # prints the tables
-    python -m learners.doc --write    # rewrites them in README.md between the markers
+    python -m learners.doc --write    # rewrites them in README.md between their markers
 
-One table per class a config in ``conf/robot``, ``conf/task`` or
+One parameter table per class a config in ``conf/robot``, ``conf/task`` or
 ``conf/learner`` names (and the exploration schedules the learners use), so a
 parameter's meaning, default and range are written once, in its class.
 """
@@ -18,10 +19,13 @@ from pathlib import Path
 from hydra.utils import get_object
 from omegaconf import OmegaConf
 
+from learners import discovery
 from params.declare import specs, table
 from tasks.factory import conf_dir
 
 BEGIN, END = "<!-- parameter tables: python -m learners.doc --write -->", "<!-- end of parameter tables -->"
+DISCOVERY_BEGIN = "<!-- discovery tables: python -m learners.doc --write -->"
+DISCOVERY_END = "<!-- end of discovery tables -->"
 GROUPS = (("robot", "robot"), ("task", "task"), ("learner", "learner"))
 
 
@@ -61,14 +65,20 @@ def tables() -> str:
     return "\n".join(parts)
 
 
+def blocks() -> dict[tuple[str, str], str]:
+    """(begin marker, end marker) -> what goes between them in the README."""
+    return {(BEGIN, END): tables(), (DISCOVERY_BEGIN, DISCOVERY_END): discovery.tables()}
+
+
 def rewrite(readme: Path) -> bool:
-    """Puts :func:`tables` between the markers of ``readme``; whether it changed."""
-    text = readme.read_text()
-    head, sep, rest = text.partition(BEGIN)
-    _, sep2, tail = rest.partition(END)
-    if not (sep and sep2):
-        raise SystemExit(f"{readme} has no {BEGIN} ... {END} block")
-    new = f"{head}{BEGIN}\n\n{tables()}\n{END}{tail}"
+    """Puts each of :func:`blocks` between its markers in ``readme``; whether it changed."""
+    text = new = readme.read_text()
+    for (begin, end), body in blocks().items():
+        head, sep, rest = new.partition(begin)
+        _, sep2, tail = rest.partition(end)
+        if not (sep and sep2):
+            raise SystemExit(f"{readme} has no {begin} ... {end} block")
+        new = f"{head}{begin}\n\n{body}\n{end}{tail}"
     readme.write_text(new)
     return new != text
 
@@ -79,7 +89,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--readme", type=Path, default=Path("README.md"))
     args = parser.parse_args(argv)
     if not args.write:
-        sys.stdout.write(tables())
+        sys.stdout.write("\n".join(blocks().values()))
         return
     print(f"{args.readme}: {'updated' if rewrite(args.readme) else 'already up to date'}")
 

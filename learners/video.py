@@ -1,6 +1,7 @@
 """Videos of a policy: MP4 files of copy 0 of a ``RobotTaskEnv``, rendered headless.
 
     python -m learners.video <run_dir> [--steps N]     # writes <run_dir>/policy.mp4
+    python -m learners.video <run_dir> --camera top --width 1280 --height 720
 
 The CLI rebuilds the run's task and learner from ``<run_dir>/config.yaml`` and
 loads ``<run_dir>/model.pt``; the video shows the greedy policy. Frames are
@@ -40,17 +41,18 @@ def record_video(
     The video shows the reset state and then each of ``n_steps`` steps
     (``n_steps + 1`` frames); an episode's last state is shown before the copy
     resets. ``fps`` defaults to real time (one frame per ``task.running_step``),
-    ``camera`` to the task's first camera. Width and height must be even.
+    ``camera`` (a name or an index of the model's) to the task's first camera; a camera
+    the model lacks is a ``ValueError`` listing its cameras. Width and height must be even.
     """
     if n_steps < 0:
         raise ValueError(f"n_steps must be >= 0; got {n_steps}")
     if width % 2 or height % 2 or width < 2 or height < 2:
         raise ValueError(f"width and height must be even and >= 2 (H.264 yuv420p); got {width}x{height}")
+    camera = env.check_camera(camera)  # before the file is opened
+    env.check_frame_size(width, height)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fps = float(fps) if fps else 1.0 / float(env.task.running_step)
-    if camera is None:
-        camera = 0 if env.model.ncam else -1
     frames = 0
     writer = imageio.get_writer(path, format="FFMPEG", mode="I", fps=fps, codec="libx264",
                                 pixelformat="yuv420p", macro_block_size=2, ffmpeg_log_level="error")
@@ -101,9 +103,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("--steps", type=int, default=500, help="env steps to record (default 500)")
     parser.add_argument("--out", type=Path, default=None, help="default <run_dir>/policy.mp4")
-    parser.add_argument("--width", type=int, default=480)
-    parser.add_argument("--height", type=int, default=360)
-    parser.add_argument("--camera", default=None, help="camera name (default: the task's first)")
+    parser.add_argument("--width", type=int, default=480, help="pixels, even (default 480)")
+    parser.add_argument("--height", type=int, default=360, help="pixels, even (default 360)")
+    parser.add_argument("--camera", default=None,
+                        help="camera name or index, -1 the free camera (default: the task's first)")
     parser.add_argument("--fps", type=float, default=None, help="default: real time")
     args = parser.parse_args(argv)
     camera = int(args.camera) if args.camera and args.camera.lstrip("-").isdigit() else args.camera

@@ -233,6 +233,14 @@ class Task(abc.ABC):
         """Restores what :meth:`state_dict` returned."""
         self.per_copy.load_state_dict(state)
 
+    def observation_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(low, high)``, each ``(len(observation_names),)``: the values each observation
+        entry can take, ``-inf`` / ``inf`` where nothing bounds it (this default: all).
+        True bounds, which Gymnasium's observation space declares; ``tabular_bounds``
+        are only the ranges a tabular learner bins, and values leave them."""
+        n = len(self.observation_names)
+        return np.full(n, -np.inf), np.full(n, np.inf)
+
 
 #: Every member a task provides.
 CONTRACT = (

@@ -79,6 +79,8 @@ class RobotTaskEnv(EnvBase):
         self._rng = np.random.default_rng(seed)
         self._renderer: mujoco.Renderer | None = None
         self._render_data: mujoco.MjData | None = None
+        self.camera_names = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_CAMERA, i)
+                             for i in range(self.model.ncam)]
 
     # -- EnvBase -----------------------------------------------------------------
     def _set_seed(self, seed: int | None) -> None:
@@ -143,9 +145,51 @@ class RobotTaskEnv(EnvBase):
             )
 
     # -- extras -----------------------------------------------------------------
+    def check_camera(self, camera: str | int | None = None) -> str | int:
+        """``camera`` if the model has it (a name of ``camera_names``, or an index, -1 being
+        MuJoCo's free camera), else a ``ValueError`` listing the cameras; ``None`` is
+        the task's first camera (the free one if it has none)."""
+        names, n = self.camera_names, len(self.camera_names)
+        if camera is None:
+            return 0 if n else -1
+        if camera in names or (isinstance(camera, (int, np.integer)) and not isinstance(camera, bool)
+                               and -1 <= camera < n):
+            return camera
+        raise ValueError(f"camera {camera!r} is not a camera of this model; its cameras: "
+                         f"{', '.join(names) or 'none'} (or an index in [-1, {n - 1}], "
+                         f"-1 MuJoCo's free camera)")
+
+    def check_frame_size(self, width: int, height: int) -> None:
+        """A ``ValueError`` unless a ``width`` x ``height`` frame fits the model's offscreen
+        buffer (the arenas make it 1920 x 1080)."""
+        most = (self.model.vis.global_.offwidth, self.model.vis.global_.offheight)
+        if not (1 <= width <= most[0] and 1 <= height <= most[1]):
+            raise ValueError(f"frame size must be from 1x1 to {most[0]}x{most[1]} (the model's "
+                             f"offscreen buffer); got {width}x{height}")
+
+    def load_state_of(self, other: "RobotTaskEnv") -> None:
+        """Takes ``other``'s whole state: every copy's physics, the step counters, the
+        randomness, the task's and the robot's state. ``other`` must be built from the
+        same config (same model and number of copies)."""
+        if (other.num_envs, other.physics.nstate) != (self.num_envs, self.physics.nstate):
+            raise ValueError(f"cannot take the state of an env of {other.num_envs} copies of "
+                             f"{other.physics.nstate} state values: this one has {self.num_envs} "
+                             f"of {self.physics.nstate}")
+        for name in ("state", "ctrl", "sensordata"):  # in place: qpos and qvel view the state
+            getattr(self.physics, name)[:] = getattr(other.physics, name)
+        self.elapsed_steps[:] = other.elapsed_steps
+        self.divergences = other.divergences
+        self.ended_info = {k: v.copy() for k, v in other.ended_info.items()}
+        self._rng.bit_generator.state = other._rng.bit_generator.state
+        self.task.load_state_dict(other.task.state_dict())
+        self.task.robot.load_state_dict(other.task.robot.state_dict())
+
     def render(self, width: int = 480, height: int = 360, camera: str | int = -1,
                index: int = 0) -> np.ndarray:
-        """An RGB frame (``height x width x 3``, uint8) of copy ``index``."""
+        """An RGB frame (``height x width x 3``, uint8) of copy ``index`` seen by ``camera``
+        (see :meth:`check_camera`)."""
+        self.check_camera(camera)
+        self.check_frame_size(width, height)
         if self._renderer is None or (self._renderer.width, self._renderer.height) != (width, height):
             self._renderer = mujoco.Renderer(self.model, height=height, width=width)
             self._render_data = mujoco.MjData(self.model)

@@ -48,16 +48,26 @@ def compose(robot: str | None = None, task: str | None = None, learner: str | No
     Works inside a running Hydra app too: that app's global state is restored.
     """
     picks = [f"{k}={v}" for k, v in (("robot", robot), ("task", task), ("learner", learner)) if v]
-    cfg = _compose([*picks, *overrides])
-    with open_dict(cfg):
-        del cfg["hydra"]
-    OmegaConf.resolve(cfg)
-    return cfg
+    return _resolved(_compose([*picks, *overrides]))
 
 
 def default_task(robot: str) -> str:
     """The task ``robot``'s config picks."""
-    return str(_compose([f"robot={robot}"]).hydra.runtime.choices.task)
+    return robot_default(robot)[0]
+
+
+def robot_default(robot: str) -> tuple[str, DictConfig]:
+    """``(task name, resolved config)`` of ``robot`` with the task its config picks, from
+    one composition (``default_task`` and ``compose(robot)`` together)."""
+    cfg = _compose([f"robot={robot}"])
+    return str(cfg.hydra.runtime.choices.task), _resolved(cfg)
+
+
+def _resolved(cfg: DictConfig) -> DictConfig:
+    with open_dict(cfg):
+        del cfg["hydra"]
+    OmegaConf.resolve(cfg)
+    return cfg
 
 
 def _compose(overrides: list[str]) -> DictConfig:

@@ -1,27 +1,43 @@
 """Gymnasium environments: every robot with its default task, built from conf/.
 
-Importing this module registers one id per robot in ``conf/robot/`` (with the
-task that robot's config picks), in the ``MujocoRL`` namespace:
+Importing the ``tasks`` package (any module of it) registers one id per robot in
+``conf/robot/`` (with the task that robot's config picks), in the ``MujocoRL``
+namespace, each with the string entry point ``tasks.gym_env:MujocoRLEnv``:
 
 - ``MujocoRL/CartPoleStayUp-v0`` (cartpole / stay_up)
 - ``MujocoRL/MovingCubeOneDiskWalk-v0`` (cube / one_disk_walk)
 - ``MujocoRL/TurtleBot2Maze-v0`` (turtlebot / maze)
 
-Gymnasium 1.x has no plugin discovery, so users make them with the module
-prefix, which imports (and so registers) first::
+::
 
-    gymnasium.make("tasks.gym_env:MujocoRL/CartPoleStayUp-v0", pos_step=0.5)
+    import gymnasium, tasks
+    env = gymnasium.make("MujocoRL/CartPoleStayUp-v0", pos_step=0.5)
+    env = gymnasium.make("tasks:MujocoRL/CartPoleStayUp-v0")  # imports tasks first
+
+Gymnasium 1.x loads no plugins, so a process knows the ids once it has imported
+``tasks``. Subprocess workers (SB3's ``SubprocVecEnv``, ``AsyncVectorEnv``) do
+when the script that starts them imports ``tasks`` at its top: a forked worker
+inherits the registry, a spawned one (TorchRL makes spawn the default) and a
+forkserver one (SB3's default) import the main script again before they run.
+Without a script to import again (``python -c``, a notebook) write the id with
+the prefix, ``"tasks:MujocoRL/..."``: ``gymnasium.make`` in the worker imports
+``tasks`` first. ``gymnasium.make_vec`` sends workers the spec itself.
 
 Keyword arguments to ``gymnasium.make`` override the task's parameters
 (``robot_params={...}`` the robot's); everything else comes from the Hydra
 configs. ``gymnasium.make`` truncates episodes with a ``TimeLimit`` at the task's
 ``max_episode_steps`` (its own ``max_episode_steps=`` changes that). ``info``
 holds the task's ``episode_info`` values (such as the cube's y displacement).
+The observation space has the task's ``observation_range``; where the task knows
+no bound, the largest float32 (observations are finite: the physics rolls back
+a copy that diverges). ``copy.deepcopy(env)`` is a new env in the same state.
 """
 
 from __future__ import annotations
 
+import copy
 import re
+import reprlib
 from typing import Any, Mapping
 
 import numpy as np
@@ -32,12 +48,14 @@ from gymnasium import spaces
 from omegaconf import DictConfig, OmegaConf
 
 from tasks import factory
+from tasks.base import Task
 from tasks.env import RobotTaskEnv
 
 NAMESPACE = "MujocoRL"
 # Display names of robots in env ids; a robot not listed gets its name camel-cased.
 ROBOT_NAMES = {"cartpole": "CartPole", "cube": "MovingCube", "turtlebot": "TurtleBot2"}
 _NO_LIMIT = 2**62
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def _camel(name: str) -> str:
@@ -62,6 +80,29 @@ def _override(node: DictConfig, params: Mapping[str, Any], what: str) -> DictCon
     return OmegaConf.merge(node, dict(params))
 
 
+def observation_space(task: Task) -> spaces.Box:
+    """The task's ``observation_range`` as a float32 ``Box``, an unbounded side as the
+    largest finite float32 (so no bound is infinite)."""
+    low, high = task.observation_range()
+    return spaces.Box(np.maximum(low, -_FLOAT32_MAX).astype(np.float32),
+                      np.minimum(high, _FLOAT32_MAX).astype(np.float32), dtype=np.float32)
+
+
+def action_index(action: Any, n: int) -> int:
+    """``action`` as an ``int`` in ``[0, n)``: a Python or NumPy integer (or a float equal
+    to one), alone or in a 0-d or one-element array; else a ``ValueError``."""
+    try:
+        a = np.asarray(action)
+    except (TypeError, ValueError, OverflowError):
+        a = np.asarray(None)
+    if a.shape in ((), (1,)) and a.dtype.kind in "iuf":
+        value = a.reshape(()).item()
+        if float(value).is_integer() and 0 <= value < n:
+            return int(value)
+    raise ValueError(f"action must be an integer in [0, {n - 1}] (an int, a numpy integer, or an "
+                     f"array of shape () or (1,) holding one); got {reprlib.repr(action)}")
+
+
 class MujocoRLEnv(gym.Env):
     """One copy of a robot's task as a ``gymnasium.Env`` (discrete actions)."""
 
@@ -78,14 +119,15 @@ class MujocoRLEnv(gym.Env):
         **task_params: Any,
     ) -> None:
         """``task_params`` override ``task.*`` and ``robot_params`` ``robot.*`` of the config;
-        ``camera`` defaults to the task's first camera (else MuJoCo's free camera)."""
+        ``camera`` (a name or an index) defaults to the task's first camera (else MuJoCo's
+        free camera)."""
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None; "
                              f"got {render_mode!r}")
-        cfg = factory.compose(robot)
-        robot_cfg = _override(cfg.robot, robot_params or {}, f"robot {robot}")
-        task_cfg = _override(cfg.task, task_params, f"the task of robot {robot}")
-        self.config = OmegaConf.create({"robot": robot_cfg, "task": task_cfg})
+        self._made_with = copy.deepcopy(dict(robot=robot, render_mode=render_mode, width=width,
+                                             height=height, camera=camera,
+                                             robot_params=robot_params, **task_params))
+        self.config = self._config(robot, robot_params or {}, task_params)
         task = factory.build_task(self.config)
         if "max_episode_steps" not in task_params:
             task.max_episode_steps = _NO_LIMIT  # gymnasium.make's TimeLimit truncates
@@ -93,13 +135,19 @@ class MujocoRLEnv(gym.Env):
         self.task = task
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
-        self.camera = camera if camera is not None else (0 if self.torchrl_env.model.ncam else -1)
+        self.camera = self.torchrl_env.check_camera(camera)
         self.metadata = {**self.metadata, "render_fps": 1.0 / float(task.running_step)}
-        self.observation_space = spaces.Box(
-            -np.inf, np.inf, shape=(len(task.observation_names),), dtype=np.float32)
+        self.observation_space = observation_space(task)
         self.action_space = spaces.Discrete(int(task.n_actions))
         self._td = None
         self._seeded = False
+
+    @staticmethod
+    def _config(robot: str, robot_params: Mapping[str, Any], task_params: Mapping[str, Any]):
+        cfg = factory.compose(robot)
+        robot_cfg = _override(cfg.robot, robot_params, f"robot {robot}")
+        task_cfg = _override(cfg.task, task_params, f"the task of robot {robot}")
+        return OmegaConf.create({"robot": robot_cfg, "task": task_cfg})
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -111,11 +159,11 @@ class MujocoRLEnv(gym.Env):
         return self._obs(self._td), {}
 
     def step(self, action):
+        """``action``: an integer in ``[0, n_actions)`` (see :func:`action_index`)."""
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        if not self.action_space.contains(action):
-            raise ValueError(f"action must be in {self.action_space}; got {action!r}")
-        self._td.set("action", torch.tensor([int(action)], dtype=torch.int64))
+        index = action_index(action, int(self.action_space.n))
+        self._td.set("action", torch.tensor([index], dtype=torch.int64))
         nxt = self.torchrl_env.step(self._td).get("next")
         self._td = nxt.exclude("reward", "done", "terminated", "truncated")
         terminated = bool(nxt.get("terminated").item())
@@ -133,6 +181,19 @@ class MujocoRLEnv(gym.Env):
     def close(self) -> None:
         self.torchrl_env.close(raise_if_closed=False)
 
+    def __deepcopy__(self, memo: dict) -> "MujocoRLEnv":
+        """A new env from the same arguments, in this one's state (physics, task and
+        robot state, randomness, the last observation); each then steps on its own."""
+        new = type(self)(**copy.deepcopy(self._made_with))
+        memo[id(self)] = new
+        new.torchrl_env.load_state_of(self.torchrl_env)
+        new._td = None if self._td is None else self._td.clone()
+        new._seeded = self._seeded
+        new._np_random = copy.deepcopy(self._np_random, memo)
+        new._np_random_seed = self._np_random_seed
+        new.spec = copy.deepcopy(self.spec, memo)
+        return new
+
     @staticmethod
     def _obs(td) -> np.ndarray:
         return td.get("observation")[0].numpy().astype(np.float32, copy=True)
@@ -141,16 +202,18 @@ class MujocoRLEnv(gym.Env):
 def register_envs() -> list[str]:
     """Registers (idempotently) one id per robot with its default task; returns the ids.
 
-    Each id's ``max_episode_steps`` (Gymnasium's ``TimeLimit``) is the task's
-    ``max_episode_steps`` from the config; ``gymnasium.make(id, max_episode_steps=N)``
+    Each id's entry point is the string ``tasks.gym_env:MujocoRLEnv`` (a process that
+    makes it imports this module) and its ``max_episode_steps`` (Gymnasium's
+    ``TimeLimit``) the task's from the config; ``gymnasium.make(id, max_episode_steps=N)``
     changes it.
     """
     ids = []
     for robot in factory.robot_names():
-        name = env_id(robot, factory.default_task(robot))
+        task, cfg = factory.robot_default(robot)
+        name = env_id(robot, task)
         if name not in gym.registry:
             gym.register(id=name, entry_point=f"{__name__}:MujocoRLEnv", kwargs={"robot": robot},
-                         max_episode_steps=int(factory.compose(robot).task.max_episode_steps))
+                         max_episode_steps=int(cfg.task.max_episode_steps))
         ids.append(name)
     return ids
 

@@ -191,6 +191,11 @@ class MazeTask(Task):
         self._track(physics)
         return np.round(self.scan(physics), 1)
 
+    def observation_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every sector reads in [0, the laser's range], rounded as observed."""
+        n = self.n_observations
+        return np.zeros(n), np.full(n, np.round(self.robot.laser_max_range, 1))
+
     def terminated(self, physics: BatchedPhysics, observation: np.ndarray) -> np.ndarray:
         too_close = self.robot.laser(physics).min(-1) < self.min_range
         return too_close | self.robot.bumper(physics)

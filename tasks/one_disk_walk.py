@@ -109,7 +109,8 @@ class OneDiskWalk(Task):
         self._check_wheel()
         require(len(self.init_cube_pose) == 3,
                 "task.init_cube_pose must be [x, y, z], three finite numbers", self.init_cube_pose)
-        # The original's observation Box (informational: the env spec is unbounded).
+        # The original's observation Box (informational: walking goes past max_distance, so
+        # these are no bounds; observation_range has the true ones).
         self.observation_high = np.array([
             self.roll_speed_fixed_value, self.max_distance, 2 * math.pi, self.max_pitch_angle,
             self.max_y_linear_speed, self.max_y_linear_speed])
@@ -180,6 +181,13 @@ class OneDiskWalk(Task):
             np.round(odom.linear_velocity[:, 1], 1),
             np.round(yaw, 1),
         ], axis=1)
+
+    def observation_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """Roll and yaw lie in [-pi, pi] and pitch in [-pi/2, pi/2], rounded as observed;
+        wheel speed, y distance and y speed have no bound."""
+        roll, pitch, yaw = np.round([math.pi, math.pi / 2, math.pi], 1)
+        high = np.array([np.inf, np.inf, roll, pitch, np.inf, yaw])
+        return -high, high
 
     def terminated(self, physics: BatchedPhysics, observation: np.ndarray) -> np.ndarray:
         _, pitch, yaw = self.robot.odometry(physics).rpy.T

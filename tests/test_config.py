@@ -8,6 +8,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import train
+from learners import discovery
 from tasks import factory
 from params import ConfigError
 
@@ -51,6 +52,24 @@ def test_task_fits_robot_or_says_which_robot_it_needs(robot, task):
         message = train._one_line(err)
         assert "needs robot=" in message and len(message.splitlines()) == 1
     # Tasks that happen to fit more than one robot are allowed to build.
+
+
+def test_every_task_fits_a_robot_and_every_robot_its_default_task():
+    for task in TASKS:
+        assert any(discovery.built(robot, task) for robot in ROBOTS), f"task {task} fits no robot"
+    for robot in ROBOTS:
+        assert discovery.built(robot, factory.default_task(robot)) is not None
+
+
+def test_every_tuned_file_names_a_robot_and_a_learner(monkeypatch):
+    """Hydra applies conf/tuned/<robot>_<learner>.yaml to that pair only: any other name never."""
+    orphans = [name for name, pair in discovery.tuned_pairs().items() if pair is None]
+    assert not orphans, f"conf/tuned files naming no <robot>_<learner> pair: {orphans}"
+    real = discovery.names
+    monkeypatch.setattr(discovery, "names",
+                        lambda group: real(group) + (["cartpole_dqnn"] if group == "tuned" else []))
+    assert discovery.tuned_pairs()["cartpole_dqnn"] is None
+    assert discovery.tuned_pairs()["cartpole_dqn"] == ("cartpole", "dqn")
 
 
 def test_task_follows_robot_and_can_be_overridden():

@@ -1,8 +1,11 @@
-"""Gymnasium registration: every robot's default task makes, passes check_env, seeds, steps."""
+"""Gymnasium registration: every robot's default task makes, passes check_env, seeds, steps;
+the ids work in subprocess workers; actions, copies and observation bounds as clients use them."""
 
+import copy
 import os
 import subprocess
 import sys
+import textwrap
 import warnings
 from pathlib import Path
 
@@ -17,6 +20,7 @@ from tasks import factory
 from tasks.gym_env import MujocoRLEnv, default_tasks, env_id, register_envs
 
 ROOT = Path(__file__).resolve().parents[1]
+BIG = np.finfo(np.float32).max  # the bound of an entry the task knows no bound for
 EXPECTED = {  # id: robot, observation size, actions, time limit
     "MujocoRL/CartPoleStayUp-v0": ("cartpole", 4, 2, 1000),
     "MujocoRL/MovingCubeOneDiskWalk-v0": ("cube", 6, 5, 1000),
@@ -55,10 +59,10 @@ def test_make_and_check_env(make, name):
     robot, n_obs, n_actions, _ = EXPECTED[name]
     env = make(name, render_mode="rgb_array", width=64, height=48)
     assert env.unwrapped.config.robot._target_.startswith(f"robots.{robot}")
-    assert env.observation_space == gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
+    assert env.observation_space.shape == (n_obs,) and env.observation_space.dtype == np.float32
     assert env.action_space == gym.spaces.Discrete(n_actions)
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*Box observation space m.*infinity")
+        warnings.simplefilter("error")  # no warning at all, about bounds or anything else
         check_env(env.unwrapped)
     obs, info = env.reset(seed=0)
     assert obs.dtype == np.float32 and obs.shape == (n_obs,) and isinstance(info, dict)
@@ -135,13 +139,155 @@ def test_composing_inside_a_running_hydra_app_keeps_its_state():
         assert compose(config_name="config").robot._target_ == "robots.cartpole.CartPole"
 
 
-def test_plain_gymnasium_user_makes_it_with_the_module_prefix():
-    code = ("import gymnasium as gym\n"
-            "env = gym.make('tasks.gym_env:MujocoRL/TurtleBot2Maze-v0')\n"
-            "obs, _ = env.reset(seed=1)\n"
-            "print(env.spec.id, obs.shape)\n")
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([sys.executable, "-c", code], cwd="/", env=env, capture_output=True,
-                          text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr[-1500:]
-    assert proc.stdout.strip().splitlines()[-1] == "MujocoRL/TurtleBot2Maze-v0 (6,)"
+def run_python(args: list[str], cwd: Path | str = "/", timeout: int = 300) -> list[str]:
+    """Runs this Python on ``args`` with the project on the path; its stdout lines."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    proc = subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout.strip().splitlines()
+
+
+def run_script(tmp_path: Path, source: str) -> list[str]:
+    """Runs ``source`` as a client's script file (workers import it again: see tasks.gym_env)."""
+    script = tmp_path / "client.py"
+    script.write_text(textwrap.dedent(source))
+    return run_python([str(script)], cwd=tmp_path)
+
+
+def test_plain_gymnasium_user_makes_it_after_import_tasks_or_with_the_prefix():
+    """No script file (``python -c``): a spawned worker has nothing to import again, so it
+    takes the prefixed id, which imports tasks there too."""
+    code = textwrap.dedent("""
+        import gymnasium as gym
+        env = gym.make("tasks:MujocoRL/TurtleBot2Maze-v0")  # imports tasks first
+        obs, _ = env.reset(seed=1)
+        print(env.spec.id, obs.shape, obs in env.observation_space)
+        import tasks
+        print(gym.make("MujocoRL/CartPoleStayUp-v0").spec.id)
+        envs = gym.vector.AsyncVectorEnv([lambda: gym.make("tasks:MujocoRL/CartPoleStayUp-v0")])
+        print(envs.reset(seed=0)[0].shape)
+        envs.close()
+        """)
+    assert run_python(["-c", code])[-3:] == ["MujocoRL/TurtleBot2Maze-v0 (6,) True",
+                                              "MujocoRL/CartPoleStayUp-v0", "(1, 4)"]
+
+
+def test_sb3_dqn_trains_on_the_bare_id_in_subprocess_workers(tmp_path):
+    pytest.importorskip("stable_baselines3")  # the test extra: pip install -e ".[test]"
+    out = run_script(tmp_path, """
+        import os
+        import torch
+        torch.set_num_threads(1)
+        import tasks  # registers the MujocoRL ids: here, and in each worker importing this file
+        from stable_baselines3 import DQN
+        from stable_baselines3.common.env_util import make_vec_env
+        from stable_baselines3.common.vec_env import SubprocVecEnv
+
+        if __name__ == "__main__":
+            venv = make_vec_env("MujocoRL/CartPoleStayUp-v0", n_envs=2, seed=0,
+                                vec_env_cls=SubprocVecEnv)
+            model = DQN("MlpPolicy", venv, learning_starts=500, seed=0, device="cpu")
+            model.learn(3000)
+            workers = {type(p).__name__ for p in venv.processes if p.pid != os.getpid()}
+            print(model.num_timesteps, len(venv.processes), *workers)
+            print(*sorted({spec.id for spec in venv.get_attr("spec")}))
+            venv.close()
+        """)
+    assert out[-2].split() == ["3000", "2", "ForkServerProcess"]  # SB3's default: no fork
+    assert out[-1] == "MujocoRL/CartPoleStayUp-v0"
+
+
+def test_async_vector_env_makes_the_bare_id_in_spawned_workers(tmp_path):
+    out = run_script(tmp_path, """
+        import multiprocessing
+        import gymnasium as gym
+        import tasks  # registers the MujocoRL ids: here, and in each worker importing this file
+
+        def make():
+            return gym.make("MujocoRL/TurtleBot2Maze-v0")
+
+        if __name__ == "__main__":
+            envs = gym.vector.AsyncVectorEnv([make, make])
+            obs, _ = envs.reset(seed=0)
+            for _ in range(3):
+                obs, *_ = envs.step(envs.action_space.sample())
+            print(multiprocessing.get_start_method(), obs.shape, obs in envs.observation_space)
+            envs.close()
+        """)
+    assert out[-1] == "spawn (2, 6) True"  # TorchRL makes spawn the default
+
+
+@pytest.mark.parametrize("action", [1, np.int64(1), np.uint8(1), np.array(1), np.array([1]),
+                                    np.array([1], dtype=np.int32), 1.0, np.float32(1.0)])
+def test_step_takes_an_integer_in_any_common_form(make, action):
+    env = make("MujocoRL/CartPoleStayUp-v0")
+    env.reset(seed=0)
+    obs = env.step(action)[0]
+    twin = make("MujocoRL/CartPoleStayUp-v0")
+    twin.reset(seed=0)
+    assert np.array_equal(obs, twin.step(1)[0])
+
+
+@pytest.mark.parametrize("action", [2, -1, 0.5, np.nan, True, np.array([0, 1]), np.array([[1]]),
+                                    np.zeros((0,), int), "1", None, [1, 0]])
+def test_a_bad_action_is_one_clear_error(make, action):
+    env = make("MujocoRL/CartPoleStayUp-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError) as err:
+        env.step(action)
+    message = str(err.value)
+    assert message.startswith("action must be an integer in [0, 1] (an int, a numpy integer, or an "
+                              "array of shape () or (1,) holding one); got ")
+    assert "\n" not in message
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_deepcopy_is_an_independent_env_in_the_same_state(make, name):
+    env = make(name, render_mode="rgb_array", width=32, height=24)
+    env.reset(seed=3)
+    for _ in range(3):
+        env.step(0)
+    twin = copy.deepcopy(env)
+    assert twin.unwrapped is not env.unwrapped and twin.spec.id == name
+    assert twin.unwrapped.torchrl_env is not env.unwrapped.torchrl_env
+    assert np.array_equal(twin.render(), env.render())
+    rng = np.random.default_rng(0)
+    for action in rng.integers(env.action_space.n, size=6):
+        a, b = env.step(action), twin.step(action)
+        assert np.array_equal(a[0], b[0]) and a[1:] == b[1:]
+        if a[2] or a[3]:
+            break
+    assert np.array_equal(env.reset()[0], twin.reset()[0])  # the same randomness too
+    before = env.unwrapped.torchrl_env.physics.state.copy()
+    twin.step(1)
+    twin.close()
+    assert np.array_equal(env.unwrapped.torchrl_env.physics.state, before)
+    env.step(1)  # the original still works after its copy is closed
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_observations_stay_in_the_declared_bounds(make, name):
+    env = make(name, max_episode_steps=60)
+    space = env.observation_space
+    assert np.isfinite(space.low).all() and np.isfinite(space.high).all()
+    rng = np.random.default_rng(1)
+    for episode in range(4):
+        obs, _ = env.reset(seed=episode)
+        done = False
+        while not done:
+            assert obs in space, (obs, space)
+            obs, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
+            done = terminated or truncated
+        assert obs in space, (obs, space)
+
+
+def test_bounds_are_the_tasks_true_ones_and_only_those():
+    maze = gym.make("MujocoRL/TurtleBot2Maze-v0").observation_space  # laser sectors: 0 .. range
+    assert np.array_equal(maze.low, np.zeros(6)) and np.array_equal(maze.high, np.full(6, 6.0))
+    cube = gym.make("MujocoRL/MovingCubeOneDiskWalk-v0").observation_space
+    # wheel_speed, y_distance, roll, pitch, y_speed, yaw: angles known, the rest not
+    np.testing.assert_allclose(cube.high, [BIG, BIG, 3.1, 1.6, BIG, 3.1], rtol=1e-6)
+    assert np.array_equal(cube.low, -cube.high)
+    cartpole = gym.make("MujocoRL/CartPoleStayUp-v0").observation_space  # soft joint limits
+    assert np.array_equal(cartpole.high, np.full(4, BIG)) and np.array_equal(cartpole.low, -cartpole.high)

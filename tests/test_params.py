@@ -12,7 +12,7 @@ import pytest
 from hydra.utils import get_object
 from omegaconf import OmegaConf
 
-from learners import doc
+from learners import discovery, doc
 from params import ConfigError
 from params.declare import check_values, param, specs, table
 from tasks.factory import conf_dir
@@ -91,6 +91,25 @@ def test_readme_tables_are_current():
     text = (ROOT / "README.md").read_text()
     block = text.partition(doc.BEGIN)[2].partition(doc.END)[0]
     assert block.strip() == doc.tables().strip(), "README tables are stale: python -m learners.doc --write"
+
+
+def test_readme_discovery_tables_are_current():
+    text = (ROOT / "README.md").read_text()
+    block = text.partition(doc.DISCOVERY_BEGIN)[2].partition(doc.DISCOVERY_END)[0]
+    assert block.strip() == discovery.tables().strip(), \
+        "README discovery tables are stale: python -m learners.doc --write"
+
+
+def test_write_fills_both_blocks_and_says_when_nothing_changed(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text(f"a\n{doc.BEGIN}\nstale text\n{doc.END}\nb\n{doc.DISCOVERY_BEGIN}\n{doc.DISCOVERY_END}\nc\n")
+    assert doc.rewrite(readme) and not doc.rewrite(readme)
+    text = readme.read_text()
+    assert "stale text" not in text and text.startswith("a\n") and text.endswith("c\n")
+    assert "| `turtlebot` |" in text and "| `learner.gamma` |" not in text.partition(doc.END)[2]
+    readme.write_text("no markers")
+    with pytest.raises(SystemExit, match="has no <!-- parameter tables"):
+        doc.rewrite(readme)
 
 
 @dataclasses.dataclass

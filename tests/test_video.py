@@ -67,15 +67,53 @@ def test_record_video_rejects_odd_sizes(tmp_path, dqn_on_cartpole):
         video.record_video(env, learner.policy, tmp_path / "x.mp4", n_steps=1, width=121, height=90)
 
 
-def test_cli_writes_policy_mp4_of_a_run_folder(tmp_path, dqn_on_cartpole, capsys):
-    cfg, learner, _ = dqn_on_cartpole
-    run_dir = tmp_path / "run"
-    run_dir.mkdir()
+def save_run_folder(cfg, learner, run_dir: Path) -> Path:
+    """The two files of a finished run that the video CLI reads."""
+    run_dir.mkdir(parents=True)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
     learner.save(run_dir / "model.pt", meta={})
-    video.main([str(run_dir), "--steps", "4", "--width", "64", "--height", "48"])
-    assert f"video in {run_dir / 'policy.mp4'}" in capsys.readouterr().out
-    assert read_frames(run_dir / "policy.mp4").shape == (5, 48, 64, 3)
+    return run_dir
+
+
+@pytest.fixture
+def run_folder(tmp_path, dqn_on_cartpole):
+    cfg, learner, _ = dqn_on_cartpole
+    return save_run_folder(cfg, learner, tmp_path / "run")
+
+
+def test_cli_writes_policy_mp4_of_a_run_folder(run_folder, capsys):
+    video.main([str(run_folder), "--steps", "4", "--width", "64", "--height", "48"])
+    assert f"video in {run_folder / 'policy.mp4'}" in capsys.readouterr().out
+    assert read_frames(run_folder / "policy.mp4").shape == (5, 48, 64, 3)
+
+
+@pytest.mark.parametrize("camera", ["side", "0", "-1"])
+def test_cli_camera_by_name_or_index(run_folder, camera):
+    out = run_folder / f"cam{camera}.mp4"
+    video.main([str(run_folder), "--steps", "1", "--width", "32", "--height", "24",
+                "--camera", camera, "--out", str(out)])
+    assert read_frames(out).shape == (2, 24, 32, 3)
+
+
+def test_cli_frame_larger_than_the_offscreen_buffer_is_one_line(run_folder, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        video.main([str(run_folder), "--steps", "1", "--width", "4000", "--height", "720"])
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err == ("error: frame size must be from 1x1 to 1920x1080 (the "
+                                       "model's offscreen buffer); got 4000x720\n")
+    assert not (run_folder / "policy.mp4").exists()
+
+
+@pytest.mark.parametrize("camera", ["top", "1", "-2"])
+def test_cli_with_a_camera_the_model_lacks_lists_its_cameras(run_folder, capsys, camera):
+    with pytest.raises(SystemExit) as exit_:
+        video.main([str(run_folder), "--steps", "1", "--camera", camera])
+    assert exit_.value.code == 2
+    shown = repr(int(camera)) if camera.lstrip("-").isdigit() else repr(camera)
+    assert capsys.readouterr().err == (
+        f"error: camera {shown} is not a camera of this model; its cameras: side "
+        f"(or an index in [-1, 0], -1 MuJoCo's free camera)\n")
+    assert not (run_folder / "policy.mp4").exists()
 
 
 def test_cli_on_a_folder_without_model_is_one_line(tmp_path, capsys):

@@ -1,0 +1,68 @@
+"""``pip install .`` (not editable) works on its own: the installed packages carry their
+configs and MJCF models, so Gymnasium ids make and the video CLI renders away from the
+source tree."""
+
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import imageio.v2 as imageio
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIENT = """
+    import runpy
+    import sys
+    from pathlib import Path
+
+    import gymnasium as gym
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    import learners
+    from tasks import factory
+
+    site = Path(sys.argv[1])
+    for module in (factory, learners):
+        assert Path(module.__file__).is_relative_to(site), module.__file__  # not the source tree
+    env = gym.make("tasks.gym_env:MujocoRL/CartPoleStayUp-v0")
+    env.reset(seed=0)
+    obs, reward, *_ = env.step(1)
+    print(env.spec.id, obs.shape, reward)
+    cfg = factory.compose("cartpole", learner="dqn")  # a run folder: its config and model
+    learner = instantiate(cfg.learner, _convert_="all")
+    learner.build(factory.build_task(cfg))
+    Path("run").mkdir()
+    OmegaConf.save(cfg, "run/config.yaml", resolve=True)
+    learner.save(Path("run/model.pt"), meta={})
+    sys.argv = ["learners.video", "run", "--steps", "3", "--width", "1280", "--height", "720"]
+    runpy.run_module("learners.video", run_name="__main__", alter_sys=True)  # python -m
+"""
+
+
+def test_a_plain_install_makes_gym_ids_and_full_hd_videos(tmp_path):
+    pytest.importorskip("pip")
+    src, site, work = tmp_path / "src", tmp_path / "site", tmp_path / "work"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "__pycache__", "*.egg-info", "build", "outputs", "multirun", ".pytest_cache"))
+    # No build isolation: the build uses this environment's setuptools (no download).
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation",
+                    "--no-cache-dir", "--quiet", "--target", str(site), str(src)],
+                   check=True, capture_output=True, timeout=300)
+    work.mkdir()
+    (work / "client.py").write_text(textwrap.dedent(CLIENT))
+    env = {**os.environ, "PYTHONPATH": str(site), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    proc = subprocess.run([sys.executable, "client.py", str(site)], cwd=work, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = proc.stdout.strip().splitlines()
+    assert lines[-2:] == ["MujocoRL/CartPoleStayUp-v0 (4,) 1.0", "video in run/policy.mp4"]
+    reader = imageio.get_reader(work / "run" / "policy.mp4", format="FFMPEG")
+    try:
+        frames = [frame.shape for frame in reader.iter_data()]
+    finally:
+        reader.close()
+    assert frames == [(720, 1280, 3)] * 4
