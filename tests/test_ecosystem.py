@@ -54,7 +54,7 @@ def test_missing_logger_backend_is_a_one_line_error(tmp_path, monkeypatch):
         make_logger("papyrus", tmp_path, "x")
 
 
-@pytest.mark.parametrize("launcher", ["joblib", "submitit_local"])
+@pytest.mark.parametrize("launcher", ["joblib", pytest.param("submitit_local", marks=pytest.mark.slow)])
 def test_two_job_sweep_through_a_launcher_compares_itself_and_compare_reruns(tmp_path, launcher):
     sweep = tmp_path / "sweep"
     proc = run(["train.py", "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={sweep}",

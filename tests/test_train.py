@@ -91,9 +91,10 @@ def test_unknown_robot_is_hydras_clear_message(tmp_path):
 
 
 @pytest.mark.parametrize("overrides", [
-    ["learner=qlearn", "learner.nepisodes=40", "num_envs=1"],
+    pytest.param(["learner=qlearn", "learner.nepisodes=40", "num_envs=1"], marks=pytest.mark.slow),
     ["learner=qlearn", "learner.nepisodes=40", "num_envs=6"],
-    ["learner=dqn", "learner.nepisodes=30", "num_envs=1", "learner.learning_starts=64"],
+    pytest.param(["learner=dqn", "learner.nepisodes=30", "num_envs=1", "learner.learning_starts=64"],
+                 marks=pytest.mark.slow),
     ["learner=dqn", "learner.nepisodes=30", "num_envs=4", "learner.learning_starts=64"],
 ])
 def test_same_config_and_seed_give_identical_metrics(tmp_path, overrides):
