@@ -1,9 +1,10 @@
 """Environment throughput against the raw-MuJoCo limit, side by side (run by hand).
 
-    python bench/env_throughput.py [--seconds 2] [--robots cartpole cube ...]
+    python bench/env_throughput.py [--seconds 2] [--rounds 4] [--robots cartpole cube ...]
+                                   [--sizes 1 16 64 256 1024]
 
 For each robot with its default task, in one run:
-  (b) our ``RobotTaskEnv`` at num_envs = N (1, 16, 64, 256) with uniform random
+  (b) our ``RobotTaskEnv`` at num_envs = N (1, 16, 64, 256, 1024) with uniform random
       actions, through TorchRL's ``step_and_maybe_reset`` (auto-resets included);
   (a) the physics limit: the very control steps (b) simulated, replayed from
       recorded states and controls with raw ``mujoco.mj_step`` in a Python loop
@@ -14,14 +15,27 @@ For each robot with its default task, in one run:
   (c) transitions/s of each and the ratio of (b) to the physics limit, the
       faster of (a) and (a'): a one-thread ``mj_step`` loop is no limit for an
       env that steps its copies on every core, so the ratio is not flattered.
-Torch is pinned to one thread. The last lines are machine-readable:
-``RATIO <robot>/<task> num_envs=64 <ours/limit>``.
+The three are measured in ``--rounds`` interleaved rounds (a, a', b, a, a', b, ...)
+of ``seconds / rounds`` each, every one warm (its env, pool or copies built once per
+size), and each column is the median of its rounds: on a machine shared with other
+work, a load change then hits all three alike instead of whichever ran during it.
+Rates are transitions per second. ``peak RSS MiB`` is the process's resident-set
+high-water mark while our env of that size is built and stepped (50 calls, before the
+raw baselines' copies exist), the kernel's counter reset first
+(``/proc/self/clear_refs``; where that is not possible, the process's peak so far from
+``getrusage``, marked ``*``); ``env MiB`` is how much the resident set grew with it
+(interpreter, torch and MuJoCo are in the peak, not in this). Torch is pinned to one
+thread. The last lines are
+machine-readable: ``RATIO <robot>/<task> num_envs=64 <ours/limit>``.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
+import resource
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -38,7 +52,7 @@ from mujoco import rollout  # noqa: E402
 from tasks import factory  # noqa: E402
 from robots.physics import default_threads  # noqa: E402
 
-SIZES = (1, 16, 64, 256)
+SIZES = (1, 16, 64, 256, 1024)
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
@@ -72,7 +86,8 @@ def record(cfg, n: int, steps: int = 100) -> list[tuple[np.ndarray, np.ndarray]]
     return snaps
 
 
-def raw_loop(model: mujoco.MjModel, snaps, substeps: int, seconds: float) -> float:
+def raw_loop(model: mujoco.MjModel, snaps, substeps: int):
+    """(a): one control step of the recorded states per call, ``mj_step`` in a Python loop."""
     n = snaps[0][0].shape[0]
     datas = [mujoco.MjData(model) for _ in range(n)]
     k = [0]
@@ -85,49 +100,104 @@ def raw_loop(model: mujoco.MjModel, snaps, substeps: int, seconds: float) -> flo
             d.ctrl[:] = ctrl[i]
             for _ in range(substeps):
                 mujoco.mj_step(model, d)
-    return timed(control_step, seconds) * n
+    return control_step, lambda: None
 
 
-def raw_rollout(model: mujoco.MjModel, snaps, substeps: int, seconds: float) -> float:
+def raw_rollout(model: mujoco.MjModel, snaps, substeps: int):
+    """(a'): the same through ``mujoco.rollout``'s thread pool."""
     n = snaps[0][0].shape[0]
     nthread = min(default_threads(), n)
     datas = [mujoco.MjData(model) for _ in range(nthread)]
     controls = [np.repeat(ctrl[:, None, :], substeps, axis=1) for _, ctrl in snaps]
     warmstart = np.zeros((n, model.nv))
     k = [0]
-    with rollout.Rollout(nthread=nthread if nthread > 1 else 0) as pool:
-        def control_step():
-            i = k[0] % len(snaps)
-            k[0] += 1
-            pool.rollout([model] * n, datas, snaps[i][0], controls[i], nstep=substeps,
-                         initial_warmstart=warmstart)
-        return timed(control_step, seconds) * n
+    pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+
+    def control_step():
+        i = k[0] % len(snaps)
+        k[0] += 1
+        pool.rollout([model] * n, datas, snaps[i][0], controls[i], nstep=substeps,
+                     initial_warmstart=warmstart)
+    return control_step, pool.close
 
 
-def ours(cfg, n: int, seconds: float) -> float:
+def ours(cfg, n: int):
+    """(b): our env, random actions, ``step_and_maybe_reset``."""
     env = factory.build_env(cfg, n, seed=0)
     gen = torch.Generator().manual_seed(0)
-    td = env.reset()
-    holder = {"td": td}
+    holder = {"td": env.reset()}
 
     def control_step():
         td = holder["td"]
         td["action"] = torch.randint(0, env.task.n_actions, (n,), generator=gen)
         _, holder["td"] = env.step_and_maybe_reset(td)
-    rate = timed(control_step, seconds) * n
-    env.close()
-    return rate
+    return control_step, env.close
+
+
+def _status_kib(field: str) -> int:
+    with open("/proc/self/status") as f:
+        return int(re.search(rf"{field}:\s+(\d+)", f.read()).group(1))
+
+
+def reset_peak_rss() -> bool:
+    """Resets the kernel's resident-set high-water mark of this process (Linux)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def rss_mib() -> float:
+    """The process's resident set now."""
+    try:
+        return _status_kib("VmRSS") / 1024
+    except OSError:
+        return float("nan")
+
+
+def peak_rss_mib(exact: bool) -> str:
+    """The resident-set high-water mark since ``reset_peak_rss`` (``exact``), else the
+    process's peak so far (``getrusage``, marked ``*``)."""
+    if exact:
+        return f"{_status_kib('VmHWM') / 1024:.0f}"
+    return f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}*"
+
+
+def measure(cfg, model, substeps: int, n: int, seconds: float, rounds: int):
+    """(a, a', b) in transitions per second, medians of interleaved rounds; the peak RSS
+    of the process while only our env is built and stepping (before the raw baselines
+    and the recording exist, whose ``n`` ``MjData`` copies would dominate it) and its
+    growth over the RSS before building the env."""
+    before = rss_mib()
+    exact = reset_peak_rss()
+    mine = ours(cfg, n)
+    for _ in range(50):  # steady state: resets, buffers, TorchRL's caches
+        mine[0]()
+    peak, grown = peak_rss_mib(exact), rss_mib() - before
+    snaps = record(cfg, n)
+    runners = [raw_loop(model, snaps, substeps), raw_rollout(model, snaps, substeps), mine]
+    rates = [[] for _ in runners]
+    for _ in range(rounds):
+        for (fn, _), column in zip(runners, rates):
+            column.append(timed(fn, seconds / rounds) * n)
+    for _, close in runners:
+        close()
+    return [statistics.median(column) for column in rates], peak, grown
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=2.0, help="per measurement")
-    parser.add_argument("--robots", nargs="+",
-                        default=factory.robot_names())
+    parser.add_argument("--seconds", type=float, default=2.0, help="per measurement (all rounds)")
+    parser.add_argument("--rounds", type=int, default=4, help="interleaved rounds per measurement")
+    parser.add_argument("--robots", nargs="+", default=factory.robot_names())
+    parser.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(f"torch threads: {torch.get_num_threads()}; rollout threads: {default_threads()}; "
-          f"cores: {os.cpu_count()}; {args.seconds:.1f} s per measurement")
+          f"cores: {os.cpu_count()}; {args.seconds:.1f} s per measurement in {args.rounds} "
+          f"interleaved rounds; load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     ratios = []
     for robot in args.robots:
         cfg, task_name = factory.compose(robot), factory.default_task(robot)
@@ -137,17 +207,15 @@ def main() -> None:
         print(f"\n{robot}/{task_name}: {substeps} substeps of {model.opt.timestep * 1e3:.1f} ms "
               f"per control step")
         print(f"{'num_envs':>8s} {'raw mj_step/s':>14s} {'raw rollout/s':>14s} {'ours/s':>10s} "
-              f"{'ours/mj_step':>12s} {'ours/limit':>10s}   (transitions per second)")
-        for n in SIZES:
-            snaps = record(cfg, n)
-            a = raw_loop(model, snaps, substeps, args.seconds)
-            a2 = raw_rollout(model, snaps, substeps, args.seconds)
-            b = ours(cfg, n, args.seconds)
+              f"{'ours/mj_step':>12s} {'ours/limit':>10s} {'peak RSS MiB':>12s} {'env MiB':>8s}")
+        for n in args.sizes:
+            (a, a2, b), peak, grown = measure(cfg, model, substeps, n, args.seconds, args.rounds)
             limit = max(a, a2)
-            print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {b / a:12.2f} {b / limit:10.2f}", flush=True)
+            print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {b / a:12.2f} {b / limit:10.2f} "
+                  f"{peak:>12s} {grown:8.1f}", flush=True)
             if n == 64:
                 ratios.append((robot, task_name, b / limit))
-    print()
+    print(f"\nload average at the end {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     for robot, task_name, ratio in ratios:
         print(f"RATIO {robot}/{task_name} num_envs=64 {ratio:.2f}")
 

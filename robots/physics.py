@@ -35,6 +35,7 @@ from mujoco import rollout
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _MAXVAL = float(mujoco.mjMAXVAL)  # MuJoCo's own "huge value" threshold
+_min, _max = np.minimum.reduce, np.maximum.reduce  # (array, None): over all its entries
 _log = logging.getLogger(__name__)
 
 
@@ -101,6 +102,8 @@ class BatchedPhysics:
         self.qpos = self.state[:, 1 : 1 + model.nq]
         self.qvel = self.state[:, 1 + model.nq : 1 + model.nq + model.nv]
         self._warmstart = np.zeros((num_envs, model.nv))
+        self._nsensordata = model.nsensordata
+        self._elapsed = np.empty(num_envs)
         self._out_state: np.ndarray | None = None
         self._out_sensor: np.ndarray | None = None
         self._control: np.ndarray | None = None
@@ -119,34 +122,40 @@ class BatchedPhysics:
         Copies that diverge are flagged in ``diverged`` and keep their state
         and sensor readings from before the step (see the module docstring).
         """
-        if self._out_state is None or self._out_state.shape[1] != nsubsteps:
-            shape = (self.num_envs, nsubsteps)
-            self._out_state = np.empty(shape + (self.nstate,))
-            self._out_sensor = np.empty(shape + (self.model.nsensordata,))
-            self._control = np.empty(shape + (self.model.nu,))
-        self._control[:] = self.ctrl[:, None, :]
+        out_state, out_sensor, control = self._buffers(nsubsteps)
+        control[:] = self.ctrl[:, None, :]
         # Arguments are already in rollout's final form, so its checks are skipped.
-        self._pool.rollout(self._models, self._datas, self.state, self._control, nstep=nsubsteps,
-                           initial_warmstart=self._warmstart, state=self._out_state,
-                           sensordata=self._out_sensor, skip_checks=True)
-        last = self._out_state[:, -1]
-        sensor = self._out_sensor[:, -1] if self.model.nsensordata else None
+        self._pool.rollout(self._models, self._datas, self.state, control, nstep=nsubsteps,
+                           initial_warmstart=self._warmstart, state=out_state,
+                           sensordata=out_sensor, skip_checks=True)
+        last = out_state[:, -1]
+        sensor = out_sensor[:, -1] if self._nsensordata else None
         # MuJoCo adds the timestep once per substep: a copy whose clock moved by half
         # a timestep more or less was reset or stopped by a warning. NaN fails every
-        # comparison, so the fast path below (a few reductions) only passes when
-        # every copy is fine.
-        elapsed = last[:, 0] - self.time
+        # comparison, so the fast path below (a few reductions, the ufuncs' own: no
+        # Python frames) only passes when every copy is fine.
+        elapsed = np.subtract(last[:, 0], self.time, out=self._elapsed)
         timestep = self.model.opt.timestep
         lo, hi = (nsubsteps - 0.5) * timestep, (nsubsteps + 0.5) * timestep
-        if (elapsed.min() >= lo and elapsed.max() <= hi
-                and -_MAXVAL <= last.min() and last.max() <= _MAXVAL
-                and (sensor is None or math.isfinite(sensor.min() + sensor.max()))):
+        if (_min(elapsed, None) >= lo and _max(elapsed, None) <= hi
+                and -_MAXVAL <= _min(last, None) and _max(last, None) <= _MAXVAL
+                and (sensor is None or math.isfinite(_min(sensor, None) + _max(sensor, None)))):
             self.diverged = self._none_diverged
             self.state[:] = last
             if sensor is not None:
                 self.sensordata[:] = sensor
             return
         self._keep_good((elapsed < lo) | (elapsed > hi), last, sensor)
+
+    def _buffers(self, nsubsteps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``mujoco.rollout``'s output (states, sensor readings) and control arrays for
+        ``nsubsteps``, allocated once and reused while the substep count stays."""
+        if self._out_state is None or self._out_state.shape[1] != nsubsteps:
+            shape = (self.num_envs, nsubsteps)
+            self._out_state = np.empty(shape + (self.nstate,))
+            self._out_sensor = np.empty(shape + (self._nsensordata,))
+            self._control = np.empty(shape + (self.model.nu,))
+        return self._out_state, self._out_sensor, self._control
 
     def _keep_good(self, diverged: np.ndarray, last: np.ndarray, sensor: np.ndarray | None) -> None:
         """The slow path of a step where some copy failed: ``diverged`` (the copies whose
@@ -174,7 +183,7 @@ class BatchedPhysics:
 
     def forward(self, mask: np.ndarray) -> None:
         """Recomputes sensor readings of the masked copies from their current state."""
-        if not self.model.nsensordata:
+        if not self._nsensordata:
             return
         data = self._datas[0]
         for i in np.flatnonzero(mask):

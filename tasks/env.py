@@ -23,6 +23,16 @@ counts these events since construction, and each is logged once (logger
 copy's episode last ended, taken just before a partial reset starts the next
 one (``step_and_maybe_reset`` resets ended copies in the same call, so this is
 where a trainer reads what an episode achieved).
+
+``step_and_maybe_reset`` keeps TorchRL's contract (``step``, ``step_mdp``, then a
+partial reset of the ended copies): the returned transition holds each copy's
+true next observation in ``("next", "observation")``, terminal ones included,
+and the second tensordict, the next step's input, holds the new episodes' first
+observations. It does all of it in one pass (numpy masks, the very random draws
+a partial ``_reset`` makes, in the same order) instead of ``EnvBase``'s generic
+reset machinery, whose cost did not shrink with the physics: some copy ends on
+nearly every call of a large batch. ``step`` alone never resets (this is not a
+TorchRL "auto-reset" env, whose ``next`` observations would be the reset ones).
 """
 
 from __future__ import annotations
@@ -32,7 +42,7 @@ import logging
 import mujoco
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDict, TensorDictBase, is_non_tensor, is_tensor_collection
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
@@ -40,6 +50,17 @@ from robots.physics import BatchedPhysics
 from tasks.base import Task, check_task
 
 _log = logging.getLogger(__name__)
+
+
+def _zero_rows(value, rows: torch.Tensor):
+    """``value`` (a tensor or a tensordict of them) with the ``rows`` entries zeroed,
+    out of place: what TorchRL's partial reset (``where(..., pad=0)``) leaves in the
+    reset rows of entries the reset does not produce."""
+    if isinstance(value, torch.Tensor):
+        return value.masked_fill(rows.reshape(rows.shape + (1,) * (value.ndim - 1)), 0)
+    if is_tensor_collection(value) and not is_non_tensor(value):
+        return value.apply(lambda leaf: _zero_rows(leaf, rows))
+    return value
 
 
 def compile_model(arena) -> mujoco.MjModel:
@@ -77,6 +98,8 @@ class RobotTaskEnv(EnvBase):
         self.divergences = 0  # diverged steps (ended episodes) since construction
         self.ended_info: dict[str, np.ndarray] = {}  # episode_info at each copy's last episode end
         self._rng = np.random.default_rng(seed)
+        # What step_mdp drops of the root (it takes the observation and the flags from next).
+        self._mdp_dropped = frozenset(("next", "reward", "_reset", "done", "terminated", "truncated"))
         self._renderer: mujoco.Renderer | None = None
         self._render_data: mujoco.MjData | None = None
         self.camera_names = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_CAMERA, i)
@@ -87,48 +110,129 @@ class RobotTaskEnv(EnvBase):
         self._rng = np.random.default_rng(seed)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
-        mask = np.ones(self.num_envs, dtype=bool)
+        mask, partial = np.ones(self.num_envs, dtype=bool), False
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
+            partial = True
+        obs = self._start_episodes(mask, keep_ended_info=partial)
+        false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
+        return self._tensordict(None, observation=torch.from_numpy(obs.astype(np.float32)),
+                                done=false, terminated=false.clone(), truncated=false.clone())
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return self._advance(tensordict.get("action"), device=None)[0]
+
+    def _step_and_maybe_reset(self, tensordict: TensorDictBase
+                              ) -> tuple[TensorDictBase, TensorDictBase]:
+        """``step``, ``step_mdp`` and the partial reset of the ended copies, as
+        ``EnvBase`` does them, in one pass without its generic reset machinery.
+
+        ``tensordict`` gets ``("next", ...)``, the step's true outcome (a copy that
+        ended keeps its terminal observation there), as ``step`` gives it. The second
+        tensordict is the next step's input, made as ``step_mdp`` makes it; the ended
+        copies restart in place (the very draws ``_reset`` makes, in the same order)
+        and their rows of it read the new episode's observation, done flags false and,
+        in every other entry (``action``, a policy's), zeros, as TorchRL's partial reset
+        (``_update_during_reset``) pads them. Inputs this path does not cover (a partial
+        ``_step``, a preset ``next``, lazy stacks, transforms' hooks) take ``EnvBase``'s
+        generic path, which gives the same results."""
+        if tensordict.device != self.device:
+            tensordict = tensordict.to(self.device)
+        if not self._fused_ok(tensordict):
+            return super()._step_and_maybe_reset(tensordict)
+        next_td, obs32, done = self._advance(tensordict.get("action"), device=self.device)
+        if self.run_type_checks:
+            next_td = self._step_proc_data(next_td)
+        tensordict.set("next", next_td)
+        if not done.any():
+            return tensordict, self._next_input(tensordict, next_td, None)
+        reset_obs = self._start_episodes(done, keep_ended_info=True)
+        obs = obs32.copy()
+        obs[done] = reset_obs[done]
+        false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
+        restarted = {"observation": torch.from_numpy(obs), "done": false,
+                     "terminated": false.clone(), "truncated": false.clone()}
+        return tensordict, self._next_input(tensordict, restarted, torch.from_numpy(done))
+
+    # -- the step and the restart of ended copies ---------------------------------
+    def _fused_ok(self, tensordict: TensorDictBase) -> bool:
+        """Whether ``_step_and_maybe_reset``'s one-pass path applies to ``tensordict``."""
+        if type(tensordict) is not TensorDict or self._post_step_mdp_hooks is not None:
+            return False
+        keys = tensordict.keys()
+        return ("next" not in keys and "_step" not in keys and "_reset" not in keys
+                and not self.__dict__.get("_torchrl_native_autoreset", False))
+
+    def _advance(self, action: torch.Tensor, device: torch.device | None
+                 ) -> tuple[TensorDictBase, np.ndarray, np.ndarray]:
+        """One step of every copy: the ``next`` tensordict (on ``device``), its float32
+        observation array and the copies' ``done`` (bool ``(num_envs,)``)."""
+        physics, task, n = self.physics, self.task, self.num_envs
+        task.apply_action(physics, action.reshape(n).cpu().numpy())
+        physics.step(task.n_substeps)
+        self.elapsed_steps += 1
+        obs = task.observation(physics)
+        terminated = np.array(task.terminated(physics, obs), dtype=bool)
+        diverged = physics.diverged
+        any_diverged = diverged.any()
+        if any_diverged:
+            terminated &= ~diverged
+        truncated = (self.elapsed_steps >= task.max_episode_steps) & ~terminated
+        reward = task.reward(physics, obs, terminated)
+        if any_diverged:
+            truncated |= diverged
+            reward = np.where(diverged, 0.0, reward)
+            self._report_divergences(diverged)
+        done = terminated | truncated
+        obs32 = obs.astype(np.float32)
+        next_td = self._tensordict(
+            device,
+            observation=torch.from_numpy(obs32),
+            reward=torch.from_numpy(np.asarray(reward).astype(np.float32).reshape(n, 1)),
+            done=torch.from_numpy(done.reshape(n, 1)),
+            terminated=torch.from_numpy(terminated.reshape(n, 1)),
+            truncated=torch.from_numpy(truncated.reshape(n, 1)),
+        )
+        return next_td, obs32, done
+
+    def _start_episodes(self, mask: np.ndarray, keep_ended_info: bool) -> np.ndarray:
+        """Starts new episodes in the ``mask`` copies (keeping their ``episode_info`` in
+        ``ended_info`` first if asked); returns every copy's observation."""
+        if keep_ended_info:
             self._keep_ended_info(mask)
         self.physics.reset(mask)
         self.task.initialize_episode(self.physics, mask, self._rng)
         self.physics.forward(mask)
         self.elapsed_steps[mask] = 0
-        obs = self.task.observation(self.physics)
-        false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
-        return TensorDict(
-            observation=torch.as_tensor(obs, dtype=torch.float32),
-            done=false, terminated=false.clone(), truncated=false.clone(),
-            batch_size=self.batch_size,
-        )
+        return self.task.observation(self.physics)
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action").reshape(self.num_envs).cpu().numpy()
-        self.task.apply_action(self.physics, action)
-        self.physics.step(self.task.n_substeps)
-        self.elapsed_steps += 1
-        obs = self.task.observation(self.physics)
-        terminated = np.asarray(self.task.terminated(self.physics, obs), dtype=bool)
-        diverged = self.physics.diverged
-        if diverged.any():
-            terminated = terminated & ~diverged
-        truncated = (self.elapsed_steps >= self.task.max_episode_steps) & ~terminated
-        reward = self.task.reward(self.physics, obs, terminated)
-        if diverged.any():
-            truncated |= diverged
-            reward = np.where(diverged, 0.0, reward)
-            self._report_divergences(diverged)
-        terminated_t = torch.as_tensor(terminated).unsqueeze(-1)
-        truncated_t = torch.as_tensor(truncated).unsqueeze(-1)
-        return TensorDict(
-            observation=torch.as_tensor(obs, dtype=torch.float32),
-            reward=torch.as_tensor(reward, dtype=torch.float32).unsqueeze(-1),
-            done=terminated_t | truncated_t,
-            terminated=terminated_t,
-            truncated=truncated_t,
-            batch_size=self.batch_size,
-        )
+    def _next_input(self, tensordict: TensorDictBase, carried, reset_rows: torch.Tensor | None
+                    ) -> TensorDictBase:
+        """``step_mdp(tensordict)`` for this env's keys: the root entries but ``next``,
+        the reward, the done flags and ``_reset``, with the observation and done flags
+        taken from ``carried`` (the step's ``next`` or, after a restart, new tensors);
+        entries ``carried`` does not hold get their ``reset_rows`` zeroed (out of place)."""
+        entries = {}
+        for key, value in tensordict.items():
+            if key in self._mdp_dropped:
+                continue
+            if key == "observation":
+                value = carried.get(key)
+            elif reset_rows is not None:
+                value = _zero_rows(value, reset_rows)
+            elif is_tensor_collection(value):
+                value = value.copy()
+            entries[key] = value
+        entries.setdefault("observation", carried.get("observation"))
+        for key in ("done", "terminated", "truncated"):
+            entries[key] = carried.get(key)
+        return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=tensordict.device)
+
+    def _tensordict(self, device: torch.device | None, **entries: torch.Tensor) -> TensorDictBase:
+        """A batch-sized tensordict of ``entries`` on ``device``, built without
+        TensorDict's checks (every entry is made here, on the CPU, with the batch's
+        shape). ``reset`` and ``step`` get no device, as ever (they place the result)."""
+        return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=device)
 
     def _keep_ended_info(self, mask: np.ndarray) -> None:
         """Copies the task's ``episode_info`` of the ``mask`` copies into ``ended_info``."""
