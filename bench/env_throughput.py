@@ -1,11 +1,12 @@
 """Environment throughput against the raw-MuJoCo limit, side by side (run by hand).
 
-    python bench/env_throughput.py [--seconds 2] [--rounds 4] [--robots cartpole cube ...]
+    python bench/env_throughput.py [--seconds 2] [--rounds 10] [--robots cartpole cube ...]
                                    [--sizes 1 16 64 256 1024]
 
 For each robot with its default task, in one run:
   (b) our ``RobotTaskEnv`` at num_envs = N (1, 16, 64, 256, 1024) with uniform random
-      actions, through TorchRL's ``step_and_maybe_reset`` (auto-resets included);
+      actions (drawn beforehand: the policy is not timed), through TorchRL's
+      ``step_and_maybe_reset`` (auto-resets included);
   (a) the physics limit: the very control steps (b) simulated, replayed from
       recorded states and controls with raw ``mujoco.mj_step`` in a Python loop
       over N ``MjData`` copies of the same compiled model and the task's
@@ -17,7 +18,8 @@ For each robot with its default task, in one run:
       env that steps its copies on every core, so the ratio is not flattered.
 The three are measured in ``--rounds`` interleaved rounds (a, a', b, a, a', b, ...)
 of ``seconds / rounds`` each, every one warm (its env, pool or copies built once per
-size), and each column is the median of its rounds: on a machine shared with other
+size); each rate is the median of its rounds and each ratio the median of the rounds'
+own ratios (a round's three windows run back to back): on a machine shared with other
 work, a load change then hits all three alike instead of whichever ran during it.
 Rates are transitions per second. ``peak RSS MiB`` is the process's resident-set
 high-water mark while our env of that size is built and stepped (50 calls, before the
@@ -121,15 +123,19 @@ def raw_rollout(model: mujoco.MjModel, snaps, substeps: int):
     return control_step, pool.close
 
 
-def ours(cfg, n: int):
-    """(b): our env, random actions, ``step_and_maybe_reset``."""
+def ours(cfg, n: int, steps: int = 100):
+    """(b): our env, ``step_and_maybe_reset`` with random actions drawn beforehand (the
+    ``steps`` of ``record``, cycled), as (a) and (a') replay recorded controls: the
+    policy's cost is no part of either."""
     env = factory.build_env(cfg, n, seed=0)
     gen = torch.Generator().manual_seed(0)
-    holder = {"td": env.reset()}
+    actions = [torch.randint(0, env.task.n_actions, (n,), generator=gen) for _ in range(steps)]
+    holder = {"td": env.reset(), "k": 0}
 
     def control_step():
-        td = holder["td"]
-        td["action"] = torch.randint(0, env.task.n_actions, (n,), generator=gen)
+        td, k = holder["td"], holder["k"]
+        holder["k"] = k + 1
+        td.set("action", actions[k % steps])
         _, holder["td"] = env.step_and_maybe_reset(td)
     return control_step, env.close
 
@@ -166,7 +172,7 @@ def peak_rss_mib(exact: bool) -> str:
 
 
 def measure(cfg, model, substeps: int, n: int, seconds: float, rounds: int):
-    """(a, a', b) in transitions per second, medians of interleaved rounds; the peak RSS
+    """(a, a', b) in transitions per second, one list each over interleaved rounds; the peak RSS
     of the process while only our env is built and stepping (before the raw baselines
     and the recording exist, whose ``n`` ``MjData`` copies would dominate it) and its
     growth over the RSS before building the env."""
@@ -184,13 +190,13 @@ def measure(cfg, model, substeps: int, n: int, seconds: float, rounds: int):
             column.append(timed(fn, seconds / rounds) * n)
     for _, close in runners:
         close()
-    return [statistics.median(column) for column in rates], peak, grown
+    return rates, peak, grown
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="per measurement (all rounds)")
-    parser.add_argument("--rounds", type=int, default=4, help="interleaved rounds per measurement")
+    parser.add_argument("--rounds", type=int, default=10, help="interleaved rounds per measurement")
     parser.add_argument("--robots", nargs="+", default=factory.robot_names())
     parser.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
     args = parser.parse_args()
@@ -209,12 +215,15 @@ def main() -> None:
         print(f"{'num_envs':>8s} {'raw mj_step/s':>14s} {'raw rollout/s':>14s} {'ours/s':>10s} "
               f"{'ours/mj_step':>12s} {'ours/limit':>10s} {'peak RSS MiB':>12s} {'env MiB':>8s}")
         for n in args.sizes:
-            (a, a2, b), peak, grown = measure(cfg, model, substeps, n, args.seconds, args.rounds)
-            limit = max(a, a2)
-            print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {b / a:12.2f} {b / limit:10.2f} "
+            rates, peak, grown = measure(cfg, model, substeps, n, args.seconds, args.rounds)
+            a, a2, b = (statistics.median(column) for column in rates)
+            # Ratios: medians of each round's own ratio (its three windows ran back to back).
+            vs_loop = statistics.median(y / x for x, _, y in zip(*rates))
+            vs_limit = statistics.median(y / max(x, x2) for x, x2, y in zip(*rates))
+            print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {vs_loop:12.2f} {vs_limit:10.2f} "
                   f"{peak:>12s} {grown:8.1f}", flush=True)
             if n == 64:
-                ratios.append((robot, task_name, b / limit))
+                ratios.append((robot, task_name, vs_limit))
     print(f"\nload average at the end {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     for robot, task_name, ratio in ratios:
         print(f"RATIO {robot}/{task_name} num_envs=64 {ratio:.2f}")

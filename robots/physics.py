@@ -103,6 +103,7 @@ class BatchedPhysics:
         self.qvel = self.state[:, 1 + model.nq : 1 + model.nq + model.nv]
         self._warmstart = np.zeros((num_envs, model.nv))
         self._nsensordata = model.nsensordata
+        self._opt = model.opt  # a live view of the model's options
         self._elapsed = np.empty(num_envs)
         self._out_state: np.ndarray | None = None
         self._out_sensor: np.ndarray | None = None
@@ -135,7 +136,7 @@ class BatchedPhysics:
         # comparison, so the fast path below (a few reductions, the ufuncs' own: no
         # Python frames) only passes when every copy is fine.
         elapsed = np.subtract(last[:, 0], self.time, out=self._elapsed)
-        timestep = self.model.opt.timestep
+        timestep = self._opt.timestep
         lo, hi = (nsubsteps - 0.5) * timestep, (nsubsteps + 0.5) * timestep
         if (_min(elapsed, None) >= lo and _max(elapsed, None) <= hi
                 and -_MAXVAL <= _min(last, None) and _max(last, None) <= _MAXVAL

@@ -52,12 +52,21 @@ from tasks.base import Task, check_task
 _log = logging.getLogger(__name__)
 
 
-def _zero_rows(value, rows: torch.Tensor):
-    """``value`` (a tensor or a tensordict of them) with the ``rows`` entries zeroed,
-    out of place: what TorchRL's partial reset (``where(..., pad=0)``) leaves in the
-    reset rows of entries the reset does not produce."""
+def _zero_rows(value, rows: np.ndarray):
+    """``value`` (a tensor or a tensordict of them) with the ``rows`` entries (bool
+    ``(num_envs,)``) zeroed, out of place: what TorchRL's partial reset
+    (``where(..., pad=0)``) leaves in the reset rows of entries the reset does not make."""
     if isinstance(value, torch.Tensor):
-        return value.masked_fill(rows.reshape(rows.shape + (1,) * (value.ndim - 1)), 0)
+        if type(value) is torch.Tensor and value.device.type == "cpu" and not value.requires_grad:
+            try:  # numpy's copy and masked write: no dispatcher round trips on the hot path
+                array = value.numpy().copy()
+            except TypeError:  # a dtype numpy lacks (bfloat16)
+                pass
+            else:
+                array[rows] = 0
+                return torch.from_numpy(array)
+        mask = torch.from_numpy(rows.reshape(rows.shape + (1,) * (value.ndim - 1)))
+        return value.masked_fill(mask.to(value.device), 0)
     if is_tensor_collection(value) and not is_non_tensor(value):
         return value.apply(lambda leaf: _zero_rows(leaf, rows))
     return value
@@ -115,12 +124,15 @@ class RobotTaskEnv(EnvBase):
             mask = tensordict.get("_reset").reshape(self.num_envs).cpu().numpy().astype(bool)
             partial = True
         obs = self._start_episodes(mask, keep_ended_info=partial)
-        false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
-        return self._tensordict(None, observation=torch.from_numpy(obs.astype(np.float32)),
-                                done=false, terminated=false.clone(), truncated=false.clone())
+        false = np.zeros((self.num_envs, 1), dtype=bool)
+        return self._tensordict(None, {"observation": torch.from_numpy(obs.astype(np.float32)),
+                                       "done": torch.from_numpy(false),
+                                       "terminated": torch.from_numpy(false.copy()),
+                                       "truncated": torch.from_numpy(false.copy())})
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return self._advance(tensordict.get("action"), device=None)[0]
+        action = tensordict.get("action").reshape(self.num_envs).cpu().numpy()
+        return self._advance(action, device=None)[0]
 
     def _step_and_maybe_reset(self, tensordict: TensorDictBase
                               ) -> tuple[TensorDictBase, TensorDictBase]:
@@ -134,41 +146,51 @@ class RobotTaskEnv(EnvBase):
         and their rows of it read the new episode's observation, done flags false and,
         in every other entry (``action``, a policy's), zeros, as TorchRL's partial reset
         (``_update_during_reset``) pads them. Inputs this path does not cover (a partial
-        ``_step``, a preset ``next``, lazy stacks, transforms' hooks) take ``EnvBase``'s
-        generic path, which gives the same results."""
+        ``_step``, a preset ``next``, lazy stacks, named dims, transforms' hooks) take
+        ``EnvBase``'s generic path, which gives the same results."""
         if tensordict.device != self.device:
             tensordict = tensordict.to(self.device)
-        if not self._fused_ok(tensordict):
+        action = self._one_pass_action(tensordict)
+        if action is None:
             return super()._step_and_maybe_reset(tensordict)
-        next_td, obs32, done = self._advance(tensordict.get("action"), device=self.device)
+        next_td, entries, obs32, done = self._advance(action, device=self.device)
         if self.run_type_checks:
             next_td = self._step_proc_data(next_td)
-        tensordict.set("next", next_td)
+        # Made here with the batch's shape and device: TensorDict's checks are skipped.
+        tensordict._set_str("next", next_td, validated=True, inplace=False, non_blocking=False)
         if not done.any():
-            return tensordict, self._next_input(tensordict, next_td, None)
+            return tensordict, self._next_input(tensordict, entries, None)
         reset_obs = self._start_episodes(done, keep_ended_info=True)
         obs = obs32.copy()
         obs[done] = reset_obs[done]
-        false = torch.zeros((self.num_envs, 1), dtype=torch.bool)
-        restarted = {"observation": torch.from_numpy(obs), "done": false,
-                     "terminated": false.clone(), "truncated": false.clone()}
-        return tensordict, self._next_input(tensordict, restarted, torch.from_numpy(done))
+        false = np.zeros((self.num_envs, 1), dtype=bool)
+        restarted = {"observation": torch.from_numpy(obs), "done": torch.from_numpy(false),
+                     "terminated": torch.from_numpy(false.copy()),
+                     "truncated": torch.from_numpy(false.copy())}
+        return tensordict, self._next_input(tensordict, restarted, done)
 
     # -- the step and the restart of ended copies ---------------------------------
-    def _fused_ok(self, tensordict: TensorDictBase) -> bool:
-        """Whether ``_step_and_maybe_reset``'s one-pass path applies to ``tensordict``."""
-        if type(tensordict) is not TensorDict or self._post_step_mdp_hooks is not None:
-            return False
-        keys = tensordict.keys()
-        return ("next" not in keys and "_step" not in keys and "_reset" not in keys
-                and not self.__dict__.get("_torchrl_native_autoreset", False))
+    def _one_pass_action(self, tensordict: TensorDictBase) -> np.ndarray | None:
+        """The actions as a numpy array if ``_step_and_maybe_reset``'s one-pass path
+        applies to ``tensordict`` (on this env's device), else None."""
+        if (type(tensordict) is not TensorDict or self._post_step_mdp_hooks is not None
+                or self.__dict__.get("_torchrl_native_autoreset", False)
+                or tensordict._has_names()):
+            return None
+        get = tensordict._get_str
+        action = get("action", None)
+        if (action is None or get("next", None) is not None or get("_step", None) is not None
+                or get("_reset", None) is not None):
+            return None
+        return action.numpy().reshape(self.num_envs)
 
-    def _advance(self, action: torch.Tensor, device: torch.device | None
-                 ) -> tuple[TensorDictBase, np.ndarray, np.ndarray]:
-        """One step of every copy: the ``next`` tensordict (on ``device``), its float32
-        observation array and the copies' ``done`` (bool ``(num_envs,)``)."""
+    def _advance(self, action: np.ndarray, device: torch.device | None
+                 ) -> tuple[TensorDictBase, dict, np.ndarray, np.ndarray]:
+        """One step of every copy: the ``next`` tensordict (on ``device``) and its
+        entries, its float32 observation array and the copies' ``done`` (bool
+        ``(num_envs,)``). Every array and tensor is new (callers stack the steps')."""
         physics, task, n = self.physics, self.task, self.num_envs
-        task.apply_action(physics, action.reshape(n).cpu().numpy())
+        task.apply_action(physics, action)
         physics.step(task.n_substeps)
         self.elapsed_steps += 1
         obs = task.observation(physics)
@@ -177,7 +199,8 @@ class RobotTaskEnv(EnvBase):
         any_diverged = diverged.any()
         if any_diverged:
             terminated &= ~diverged
-        truncated = (self.elapsed_steps >= task.max_episode_steps) & ~terminated
+        truncated = self.elapsed_steps >= task.max_episode_steps
+        truncated &= ~terminated
         reward = task.reward(physics, obs, terminated)
         if any_diverged:
             truncated |= diverged
@@ -185,15 +208,12 @@ class RobotTaskEnv(EnvBase):
             self._report_divergences(diverged)
         done = terminated | truncated
         obs32 = obs.astype(np.float32)
-        next_td = self._tensordict(
-            device,
-            observation=torch.from_numpy(obs32),
-            reward=torch.from_numpy(np.asarray(reward).astype(np.float32).reshape(n, 1)),
-            done=torch.from_numpy(done.reshape(n, 1)),
-            terminated=torch.from_numpy(terminated.reshape(n, 1)),
-            truncated=torch.from_numpy(truncated.reshape(n, 1)),
-        )
-        return next_td, obs32, done
+        entries = {"observation": torch.from_numpy(obs32),
+                   "reward": torch.from_numpy(np.array(reward, dtype=np.float32).reshape(n, 1)),
+                   "done": torch.from_numpy(done.reshape(n, 1)),
+                   "terminated": torch.from_numpy(terminated.reshape(n, 1)),
+                   "truncated": torch.from_numpy(truncated.reshape(n, 1))}
+        return self._tensordict(device, entries), entries, obs32, done
 
     def _start_episodes(self, mask: np.ndarray, keep_ended_info: bool) -> np.ndarray:
         """Starts new episodes in the ``mask`` copies (keeping their ``episode_info`` in
@@ -206,8 +226,8 @@ class RobotTaskEnv(EnvBase):
         self.elapsed_steps[mask] = 0
         return self.task.observation(self.physics)
 
-    def _next_input(self, tensordict: TensorDictBase, carried, reset_rows: torch.Tensor | None
-                    ) -> TensorDictBase:
+    def _next_input(self, tensordict: TensorDictBase, carried: dict,
+                    reset_rows: np.ndarray | None) -> TensorDictBase:
         """``step_mdp(tensordict)`` for this env's keys: the root entries but ``next``,
         the reward, the done flags and ``_reset``, with the observation and done flags
         taken from ``carried`` (the step's ``next`` or, after a restart, new tensors);
@@ -217,18 +237,19 @@ class RobotTaskEnv(EnvBase):
             if key in self._mdp_dropped:
                 continue
             if key == "observation":
-                value = carried.get(key)
+                value = carried[key]
             elif reset_rows is not None:
                 value = _zero_rows(value, reset_rows)
-            elif is_tensor_collection(value):
+            elif not isinstance(value, torch.Tensor) and is_tensor_collection(value):
                 value = value.copy()
             entries[key] = value
-        entries.setdefault("observation", carried.get("observation"))
+        if "observation" not in entries:
+            entries["observation"] = carried["observation"]
         for key in ("done", "terminated", "truncated"):
-            entries[key] = carried.get(key)
-        return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=tensordict.device)
+            entries[key] = carried[key]
+        return self._tensordict(tensordict.device, entries)
 
-    def _tensordict(self, device: torch.device | None, **entries: torch.Tensor) -> TensorDictBase:
+    def _tensordict(self, device: torch.device | None, entries: dict) -> TensorDictBase:
         """A batch-sized tensordict of ``entries`` on ``device``, built without
         TensorDict's checks (every entry is made here, on the CPU, with the batch's
         shape). ``reset`` and ``step`` get no device, as ever (they place the result)."""
