@@ -145,7 +145,8 @@ class RobotTaskEnv(EnvBase):
         copies restart in place (the very draws ``_reset`` makes, in the same order)
         and their rows of it read the new episode's observation, done flags false and,
         in every other entry (``action``, a policy's), zeros, as TorchRL's partial reset
-        (``_update_during_reset``) pads them. Inputs this path does not cover (a partial
+        (``_update_during_reset``) pads them (unless every copy restarts: then, as
+        there, those entries stay as they were). Inputs this path does not cover (a partial
         ``_step``, a preset ``next``, lazy stacks, named dims, transforms' hooks) take
         ``EnvBase``'s generic path, which gives the same results."""
         if tensordict.device != self.device:
@@ -167,7 +168,9 @@ class RobotTaskEnv(EnvBase):
         restarted = {"observation": torch.from_numpy(obs), "done": torch.from_numpy(false),
                      "terminated": torch.from_numpy(false.copy()),
                      "truncated": torch.from_numpy(false.copy())}
-        return tensordict, self._next_input(tensordict, restarted, done)
+        # TorchRL pads the other entries' reset rows with zeros only in a partial reset;
+        # when every copy restarts, it leaves them as they are.
+        return tensordict, self._next_input(tensordict, restarted, None if done.all() else done)
 
     # -- the step and the restart of ended copies ---------------------------------
     def _one_pass_action(self, tensordict: TensorDictBase) -> np.ndarray | None:
