@@ -21,13 +21,12 @@ of ``seconds / rounds`` each, every one warm (its env, pool or copies built once
 size); each rate is the median of its rounds and each ratio the median of the rounds'
 own ratios (a round's three windows run back to back): on a machine shared with other
 work, a load change then hits all three alike instead of whichever ran during it.
-Rates are transitions per second. ``peak RSS MiB`` is the process's resident-set
-high-water mark while our env of that size is built and stepped (50 calls, before the
-raw baselines' copies exist), the kernel's counter reset first
-(``/proc/self/clear_refs``; where that is not possible, the process's peak so far from
-``getrusage``, marked ``*``); ``env MiB`` is how much the resident set grew with it
-(interpreter, torch and MuJoCo are in the peak, not in this). Torch is pinned to one
-thread. The last lines are
+Rates are transitions per second. Memory, per size, in a fresh process that only
+builds our env and steps it 50 times: ``peak RSS MiB``, its resident-set high-water
+mark (interpreter, torch and MuJoCo included), and ``env MiB``, how far that peak is
+above the resident set just before the env was built (Linux: ``/proc/self/status``,
+the mark reset through ``/proc/self/clear_refs``; elsewhere the process's peak from
+``getrusage`` and no growth). Torch is pinned to one thread. The last lines are
 machine-readable: ``RATIO <robot>/<task> num_envs=64 <ours/limit>``.
 """
 
@@ -38,6 +37,7 @@ import os
 import re
 import resource
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -140,57 +140,54 @@ def ours(cfg, n: int, steps: int = 100):
     return control_step, env.close
 
 
-def _status_kib(field: str) -> int:
+def _status_mib(field: str) -> float:
     with open("/proc/self/status") as f:
-        return int(re.search(rf"{field}:\s+(\d+)", f.read()).group(1))
+        return int(re.search(rf"{field}:\s+(\d+)", f.read()).group(1)) / 1024
 
 
-def reset_peak_rss() -> bool:
-    """Resets the kernel's resident-set high-water mark of this process (Linux)."""
+def memory_probe(robot: str, n: int) -> None:
+    """In a fresh process (``--memory-of``): builds our env of ``n`` copies, steps it 50
+    times (restarts, buffers, TorchRL's caches) and prints its peak resident set and the
+    resident set just before building it (imports done), in MiB."""
+    cfg = factory.compose(robot)
     try:
-        with open("/proc/self/clear_refs", "w") as f:
+        base = _status_mib("VmRSS")
+        with open("/proc/self/clear_refs", "w") as f:  # the high-water mark := now (Linux)
             f.write("5")
-        return True
-    except OSError:
-        return False
-
-
-def rss_mib() -> float:
-    """The process's resident set now."""
+    except OSError:  # the peak since the process started instead
+        base = float("nan")
+    control_step, close = ours(cfg, n)
+    for _ in range(50):
+        control_step()
     try:
-        return _status_kib("VmRSS") / 1024
+        peak = _status_mib("VmHWM")
     except OSError:
-        return float("nan")
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    close()
+    print(f"{peak:.1f} {base:.1f}")
 
 
-def peak_rss_mib(exact: bool) -> str:
-    """The resident-set high-water mark since ``reset_peak_rss`` (``exact``), else the
-    process's peak so far (``getrusage``, marked ``*``)."""
-    if exact:
-        return f"{_status_kib('VmHWM') / 1024:.0f}"
-    return f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}*"
+def env_memory(robot: str, n: int) -> tuple[float, float]:
+    """(peak RSS, its growth over the RSS before the env was built) of ``memory_probe``,
+    in MiB: a fresh process each, as freed memory stays with a process and would make a
+    later size's reading the earlier ones'."""
+    out = subprocess.run([sys.executable, __file__, "--memory-of", robot, str(n)],
+                         capture_output=True, text=True, check=True)
+    peak, base = map(float, out.stdout.split()[-2:])
+    return peak, peak - base
 
 
 def measure(cfg, model, substeps: int, n: int, seconds: float, rounds: int):
-    """(a, a', b) in transitions per second, one list each over interleaved rounds; the peak RSS
-    of the process while only our env is built and stepping (before the raw baselines
-    and the recording exist, whose ``n`` ``MjData`` copies would dominate it) and its
-    growth over the RSS before building the env."""
-    before = rss_mib()
-    exact = reset_peak_rss()
-    mine = ours(cfg, n)
-    for _ in range(50):  # steady state: resets, buffers, TorchRL's caches
-        mine[0]()
-    peak, grown = peak_rss_mib(exact), rss_mib() - before
+    """(a, a', b) in transitions per second, one list each over interleaved rounds."""
     snaps = record(cfg, n)
-    runners = [raw_loop(model, snaps, substeps), raw_rollout(model, snaps, substeps), mine]
+    runners = [raw_loop(model, snaps, substeps), raw_rollout(model, snaps, substeps), ours(cfg, n)]
     rates = [[] for _ in runners]
     for _ in range(rounds):
         for (fn, _), column in zip(runners, rates):
             column.append(timed(fn, seconds / rounds) * n)
     for _, close in runners:
         close()
-    return rates, peak, grown
+    return rates
 
 
 def main() -> None:
@@ -199,8 +196,13 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=10, help="interleaved rounds per measurement")
     parser.add_argument("--robots", nargs="+", default=factory.robot_names())
     parser.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
+    parser.add_argument("--memory-of", nargs=2, metavar=("ROBOT", "NUM_ENVS"),
+                        help=argparse.SUPPRESS)  # the child of env_memory
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.memory_of:
+        memory_probe(args.memory_of[0], int(args.memory_of[1]))
+        return
     print(f"torch threads: {torch.get_num_threads()}; rollout threads: {default_threads()}; "
           f"cores: {os.cpu_count()}; {args.seconds:.1f} s per measurement in {args.rounds} "
           f"interleaved rounds; load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
@@ -215,13 +217,14 @@ def main() -> None:
         print(f"{'num_envs':>8s} {'raw mj_step/s':>14s} {'raw rollout/s':>14s} {'ours/s':>10s} "
               f"{'ours/mj_step':>12s} {'ours/limit':>10s} {'peak RSS MiB':>12s} {'env MiB':>8s}")
         for n in args.sizes:
-            rates, peak, grown = measure(cfg, model, substeps, n, args.seconds, args.rounds)
+            rates = measure(cfg, model, substeps, n, args.seconds, args.rounds)
+            peak, grown = env_memory(robot, n)
             a, a2, b = (statistics.median(column) for column in rates)
             # Ratios: medians of each round's own ratio (its three windows ran back to back).
             vs_loop = statistics.median(y / x for x, _, y in zip(*rates))
             vs_limit = statistics.median(y / max(x, x2) for x, x2, y in zip(*rates))
             print(f"{n:8d} {a:14.0f} {a2:14.0f} {b:10.0f} {vs_loop:12.2f} {vs_limit:10.2f} "
-                  f"{peak:>12s} {grown:8.1f}", flush=True)
+                  f"{peak:12.0f} {grown:8.1f}", flush=True)
             if n == 64:
                 ratios.append((robot, task_name, vs_limit))
     print(f"\nload average at the end {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

@@ -146,3 +146,23 @@ def test_outputs_are_fresh_tensors_every_call(make_cartpole_env):
             td["observation"].add_(1.0)
             assert torch.equal(out["next", "observation"], terminal)
     assert restarted >= 2
+
+
+def test_step_alone_never_resets(make_cartpole_env):
+    """Only ``step_and_maybe_reset`` restarts copies: ``step`` leaves an ended episode
+    as it ended (this is no TorchRL auto-reset env), as ``tasks.gym_env`` and the
+    evaluation rely on."""
+    env = make_cartpole_env(2, seed=0)
+    td = env.reset()
+    for k in range(200):
+        td["action"] = torch.ones(2, dtype=torch.int64)
+        nxt = env.step(td)["next"]
+        if nxt["done"].any():
+            break
+        td = nxt
+    assert nxt["done"].any()
+    ended = nxt["done"].reshape(2).numpy()
+    assert (env.elapsed_steps[ended] == k + 1).all()
+    # The physics still holds the terminal state the observation reports.
+    now = torch.from_numpy(env.task.observation(env.physics).astype(np.float32))
+    assert torch.equal(nxt["observation"], now)
