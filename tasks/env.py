@@ -147,8 +147,8 @@ class RobotTaskEnv(EnvBase):
         in every other entry (``action``, a policy's), zeros, as TorchRL's partial reset
         (``_update_during_reset``) pads them (unless every copy restarts: then, as
         there, those entries stay as they were). Inputs this path does not cover (a partial
-        ``_step``, a preset ``next``, lazy stacks, named dims, transforms' hooks) take
-        ``EnvBase``'s generic path, which gives the same results."""
+        ``_step``, a preset ``next``, lazy stacks, named dims, another batch size,
+        transforms' hooks) take ``EnvBase``'s generic path, which gives the same results."""
         if tensordict.device != self.device:
             tensordict = tensordict.to(self.device)
         action = self._one_pass_action(tensordict)
@@ -176,10 +176,10 @@ class RobotTaskEnv(EnvBase):
     def _one_pass_action(self, tensordict: TensorDictBase) -> np.ndarray | None:
         """The actions as a numpy array if ``_step_and_maybe_reset``'s one-pass path
         applies to ``tensordict`` (on this env's device), else None."""
-        if (type(tensordict) is not TensorDict or self._post_step_mdp_hooks is not None
-                or self.__dict__.get("_torchrl_native_autoreset", False)
-                or tensordict._has_names()):
-            return None
+        if (type(tensordict) is not TensorDict or tensordict.batch_size != self.batch_size
+                or self._post_step_mdp_hooks is not None or tensordict._has_names()
+                or self.__dict__.get("_torchrl_native_autoreset", False)):
+            return None  # EnvBase's path handles it (or raises, as for a wrong batch size)
         get = tensordict._get_str
         action = get("action", None)
         if (action is None or get("next", None) is not None or get("_step", None) is not None
