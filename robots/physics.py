@@ -180,7 +180,8 @@ class BatchedPhysics:
         """Puts the copies where ``mask`` is true back to the model's initial state."""
         self.state[mask] = self._initial
         self.ctrl[mask] = 0.0
-        self.sensordata[mask] = self._initial_sensordata
+        if self._nsensordata:
+            self.sensordata[mask] = self._initial_sensordata
 
     def forward(self, mask: np.ndarray) -> None:
         """Recomputes sensor readings of the masked copies from their current state."""

@@ -57,10 +57,10 @@ def _zero_rows(value, rows: np.ndarray):
     ``(num_envs,)``) zeroed, out of place: what TorchRL's partial reset
     (``where(..., pad=0)``) leaves in the reset rows of entries the reset does not make."""
     if isinstance(value, torch.Tensor):
-        if type(value) is torch.Tensor and value.device.type == "cpu" and not value.requires_grad:
+        if type(value) is torch.Tensor:
             try:  # numpy's copy and masked write: no dispatcher round trips on the hot path
                 array = value.numpy().copy()
-            except TypeError:  # a dtype numpy lacks (bfloat16)
+            except (TypeError, RuntimeError):  # not on the CPU, needs grad, a dtype numpy lacks
                 pass
             else:
                 array[rows] = 0
@@ -163,11 +163,11 @@ class RobotTaskEnv(EnvBase):
             return tensordict, self._next_input(tensordict, entries, None)
         reset_obs = self._start_episodes(done, keep_ended_info=True)
         obs = obs32.copy()
-        obs[done] = reset_obs[done]
-        false = np.zeros((self.num_envs, 1), dtype=bool)
-        restarted = {"observation": torch.from_numpy(obs), "done": torch.from_numpy(false),
-                     "terminated": torch.from_numpy(false.copy()),
-                     "truncated": torch.from_numpy(false.copy())}
+        np.copyto(obs, reset_obs, where=done[:, None])  # float64 -> float32 as astype rounds
+        false = np.zeros((3, self.num_envs, 1), dtype=bool)  # three flags, apart
+        restarted = {"observation": torch.from_numpy(obs), "done": torch.from_numpy(false[0]),
+                     "terminated": torch.from_numpy(false[1]),
+                     "truncated": torch.from_numpy(false[2])}
         # TorchRL pads the other entries' reset rows with zeros only in a partial reset;
         # when every copy restarts, it leaves them as they are.
         return tensordict, self._next_input(tensordict, restarted, None if done.all() else done)
