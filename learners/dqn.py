@@ -11,7 +11,7 @@ estimator computes (``tests/test_dqn.py`` checks it). Updates are most of a DQN 
 wall-clock, and on a 4x64x64x2 network nearly all of an update is per-call overhead,
 so the hot path avoids it: minibatches are plain tensors indexed from the buffer's
 storage (no TensorDict), the network runs layer by layer (:func:`layer_by_layer`),
-gradients are clipped in two foreach calls, Adam steps with foreach. The exploring policy is
+gradients are clipped in two foreach calls and Adam is fused. The exploring policy is
 one forward on the observation tensor. ``bench/update_rate.py`` times the parts.
 
 When it trains (``train_every``):
@@ -345,9 +345,9 @@ class DQN:
         self._q, self._target_q = layer_by_layer(self.net), layer_by_layer(self.target_net)
         self._params = list(self.net.parameters())
         self._target_params = list(self.target_net.parameters())
-        # fused: one kernel for every parameter (torch's default on CPU loops over them in
-        # Python, ~4x the time); it rounds differently in the last bit.
-        self.optimizer = torch.optim.Adam(self._params, lr=self.lr, foreach=True)
+        # fused: one kernel for every parameter (torch's default on CPU loops over them,
+        # ~3x the time); it rounds differently from the loop in the last bit.
+        self.optimizer = torch.optim.Adam(self._params, lr=self.lr, fused=True)
         decay = self.lr_decay
         # Keras' legacy Adam ``decay``: lr_k = lr / (1 + decay * k) after k updates.
         self.lr_schedule = torch.optim.lr_scheduler.LambdaLR(
@@ -495,13 +495,20 @@ class DQN:
         self._check_arch(state["arch"], "the training checkpoint")
         self.net.load_state_dict(state["net"])
         self.target_net.load_state_dict(state["target_net"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        self._load_optimizer(state["optimizer"])
         self.lr_schedule.load_state_dict(state["lr_schedule"])
         self.schedule.load_state_dict(state["schedule"])
         self.optimizer_steps = int(state["optimizer_steps"])
         self._credit = float(state["credit"])
         self.buffer.load_state_dict(state["buffer"])
         self._sync_epsilon()
+
+    def _load_optimizer(self, state: dict) -> None:
+        """Adam's state from a checkpoint, staying fused (a saved param group's flags would
+        replace ours, and models saved before this change were not fused)."""
+        self.optimizer.load_state_dict(state)
+        for group in self.optimizer.param_groups:
+            group.update(fused=True, foreach=None)
 
     def _check_arch(self, arch: dict, path) -> None:
         if arch != self._arch():
@@ -521,7 +528,7 @@ class DQN:
         ckpt = load_checkpoint(path, kind="dqn")
         self._check_arch(ckpt["arch"], path)
         self.actor.load_state_dict(ckpt["actor"])
-        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self._load_optimizer(ckpt["optimizer"])
         self.schedule.load_state_dict(ckpt["schedule"])
         self.optimizer_steps = int(ckpt["optimizer_steps"])
         if self.target_net is not self.net:
