@@ -292,6 +292,8 @@ class DQN:
     nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1, le=10**7)
     run_episodes: int = param(0, "greedy episodes after training (ruippeixotog's run phase)", ge=0,
                               le=4096)
+    device: str = param("cpu", "where the networks, updates and replay buffer live",
+                        choices=("cpu", "cuda"))
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -310,6 +312,9 @@ class DQN:
         require(all(hasattr(self.epsilon, k) for k in ("value", "step", "episode_end")),
                 "learner.epsilon must be a schedule node (_target_: learners.schedules."
                 "LinearEpsilon, MultiplicativeEpsilon or LogEpisodeEpsilon)", self.epsilon)
+        require(self.device == "cpu" or torch.cuda.is_available(),
+                "learner.device=cuda needs a GPU that torch can use; this torch sees none",
+                self.device)
         self.schedule = self.epsilon
         self.hidden = [int(h) for h in self.hidden]
         self.loss_function = LOSSES[self.loss]
@@ -331,13 +336,13 @@ class DQN:
 
         self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
         self.net = MLP(in_features=self.n_obs, out_features=self.n_actions, num_cells=self.hidden,
-                       activation_class=ACTIVATIONS[self.activation])
+                       activation_class=ACTIVATIONS[self.activation]).to(self.device)
         # The greedy actor TorchRL's way, for checkpoints and callers wanting action values;
         # training and evaluation act through the lean QPolicy on the same network.
         self.actor = QValueActor(self.net, in_keys=["observation"],
                                  spec=Categorical(self.n_actions, dtype=torch.int64))
-        self.explorer = QPolicy(self.net, self.n_actions, explore=True)
-        self.greedy_policy = QPolicy(self.net, self.n_actions, explore=False)
+        self.explorer = QPolicy(self.net, self.n_actions, explore=True, device=self.device)
+        self.greedy_policy = QPolicy(self.net, self.n_actions, explore=False, device=self.device)
         # Without a target network the online network values the next state itself.
         self.target_net = self.net
         if self.target_update or self.tau:
@@ -352,7 +357,8 @@ class DQN:
         # Keras' legacy Adam ``decay``: lr_k = lr / (1 + decay * k) after k updates.
         self.lr_schedule = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, lambda k: 1.0 / (1.0 + decay * k))
-        self.buffer = RowReplayBuffer(self.buffer_size, 2 * self.n_obs + 3, self.batch_size)
+        self.buffer = RowReplayBuffer(self.buffer_size, 2 * self.n_obs + 3, self.batch_size,
+                                      self.device)
         self._sync_epsilon()
         return self.actor
 
@@ -381,7 +387,7 @@ class DQN:
         if self.done_episode_reward is not None:
             batch = batch._replace(reward=torch.where(
                 batch.terminated, float(self.done_episode_reward), batch.reward))
-        self.buffer.extend(pack(batch))
+        self.buffer.extend(pack(batch).to(self.device))
 
     def optimize(self, n: int) -> None:
         """``n`` gradient steps on minibatches from the replay buffer."""

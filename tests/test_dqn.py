@@ -207,3 +207,21 @@ def test_training_state_roundtrip_and_old_format_refused():
     old = {k: v for k, v in state.items() if k != "format"}  # saved before format 2
     with pytest.raises(CheckpointError, match="format 1"):
         b.load_training_state(old)
+
+
+def test_device_cuda_without_a_gpu_is_a_one_line_error():
+    from params import ConfigError
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    with pytest.raises(ConfigError, match="learner.device=cuda needs a GPU"):
+        DQN(epsilon=LinearEpsilon(), device="cuda")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+def test_device_cuda_keeps_networks_and_buffer_on_the_gpu():
+    learner = variant("dqn", device="cuda", batch_size=16)
+    learner.build(StayUp(CartPole()))
+    seen = fill_buffer(learner, RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0), steps=10)
+    learner.optimize(3)
+    assert learner.buffer.rows.is_cuda and all(p.is_cuda for p in learner.net.parameters())
+    assert seen["action"].device.type == "cpu" and learner.train_stats()["updates"] == 3
