@@ -1,15 +1,18 @@
 """The replay-buffer DQN family as one TorchRL learner; variants are configs.
 
-Parts: an ``MLP`` Q-network in a ``QValueActor``, TorchRL's ``EGreedyModule``
-whose epsilon follows one of :mod:`learners.schedules`, a TD(0) loss (MSE or
-Huber, optional double DQN) against an optional target network kept by hard
-copies or Polyak averaging, and a ``ReplayBuffer`` over ``LazyTensorStorage``.
+Parts: an ``MLP`` Q-network (in a ``QValueActor`` for checkpoints), an epsilon-greedy
+:class:`QPolicy` whose epsilon follows one of :mod:`learners.schedules`, a TD(0) loss
+(MSE or Huber, optional double DQN) against an optional target network kept by hard
+copies or Polyak averaging, and TorchRL's ``ReplayBuffer`` over one pre-allocated
+tensor (:class:`RowReplayBuffer`).
 
 The loss is :func:`td_loss`, the same number TorchRL's ``DQNLoss`` with a TD(0)
-estimator computes (``tests/test_dqn.py`` checks it), written on plain tensors:
-on cart-pole a ``DQNLoss`` + ``SoftUpdate`` update costs ~2.5 ms (mostly
-tensordict bookkeeping around a 4x64x64x2 network), this one ~0.7 ms, and
-updates are most of a DQN run's wall-clock.
+estimator computes (``tests/test_dqn.py`` checks it). Updates are most of a DQN run's
+wall-clock, and on a 4x64x64x2 network nearly all of an update is per-call overhead,
+so the hot path avoids it: minibatches are plain tensors indexed from the buffer's
+storage (no TensorDict), the network runs layer by layer (:func:`layer_by_layer`),
+gradients are clipped in two foreach calls and Adam is fused. The exploring policy is
+one forward on the observation tensor. ``bench/update_rate.py`` times the parts.
 
 When it trains (``train_every``):
 
@@ -35,14 +38,14 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator, NamedTuple
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictSequential
+from tensordict.nn import TensorDictModuleBase
 from torch import nn
-from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-from torchrl.modules import MLP, EGreedyModule, QValueActor
+from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
+from torchrl.modules import MLP, QValueActor
 
 from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from learners.run import Run
@@ -52,17 +55,67 @@ from params.declare import REQUIRED, check_fields, param
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
 LOSSES = {"l2": "l2", "mse": "l2", "huber": "smooth_l1", "smooth_l1": "smooth_l1"}
 _DISTANCES = {"l2": nn.functional.mse_loss, "smooth_l1": nn.functional.smooth_l1_loss}
-_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"),
-         ("next", "done"), ("next", "terminated"))
+# The training state's layout. 2: the replay buffer holds one float row per transition
+# (``pack``) and there is no ``last_loss``; 1 (unmarked): a TensorDict storage.
+FORMAT = 2
 
 
-def td_loss(net: nn.Module, target_net: nn.Module, batch: TensorDictBase, gamma: float,
+class Transitions(NamedTuple):
+    """Transitions as plain tensors: ``observation`` and ``next_observation`` ``[n, n_obs]``,
+    ``action`` ``[n, 1]`` (int64), ``reward`` ``[n, 1]``, ``terminated`` ``[n, 1]`` (bool)."""
+
+    observation: torch.Tensor
+    action: torch.Tensor
+    reward: torch.Tensor
+    next_observation: torch.Tensor
+    terminated: torch.Tensor
+
+    @classmethod
+    def of(cls, td: TensorDictBase) -> Transitions:
+        """The transitions of a TorchRL tensordict (``observation``, ``action``, ``next``)."""
+        n, nxt = td.numel(), td.get("next")
+        return cls(td.get("observation").reshape(n, -1), td.get("action").reshape(n, 1),
+                   nxt.get("reward").reshape(n, 1), nxt.get("observation").reshape(n, -1),
+                   nxt.get("terminated").reshape(n, 1))
+
+
+def pack(batch: Transitions) -> torch.Tensor:
+    """One float row per transition: observation, next observation, action, reward, terminated."""
+    dtype = batch.observation.dtype
+    return torch.cat((batch.observation, batch.next_observation, batch.action.to(dtype),
+                      batch.reward.to(dtype), batch.terminated.to(dtype)), dim=1)
+
+
+def unpack(rows: torch.Tensor) -> Transitions:
+    """The :class:`Transitions` of rows made by :func:`pack` (views, but action and terminated)."""
+    n = (rows.shape[1] - 3) // 2
+    return Transitions(rows[:, :n], rows[:, 2 * n:2 * n + 1].long(), rows[:, 2 * n + 1:2 * n + 2],
+                       rows[:, n:2 * n], rows[:, 2 * n + 2:] != 0)
+
+
+QFunction = Callable[[torch.Tensor], torch.Tensor]  # observations -> Q-values
+
+
+def layer_by_layer(net: nn.Sequential) -> QFunction:
+    """``net``'s forward calling each layer's ``forward`` directly: the same arithmetic
+    without ``nn.Module.__call__``'s hook machinery around each layer (~3 us a layer, and an
+    update runs three forwards of five layers)."""
+    layers = [layer.forward for layer in net]
+
+    def forward(x: torch.Tensor) -> torch.Tensor:
+        for layer in layers:
+            x = layer(x)
+        return x
+    return forward
+
+
+def td_loss(net: QFunction, target_net: QFunction, batch: Transitions, gamma: float,
             double_dqn: bool, loss_function: str) -> torch.Tensor:
     """Mean TD(0) error of ``net`` on ``batch``; ``target_net`` values the next state."""
     return _DISTANCES[loss_function](*td_terms(net, target_net, batch, gamma, double_dqn))
 
 
-def td_terms(net: nn.Module, target_net: nn.Module, batch: TensorDictBase, gamma: float,
+def td_terms(net: QFunction, target_net: QFunction, batch: Transitions, gamma: float,
              double_dqn: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """``(q, target)``, each ``[batch, 1]``: ``net``'s value of the taken actions and their
     TD(0) targets (no gradient), where ``target_net`` values the next state.
@@ -70,18 +123,76 @@ def td_terms(net: nn.Module, target_net: nn.Module, batch: TensorDictBase, gamma
     ``double_dqn``: the next action is ``net``'s argmax, valued by ``target_net``.
     Terminated transitions do not bootstrap; truncated ones do.
     """
-    action = batch.get("action").reshape(-1, 1)
-    q = net(batch.get("observation")).gather(-1, action)
+    q = net(batch.observation).gather(-1, batch.action)
     with torch.no_grad():
-        next_obs = batch.get(("next", "observation"))
-        next_q = target_net(next_obs)
+        next_q = target_net(batch.next_observation)
         if double_dqn:
-            next_value = next_q.gather(-1, net(next_obs).argmax(-1, keepdim=True))
+            next_value = next_q.gather(-1, net(batch.next_observation).argmax(-1, keepdim=True))
         else:
             next_value = next_q.amax(-1, keepdim=True)
-        alive = (~batch.get(("next", "terminated"))).reshape(-1, 1)
-        target = batch.get(("next", "reward")).reshape(-1, 1) + gamma * next_value * alive
+        target = batch.reward + gamma * next_value * ~batch.terminated
     return q, target
+
+
+class RowReplayBuffer(ReplayBuffer):
+    """TorchRL's ``ReplayBuffer`` over a ``TensorStorage`` of one pre-allocated float tensor,
+    ``rows``, a row per transition (:func:`pack`).
+
+    ``extend``, ``sample``, indexing and ``state_dict`` are TorchRL's. The update's
+    :meth:`sample_transitions` draws the indices itself, the very draw of TorchRL's
+    ``RandomSampler`` (``torch.randint`` on torch's global generator), and indexes ``rows``:
+    ~10 us for 128 rows, where ``sample()`` takes ~50 us and the TensorDict storage this
+    replaced ~1 ms.
+    """
+
+    def __init__(self, capacity: int, width: int, batch_size: int,
+                 device: torch.device | str = "cpu") -> None:
+        rows = torch.zeros(capacity, width, device=device)
+        super().__init__(storage=TensorStorage(rows, device=device), sampler=RandomSampler(),
+                         batch_size=batch_size)
+        self.empty()  # a TensorStorage made from a tensor counts it full
+        self.rows = rows
+
+    def sample_transitions(self, stored: int) -> Transitions:
+        """A minibatch drawn uniformly from the first ``stored`` rows (``len(self)``)."""
+        index = torch.randint(0, stored, (self.batch_size,))
+        return unpack(self.rows.index_select(0, index.to(self.rows.device)))
+
+    def transitions(self) -> Transitions:
+        """Every stored transition, in storage order."""
+        return unpack(self.rows[: len(self)])
+
+
+class QPolicy(TensorDictModuleBase):
+    """Reads ``observation``, writes ``action``: the Q-network's argmax, or while ``explore``
+    with probability ``epsilon`` a uniformly random action.
+
+    One forward on the observation tensor, without ``QValueActor`` and ``EGreedyModule``'s
+    per-call bookkeeping (~1 ms on cart-pole's 16 copies; this ~50 us), drawing as
+    ``EGreedyModule`` does: a uniform per copy, then a random action per copy, from torch's
+    global generator. The greedy policy draws nothing.
+    """
+
+    in_keys = ["observation"]
+    out_keys = ["action"]
+
+    def __init__(self, net: nn.Sequential, n_actions: int, explore: bool,
+                 device: torch.device | str = "cpu") -> None:
+        super().__init__()
+        self.net, self.n_actions, self.explore = net, int(n_actions), explore
+        self.q = layer_by_layer(net)
+        self.device = torch.device(device)
+        self.epsilon = 0.0
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        with torch.no_grad():
+            q = self.q(tensordict.get("observation").to(self.device))
+        action = q.argmax(-1).cpu()
+        if self.explore:
+            explore = torch.rand(action.shape) < self.epsilon
+            action = torch.where(explore, torch.randint(0, self.n_actions, action.shape), action)
+        tensordict.set("action", action)
+        return tensordict
 
 
 def grad_norm_of(params: list[nn.Parameter]) -> torch.Tensor:
@@ -103,18 +214,17 @@ class UpdateStats:
 
     def restart(self, updates: int) -> None:
         """A new interval, starting now after ``updates`` optimizer steps."""
-        self.pending: list[tuple[torch.Tensor, torch.Tensor]] = []
+        self.pending: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
         self.norms: list[torch.Tensor] = []
         self.loss_sum = self.q_sum = self.td_sum = self.norm_sum = 0.0
         self.count = self.values = self.n_norms = 0
         self.since, self.t0 = updates, time.perf_counter()
 
-    def add(self, loss: float, q: torch.Tensor, target: torch.Tensor,
+    def add(self, loss: torch.Tensor | float, q: torch.Tensor, target: torch.Tensor,
             grad_norm: torch.Tensor | None) -> None:
         """One update: its loss, ``q`` and ``target`` (detached), its gradient norm if known."""
-        self.loss_sum += loss
         self.count += 1
-        self.pending.append((q, target))
+        self.pending.append((torch.as_tensor(loss, device=q.device), q, target))
         if grad_norm is not None:
             self.norms.append(grad_norm)
         if len(self.pending) >= self.FOLD:
@@ -122,9 +232,12 @@ class UpdateStats:
 
     def _fold(self) -> None:
         if self.pending:
-            q, target = (torch.cat(parts) for parts in zip(*self.pending))
-            q_sum, td_sum = torch.stack((q.sum(), (target - q).abs_().sum())).tolist()
-            self.q_sum, self.td_sum = self.q_sum + q_sum, self.td_sum + td_sum
+            losses, q, target = zip(*self.pending)
+            q, target = torch.cat(q), torch.cat(target)
+            sums = torch.stack((torch.stack(losses).sum(), q.sum(), (target - q).abs_().sum()))
+            loss_sum, q_sum, td_sum = sums.tolist()
+            self.loss_sum, self.q_sum, self.td_sum = (self.loss_sum + loss_sum, self.q_sum + q_sum,
+                                                      self.td_sum + td_sum)
             self.values += q.numel()
             self.pending.clear()
         if self.norms:
@@ -179,6 +292,8 @@ class DQN:
     nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1, le=10**7)
     run_episodes: int = param(0, "greedy episodes after training (ruippeixotog's run phase)", ge=0,
                               le=4096)
+    device: str = param("cpu", "where the networks, updates and replay buffer live",
+                        choices=("cpu", "cuda"))
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -197,13 +312,15 @@ class DQN:
         require(all(hasattr(self.epsilon, k) for k in ("value", "step", "episode_end")),
                 "learner.epsilon must be a schedule node (_target_: learners.schedules."
                 "LinearEpsilon, MultiplicativeEpsilon or LogEpisodeEpsilon)", self.epsilon)
+        require(self.device == "cpu" or torch.cuda.is_available(),
+                "learner.device=cuda needs a GPU that torch can use; this torch sees none",
+                self.device)
         self.schedule = self.epsilon
         self.hidden = [int(h) for h in self.hidden]
         self.loss_function = LOSSES[self.loss]
         self.optimizer_steps = 0
         self._credit = 0.0
         self._greedy = False
-        self.last_loss = float("nan")
         self.tracker = UpdateStats()
 
     # -- building ------------------------------------------------------------
@@ -212,36 +329,43 @@ class DQN:
                 "activation": self.activation}
 
     def build(self, task, generator: torch.Generator | None = None):
-        """Creates network, exploration, loss, target updater, optimiser and buffer."""
+        """Creates network, policies, target network, optimiser and replay buffer. The DQN
+        draws from torch's global generator (seeded by the run; checkpoints keep its state),
+        not ``generator``."""
         from torchrl.data import Categorical
 
         self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
-        spec = Categorical(self.n_actions, dtype=torch.int64)
         self.net = MLP(in_features=self.n_obs, out_features=self.n_actions, num_cells=self.hidden,
-                       activation_class=ACTIVATIONS[self.activation])
-        self.actor = QValueActor(self.net, in_keys=["observation"], spec=spec)
-        self.egreedy = EGreedyModule(spec, eps_init=float(self.schedule.value),
-                                     eps_end=float(self.schedule.value), annealing_num_steps=1)
-        self.explorer = TensorDictSequential(self.actor, self.egreedy)
+                       activation_class=ACTIVATIONS[self.activation]).to(self.device)
+        # The greedy actor TorchRL's way, for checkpoints and callers wanting action values;
+        # training and evaluation act through the lean QPolicy on the same network.
+        self.actor = QValueActor(self.net, in_keys=["observation"],
+                                 spec=Categorical(self.n_actions, dtype=torch.int64))
+        self.explorer = QPolicy(self.net, self.n_actions, explore=True, device=self.device)
+        self.greedy_policy = QPolicy(self.net, self.n_actions, explore=False, device=self.device)
         # Without a target network the online network values the next state itself.
         self.target_net = self.net
         if self.target_update or self.tau:
             self.target_net = copy.deepcopy(self.net).requires_grad_(False)
+        self._q, self._target_q = layer_by_layer(self.net), layer_by_layer(self.target_net)
         self._params = list(self.net.parameters())
         self._target_params = list(self.target_net.parameters())
-        self.optimizer = torch.optim.Adam(self._params, lr=self.lr)
+        # fused: one kernel for every parameter (torch's default on CPU loops over them,
+        # ~3x the time); it rounds differently from the loop in the last bit.
+        self.optimizer = torch.optim.Adam(self._params, lr=self.lr, fused=True)
         decay = self.lr_decay
         # Keras' legacy Adam ``decay``: lr_k = lr / (1 + decay * k) after k updates.
         self.lr_schedule = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, lambda k: 1.0 / (1.0 + decay * k))
-        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(self.buffer_size),
-                                             batch_size=self.batch_size)
+        self.buffer = RowReplayBuffer(self.buffer_size, 2 * self.n_obs + 3, self.batch_size,
+                                      self.device)
+        self._sync_epsilon()
         return self.actor
 
     @property
-    def policy(self):
+    def policy(self) -> QPolicy:
         """The acting policy: epsilon-greedy while training, greedy inside ``greedy()``."""
-        return self.actor if self._greedy else self.explorer
+        return self.greedy_policy if self._greedy else self.explorer
 
     @contextmanager
     def greedy(self) -> Iterator[None]:
@@ -258,31 +382,42 @@ class DQN:
 
     # -- learning ------------------------------------------------------------
     def store(self, tensordict: TensorDictBase) -> None:
-        batch = tensordict.select(*_KEYS).reshape(-1)  # extend() copies into storage
+        """Adds the batched transitions of ``tensordict`` (holding ``next``) to the buffer."""
+        batch = Transitions.of(tensordict)
         if self.done_episode_reward is not None:
-            term = batch.get(("next", "terminated"))
-            reward = batch.get(("next", "reward"))
-            batch.set(("next", "reward"),
-                      torch.where(term, torch.full_like(reward, float(self.done_episode_reward)), reward))
-        self.buffer.extend(batch)
+            batch = batch._replace(reward=torch.where(
+                batch.terminated, float(self.done_episode_reward), batch.reward))
+        self.buffer.extend(pack(batch).to(self.device))
 
     def optimize(self, n: int) -> None:
         """``n`` gradient steps on minibatches from the replay buffer."""
+        stored = len(self.buffer)
         for _ in range(n):
-            q, target = td_terms(self.net, self.target_net, self.buffer.sample(), self.gamma,
-                                 self.double_dqn)
-            loss = _DISTANCES[self.loss_function](q, target)
-            self.optimizer.zero_grad()
-            loss.backward()
-            grad_norm = None  # without clipping, measured only when read (train_stats)
-            if self.grad_clip > 0:
-                grad_norm = nn.utils.clip_grad_norm_(self._params, self.grad_clip)
-            self.optimizer.step()
+            self._update(self.buffer.sample_transitions(stored))
+
+    def _update(self, batch: Transitions) -> None:
+        """One gradient step on ``batch``; the target network follows. No host sync: the
+        tracker keeps the loss and values as tensors."""
+        q, target = td_terms(self._q, self._target_q, batch, self.gamma, self.double_dqn)
+        loss = _DISTANCES[self.loss_function](q, target)
+        for p in self._params:  # optimizer.zero_grad()'s effect, without its profiling wrapper
+            p.grad = None
+        loss.backward()
+        grad_norm = self._clip() if self.grad_clip > 0 else None
+        self.optimizer.step()
+        if self.lr_decay:
             self.lr_schedule.step()
-            self.optimizer_steps += 1
-            self._update_target()
-            self.last_loss = float(loss.detach())
-            self.tracker.add(self.last_loss, q.detach(), target, grad_norm)
+        self.optimizer_steps += 1
+        self._update_target()
+        self.tracker.add(loss.detach(), q.detach(), target, grad_norm)
+
+    def _clip(self) -> torch.Tensor:
+        """``clip_grad_norm_(params, grad_clip)``'s very arithmetic in two foreach calls (it
+        loops over the tensors on CPU); returns the norm before clipping."""
+        grads = [p.grad for p in self._params if p.grad is not None]
+        norm = grad_norm_of(self._params)
+        torch._foreach_mul_(grads, (self.grad_clip / (norm + 1e-6)).clamp_(max=1.0))
+        return norm
 
     def train_stats(self, reset: bool = True) -> dict[str, float]:
         """``train/*``: ``loss``, ``q_mean`` (of the taken actions), ``td_error`` (mean
@@ -320,8 +455,8 @@ class DQN:
         self.optimize(whole)
 
     def _sync_epsilon(self) -> None:
-        """The exploration module acts with the schedule's current epsilon."""
-        self.egreedy.eps.fill_(self.schedule.value)
+        """The exploring policy acts with the schedule's current epsilon."""
+        self.explorer.epsilon = float(self.schedule.value)
 
     def train(self, env, run: Run) -> None:
         """Collects from the batched ``env`` and learns until ``run`` is done."""
@@ -350,25 +485,36 @@ class DQN:
     def training_state(self) -> dict:
         """Everything the next update depends on, replay buffer included (for resuming)."""
         return {
-            "arch": self._arch(), "net": self.net.state_dict(),
+            "format": FORMAT, "arch": self._arch(), "net": self.net.state_dict(),
             "target_net": self.target_net.state_dict(), "optimizer": self.optimizer.state_dict(),
             "lr_schedule": self.lr_schedule.state_dict(), "schedule": self.schedule.state_dict(),
             "optimizer_steps": self.optimizer_steps, "credit": self._credit,
-            "last_loss": self.last_loss, "buffer": self.buffer.state_dict(),
+            "buffer": self.buffer.state_dict(),
         }
 
     def load_training_state(self, state: dict) -> None:
+        if state.get("format", 1) != FORMAT:
+            raise CheckpointError(
+                f"the training checkpoint holds a DQN state of format {state.get('format', 1)}, "
+                f"this code reads format {FORMAT} (its replay buffer changed); resume it with "
+                "the version that wrote it, or start the run afresh")
         self._check_arch(state["arch"], "the training checkpoint")
         self.net.load_state_dict(state["net"])
         self.target_net.load_state_dict(state["target_net"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        self._load_optimizer(state["optimizer"])
         self.lr_schedule.load_state_dict(state["lr_schedule"])
         self.schedule.load_state_dict(state["schedule"])
         self.optimizer_steps = int(state["optimizer_steps"])
         self._credit = float(state["credit"])
-        self.last_loss = float(state["last_loss"])
         self.buffer.load_state_dict(state["buffer"])
         self._sync_epsilon()
+
+    def _load_optimizer(self, state: dict) -> None:
+        """Adam's state from a checkpoint, staying fused (a saved param group's flags would
+        replace ours, and models saved before this change were not fused)."""
+        self.optimizer.load_state_dict(state)
+        for group in self.optimizer.param_groups:
+            group.update(fused=True, foreach=None)
 
     def _check_arch(self, arch: dict, path) -> None:
         if arch != self._arch():
@@ -388,7 +534,7 @@ class DQN:
         ckpt = load_checkpoint(path, kind="dqn")
         self._check_arch(ckpt["arch"], path)
         self.actor.load_state_dict(ckpt["actor"])
-        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self._load_optimizer(ckpt["optimizer"])
         self.schedule.load_state_dict(ckpt["schedule"])
         self.optimizer_steps = int(ckpt["optimizer_steps"])
         if self.target_net is not self.net:

@@ -79,13 +79,14 @@ class Discretizer:
         self._low = torch.as_tensor(bounds.low)
         self._width = torch.as_tensor(bounds.high - bounds.low)
         self._splits = torch.as_tensor(splits)
+        self._top = self._splits - 1
         self._radix = torch.as_tensor(np.concatenate([[1], np.cumprod(splits)[:-1]]).astype(np.int64))
 
     def __call__(self, observation: torch.Tensor) -> torch.Tensor:
-        x = observation[..., self._index].to(torch.float64)
-        bins = torch.floor((x - self._low) / self._width * self._splits).long()
-        bins = torch.minimum(bins.clamp_min(0), self._splits - 1)
-        return (bins * self._radix).sum(-1)
+        x = observation.index_select(-1, self._index).to(torch.float64)
+        bins = x.sub_(self._low).div_(self._width).mul_(self._splits).floor_().long()
+        bins = torch.minimum(bins.clamp_min_(0), self._top)
+        return bins.mul_(self._radix).sum(-1)
 
     def describe(self) -> dict:
         return {
@@ -122,7 +123,7 @@ class QTablePolicy(TensorDictModuleBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         state = self.discretizer(tensordict.get("observation"))
-        q = self.table[state]
+        q = self.table.index_select(0, state.reshape(-1)).reshape(*state.shape, self.n_actions)
         explore = self._rand(*state.shape) < self.epsilon
         if self.noise_exploration:
             magnitude = q.abs().amax(-1, keepdim=True)
@@ -201,27 +202,33 @@ class QLearn:
     def update(self, tensordict: TensorDictBase) -> None:
         """One Q-update from a batch of transitions (``tensordict`` holds ``next``)."""
         policy = self.policy
-        table = policy.table
         state = tensordict.get("state_index").reshape(-1)
         action = tensordict.get("action").reshape(-1)
         reward = tensordict.get(("next", "reward")).reshape(-1).to(torch.float64)
         terminated = tensordict.get(("next", "terminated")).reshape(-1)
         next_state = policy.discretizer(tensordict.get(("next", "observation"))).reshape(-1)
-        bootstrap = table[next_state].amax(-1)
+        bootstrap = policy.table.index_select(0, next_state).amax(-1)
         if not self.bootstrap_terminal:
             bootstrap = torch.where(terminated, 0.0, bootstrap)
         target = reward + self.gamma * bootstrap
-        old = table[state, action]
+        pair = state * policy.n_actions + action  # (s, a)'s index in the flat table
+        old = policy.table.view(-1).index_select(0, pair)
         new = old + self.alpha * (target - old)
         if self.first_visit_reward:
-            new = torch.where(policy.visited[state, action], new, reward)
-        flat = state * policy.n_actions + action
-        delta = torch.zeros(table.numel(), dtype=torch.float64).index_add_(0, flat, new - old)
-        count = torch.zeros(table.numel(), dtype=torch.float64).index_add_(
-            0, flat, torch.ones_like(old))
-        hit = count > 0
-        table.view(-1)[hit] += delta[hit] / count[hit]
-        policy.visited.view(-1)[hit] = True
+            new = torch.where(policy.visited.view(-1).index_select(0, pair), new, reward)
+        self._add_mean_increments(pair, new - old)
+
+    def _add_mean_increments(self, pair: torch.Tensor, increment: torch.Tensor) -> None:
+        """Adds to each flat table entry in ``pair`` the mean of its ``increment``s and marks
+        it visited. Work in the batch's size, not the table's: distinct pairs by ``unique``
+        (the sums in batch order, as an ``index_add_`` over the whole table gave them)."""
+        table, visited = self.policy.table.view(-1), self.policy.visited.view(-1)
+        if pair.numel() > 1:
+            pair, slot, count = torch.unique(pair, return_inverse=True, return_counts=True)
+            total = torch.zeros(len(pair), dtype=torch.float64).index_add_(0, slot, increment)
+            increment = total / count
+        table.index_add_(0, pair, increment)
+        visited.index_fill_(0, pair, True)
 
     @contextmanager
     def greedy(self) -> Iterator[None]:

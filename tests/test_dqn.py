@@ -7,9 +7,10 @@ import pytest
 import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
+from tensordict import TensorDict
 
 from learners.checkpoint import CheckpointError
-from learners.dqn import DQN
+from learners.dqn import DQN, Transitions, unpack
 from learners.evaluate import evaluate
 from learners.run import Run
 from learners.schedules import LinearEpsilon
@@ -43,13 +44,16 @@ def test_variants_build_the_networks_of_the_seed_table():
     assert variant("ruippeixotog").run_episodes == 500
 
 
-def fill_buffer(learner: DQN, env: RobotTaskEnv, steps: int) -> None:
-    """Acts with the learner's exploration policy and stores every transition."""
-    td = env.reset()
+def fill_buffer(learner: DQN, env: RobotTaskEnv, steps: int) -> TensorDict:
+    """Acts with the learner's exploration policy and stores every transition; returns them
+    (``[steps * num_envs]``, in the order stored)."""
+    td, seen = env.reset(), []
     for _ in range(steps):
         td, nxt = env.step_and_maybe_reset(learner.explorer(td))
         learner.store(td)
+        seen.append(td)
         td = nxt
+    return torch.cat(seen)
 
 
 def test_n1try_learning_rate_decays_like_keras():
@@ -65,13 +69,27 @@ def test_terminal_reward_replacement_only_on_termination():
     learner = variant("mbalunovic")
     learner.build(StayUp(CartPole()))
     env = RobotTaskEnv(StayUp(CartPole(), max_episode_steps=6), num_envs=8, seed=0)
-    fill_buffer(learner, env, steps=30)
-    data = learner.buffer[: len(learner.buffer)]
-    term = data["next", "terminated"].squeeze(-1)
-    reward = data["next", "reward"].squeeze(-1)
-    trunc = data["next", "done"].squeeze(-1) & ~term
+    seen = fill_buffer(learner, env, steps=30)
+    data = learner.buffer.transitions()
+    term = data.terminated.squeeze(-1)
+    reward = data.reward.squeeze(-1)
+    trunc = seen["next", "done"] & ~seen["next", "terminated"]
+    assert torch.equal(term, seen["next", "terminated"].squeeze(-1))
     assert term.any() and trunc.any()
     assert (reward[term] == -200).all() and (reward[~term] == 1).all()
+
+
+def test_the_buffer_gives_back_what_was_stored_and_samples_like_torchrl():
+    learner = variant("dqn", batch_size=32)
+    learner.build(StayUp(CartPole()))
+    seen = fill_buffer(learner, RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0), steps=25)
+    for ours, theirs in zip(learner.buffer.transitions(), Transitions.of(seen)):
+        assert torch.equal(ours, theirs)
+    torch.manual_seed(7)
+    ours = learner.buffer.sample_transitions(len(learner.buffer))
+    torch.manual_seed(7)
+    theirs = unpack(learner.buffer.sample())  # TorchRL's RandomSampler: the same draw
+    assert all(torch.equal(a, b) for a, b in zip(ours, theirs))
 
 
 
@@ -158,7 +176,7 @@ def test_td_loss_equals_torchrl_dqnloss(loss, double, tau):
     learner = variant("dqn", loss=loss, double_dqn=double, tau=tau)
     learner.build(StayUp(CartPole()))
     env = RobotTaskEnv(StayUp(CartPole()), num_envs=8, seed=0)
-    fill_buffer(learner, env, steps=40)  # 320 transitions, some terminated
+    batch = fill_buffer(learner, env, steps=40)  # 320 transitions, some terminated
     with torch.no_grad():  # make online and target networks differ
         for p in learner.target_net.parameters() if tau else ():
             p.add_(0.1 * torch.randn_like(p))
@@ -167,8 +185,43 @@ def test_td_loss_equals_torchrl_dqnloss(loss, double, tau):
     reference.make_value_estimator(gamma=learner.gamma)
     for name, p in learner.target_net.named_parameters() if tau else ():
         reference.target_value_network_params["module", "0", "module", *name.split(".")].data.copy_(p)
-    batch = learner.buffer.storage[:320]
     assert batch.get(("next", "terminated")).any()
-    ours = td_loss(learner.net, learner.target_net, batch, learner.gamma, double, learner.loss_function)
+    ours = td_loss(learner.net, learner.target_net, Transitions.of(batch), learner.gamma, double,
+                   learner.loss_function)
     theirs = reference(batch)["loss"]
     torch.testing.assert_close(ours, theirs)
+
+
+def test_training_state_roundtrip_and_old_format_refused():
+    task = StayUp(CartPole())
+    a = variant("dqn", batch_size=16)
+    a.build(task)
+    fill_buffer(a, RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0), steps=10)
+    a.optimize(3)
+    state = a.training_state()
+    b = variant("dqn", batch_size=16)
+    b.build(task)
+    b.load_training_state(state)
+    assert len(b.buffer) == 40 and torch.equal(b.buffer.rows, a.buffer.rows)
+    assert b.optimizer_steps == 3
+    old = {k: v for k, v in state.items() if k != "format"}  # saved before format 2
+    with pytest.raises(CheckpointError, match="format 1"):
+        b.load_training_state(old)
+
+
+def test_device_cuda_without_a_gpu_is_a_one_line_error():
+    from params import ConfigError
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    with pytest.raises(ConfigError, match="learner.device=cuda needs a GPU"):
+        DQN(epsilon=LinearEpsilon(), device="cuda")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+def test_device_cuda_keeps_networks_and_buffer_on_the_gpu():
+    learner = variant("dqn", device="cuda", batch_size=16)
+    learner.build(StayUp(CartPole()))
+    seen = fill_buffer(learner, RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0), steps=10)
+    learner.optimize(3)
+    assert learner.buffer.rows.is_cuda and all(p.is_cuda for p in learner.net.parameters())
+    assert seen["action"].device.type == "cpu" and learner.train_stats()["updates"] == 3

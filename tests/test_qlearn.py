@@ -167,3 +167,36 @@ def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
     random_env = RobotTaskEnv(StayUp(CartPole()), num_envs=50, seed=seed)
     random = evaluate(random_env, random_policy(2, seed))["mean_length"]
     assert trained >= 3 * random, (trained, random)
+
+
+def full_table_update(q, td):
+    """The update as it was first written, with work in the table's size: the reference."""
+    table, n = q.policy.table, q.policy.n_actions
+    state, action = td["state_index"].reshape(-1), td["action"].reshape(-1)
+    reward = td["next", "reward"].reshape(-1).to(torch.float64)
+    bootstrap = table[q.policy.discretizer(td["next", "observation"]).reshape(-1)].amax(-1)
+    target = reward + q.gamma * torch.where(td["next", "terminated"].reshape(-1), 0.0, bootstrap)
+    old = table[state, action]
+    new = old + q.alpha * (target - old)
+    flat = state * n + action
+    delta = torch.zeros(table.numel(), dtype=torch.float64).index_add_(0, flat, new - old)
+    count = torch.zeros(table.numel(), dtype=torch.float64).index_add_(0, flat, torch.ones_like(old))
+    hit = count > 0
+    expected = table.clone()
+    expected.view(-1)[hit] += delta[hit] / count[hit]
+    return expected
+
+
+@pytest.mark.parametrize("batch", [1, 300])
+def test_batched_update_matches_the_full_table_arithmetic_bit_for_bit(batch):
+    q = learner()
+    gen = torch.Generator().manual_seed(batch)
+    q.policy.table.uniform_(-1, 1, generator=gen)
+    obs = torch.rand(batch, 3, generator=gen) * 4
+    td = transition(obs.tolist(), torch.randint(0, 2, (batch,), generator=gen).tolist(),
+                    torch.randn(batch, generator=gen).tolist(), (torch.rand(batch, 3, generator=gen) * 4).tolist(),
+                    (torch.rand(batch, generator=gen) < 0.2).tolist())
+    td["state_index"] = q.policy.discretizer(td["observation"])
+    expected = full_table_update(q, td)
+    q.update(td)
+    assert torch.equal(q.policy.table, expected)
