@@ -56,7 +56,7 @@ from learners.verdict import verdict_lines
 from learners.video import record_video
 from params import ConfigError, did_you_mean
 from tasks.env import RobotTaskEnv
-from tasks.factory import build_env, compose
+from tasks.factory import GROUPS, build_env, compose
 
 
 
@@ -75,7 +75,7 @@ OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True)
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
 RESUME_OVERRIDES = ("resume", "quiet", "verbose", "log_every", "torch_threads", "video", "video_steps",
                     "eval_episodes")
-PICKS = ("robot", "task", "learner")  # the config groups a run folder fixes
+PICKS = GROUPS  # the config groups a run folder fixes
 
 
 @contextmanager
@@ -143,7 +143,8 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
         state_path = run_dir / "checkpoint.pt"
         record = Run(run_dir, env.num_envs, learner.nepisodes, success, extra_fields=tuple(learner.stats),
                      quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
-                     log_every=int(cfg.get("log_every", 0)), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
+                     log_every=int(cfg.get("log_every", 0)),
+                     checkpoint_every=int(cfg.get("checkpoint_every", 0)),
                      eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume)
         if resume:
             record.resume_td = load_training_state(state_path, learner, env, record)

@@ -14,9 +14,9 @@ from typing import Any, Mapping, Sequence
 from omegaconf import DictConfig, OmegaConf
 
 from tasks.base import Success
-from tasks.factory import compose
+from tasks.factory import GROUPS, compose
 
-PICKS = ("robot", "task", "learner", "tuned")  # the config groups, not values
+PICKS = (*GROUPS, "tuned")  # the config groups, not values
 SHOWN_CHANGES = 5  # values a tuned file changed, named on its line (the rest counted)
 
 

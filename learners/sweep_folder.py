@@ -17,8 +17,9 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
 from learners.summary import summarize_run
+from tasks.factory import GROUPS
 
-PICKS = ("robot", "task", "learner")  # config groups with their own columns, never in ``swept``
+PICKS = GROUPS  # config groups with their own columns, never in ``swept``
 
 
 def overrides_dict(overrides: list[str] | None) -> dict[str, str]:

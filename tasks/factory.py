@@ -30,6 +30,9 @@ from tasks.base import Task
 from tasks.env import RobotTaskEnv
 
 
+# The config groups a run picks by name (``robot=cube``); everything else is a value.
+GROUPS = ("robot", "task", "learner")
+
 def conf_dir() -> Path:
     """The folder of the Hydra configs (``config.yaml``, ``robot/``, ``task/``, ...)."""
     return Path(str(resources.files("conf")))
