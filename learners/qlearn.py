@@ -76,6 +76,7 @@ class Discretizer:
         self.splits = splits
         self.n_states = math.prod(splits)  # Python ints: no overflow before the size check
         self._index = torch.as_tensor(bounds.indices)
+        self._prefix = tuple(bounds.indices) == tuple(range(len(bounds.indices)))
         self._low = torch.as_tensor(bounds.low)
         self._width = torch.as_tensor(bounds.high - bounds.low)
         self._splits = torch.as_tensor(splits)
@@ -83,10 +84,12 @@ class Discretizer:
         self._radix = torch.as_tensor(np.concatenate([[1], np.cumprod(splits)[:-1]]).astype(np.int64))
 
     def __call__(self, observation: torch.Tensor) -> torch.Tensor:
-        x = observation.index_select(-1, self._index).to(torch.float64)
+        if self._prefix:  # the observation's first entries, in order: a view, no gather
+            x = observation[..., : len(self._index)].to(torch.float64, copy=True)
+        else:
+            x = observation.index_select(-1, self._index).to(torch.float64)
         bins = x.sub_(self._low).div_(self._width).mul_(self._splits).floor_().long()
-        bins = torch.minimum(bins.clamp_min_(0), self._top)
-        return bins.mul_(self._radix).sum(-1)
+        return torch.minimum(bins.clamp_min_(0), self._top) @ self._radix
 
     def describe(self) -> dict:
         return {
@@ -209,7 +212,7 @@ class QLearn:
         next_state = policy.discretizer(tensordict.get(("next", "observation"))).reshape(-1)
         bootstrap = policy.table.index_select(0, next_state).amax(-1)
         if not self.bootstrap_terminal:
-            bootstrap = torch.where(terminated, 0.0, bootstrap)
+            bootstrap.masked_fill_(terminated, 0.0)
         target = reward + self.gamma * bootstrap
         pair = state * policy.n_actions + action  # (s, a)'s index in the flat table
         old = policy.table.view(-1).index_select(0, pair)

@@ -192,9 +192,9 @@ def test_batched_update_matches_the_full_table_arithmetic_bit_for_bit(batch):
     q = learner()
     gen = torch.Generator().manual_seed(batch)
     q.policy.table.uniform_(-1, 1, generator=gen)
-    obs = torch.rand(batch, 3, generator=gen) * 4
+    obs, next_obs = (torch.rand(batch, 3, generator=gen) * 4 for _ in range(2))
     td = transition(obs.tolist(), torch.randint(0, 2, (batch,), generator=gen).tolist(),
-                    torch.randn(batch, generator=gen).tolist(), (torch.rand(batch, 3, generator=gen) * 4).tolist(),
+                    torch.randn(batch, generator=gen).tolist(), next_obs.tolist(),
                     (torch.rand(batch, generator=gen) < 0.2).tolist())
     td["state_index"] = q.policy.discretizer(td["observation"])
     expected = full_table_update(q, td)
