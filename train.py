@@ -105,13 +105,14 @@ def stop_on_signals(record: Run) -> Iterator[dict]:
 
 def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
         start: Callable[[], None] | None = None, choices: dict | None = None,
-        changes: list[str] | None = None) -> dict:
+        changes: list[str] | None = None, progress=None) -> dict:
     """Trains or evaluates as ``cfg`` says; returns the summary (and prints the verdict).
 
     ``cfg`` has passed :func:`check_run_config` (``main`` checks it before the run folder is
     touched). ``resume``: continue the run in ``run_dir`` from its ``checkpoint.pt``. ``start()``
     is called once the learner and env are built (every value checked), before any file is written.
     ``choices`` (robot, task, learner, tuned) and the tuned file's ``changes`` go into the banner.
+    ``progress``: a tuning trial's :class:`~learners.tuning.TrialLink` (reports, may prune).
     """
     torch.set_num_threads(int(cfg.torch_threads))
     generator = seed_everything(int(cfg.seed))
@@ -145,7 +146,11 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
                      quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
                      log_every=int(cfg.get("log_every", 0)),
                      checkpoint_every=int(cfg.get("checkpoint_every", 0)),
-                     eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume)
+                     eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume,
+                     max_env_steps=int(cfg.get("max_env_steps", 0)),
+                     stop_when_solved=bool(cfg.get("stop_when_solved", True)))
+        if progress is not None:
+            record.progress, record.progress_every = progress, progress.every
         if resume:
             record.resume_td = load_training_state(state_path, learner, env, record)
             print(f"resuming {run_dir} after episode {record.n_episodes} ({record.env_steps} env steps)")
@@ -205,6 +210,21 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
         for line in verdict_lines(summary, run_dir):
             print(line)
     return summary
+
+
+def trial_link(cfg: DictConfig, run_dir: Path):
+    """The Optuna study a ``trial=N`` job reports to (its sweeper's storage and study)."""
+    if cfg.get("trial") is None or cfg.mode != "train":
+        return None
+    sweeper = HydraConfig.get().sweeper
+    if "rl_optuna_sweeper" not in str(sweeper.get("_target_", "")):
+        raise ConfigError(f"trial={cfg.trial} is set by hydra/sweeper=optuna for its own jobs; "
+                          "tune with: python train.py -m hydra/sweeper=optuna ...")
+    from learners.tuning import TrialLink
+
+    return TrialLink(str(sweeper.storage), str(sweeper.study), int(cfg.trial),
+                     lead=int(cfg.seed) == int(sweeper.seeds[0]), pruner=sweeper.pruner,
+                     every=int(sweeper.report_every), run_dir=run_dir)
 
 
 def _one_line(err: BaseException) -> str:
@@ -344,7 +364,8 @@ def main(cfg: DictConfig) -> None:
         run_dir.mkdir(parents=True, exist_ok=True)
         with run_lock(run_dir), tee_console(run_dir / "train.log"):
             summary = run(cfg, run_dir, resume=resume, choices=choices, changes=changes,
-                          start=None if resume else lambda: start_run(cfg, run_dir, overrides))
+                          start=None if resume else lambda: start_run(cfg, run_dir, overrides),
+                          progress=trial_link(cfg, run_dir))
     except (ConfigError, CheckpointError, InstantiationException) as err:
         return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)
     except OSError as err:  # the run folder: missing, read-only, full

@@ -67,7 +67,10 @@ def banner_lines(cfg: DictConfig, choices: Mapping[str, str | None], changes: Se
     what = "evaluate " if cfg.mode == "eval" else ""
     lines = [f"{what}{choices.get('robot')} / {choices.get('task')} / {choices.get('learner')}, "
              f"seed {cfg.seed}, {copies} cop{'y' if copies == 1 else 'ies'}"
-             + (f", up to {episodes} episodes" if cfg.mode == "train" else "")]
+             + (f", up to {episodes} episodes" if cfg.mode == "train" else "")
+             + (f" or {int(cfg.max_env_steps)} env steps" if cfg.mode == "train" and cfg.get("max_env_steps") else "")
+             + (", training past 'solved'" if cfg.mode == "train" and not cfg.get("stop_when_solved", True) else "")
+             + (f", Optuna trial {cfg.trial}" if cfg.get("trial") is not None else "")]
     if choices.get("tuned"):
         if changes is None:
             what = "applied"

@@ -63,15 +63,23 @@ class Run:
     def __init__(self, run_dir: Path | str, num_envs: int, max_episodes: int, success: Success,
                  extra_fields: tuple[str, ...] = (), quiet: bool = False, logger=None,
                  checkpoint_every: int = 0, eval_every: int = 0, resume: bool = False,
-                 verbose: bool = False, log_every: int = 0) -> None:
+                 verbose: bool = False, log_every: int = 0, max_env_steps: int = 0,
+                 stop_when_solved: bool = True) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.num_envs, self.max_episodes, self.success = num_envs, int(max_episodes), success
         self.extra_fields, self.quiet, self.logger = tuple(extra_fields), quiet, logger
         self.checkpoint_every, self.eval_every = int(checkpoint_every), int(eval_every)
+        self.max_env_steps, self.stop_when_solved = int(max_env_steps), bool(stop_when_solved)
         self.checkpoint = None  # checkpoint(td): saves the whole run; set by the trainer
         self.greedy_eval = None  # greedy_eval() -> evaluate()'s result; set by the trainer
         self.train_stats = None  # train_stats() -> the learner's train/* numbers; set by its train
+        # progress(episodes, rolling) -> True to stop early: a tuning study's report and pruning
+        # (learners.tuning), called every progress_every episodes; set by train.py
+        self.progress = None
+        self.progress_every = 0
+        self._next_progress = 0
+        self.pruned_at: int | None = None  # the episode a tuning study stopped the run at
         self._train_logged: int | None = None  # env steps at the last train/* point
         self._train_due = False  # an episode finished since
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
@@ -99,8 +107,15 @@ class Run:
     # -- the training loop's steps --------------------------------------------
     @property
     def finished(self) -> bool:
-        """True once the episode budget is spent or the task counts as solved."""
-        return self.solved_at is not None or self.n_episodes >= self.max_episodes
+        """True once a budget (episodes, env steps) is spent, the task counts as solved
+        (with ``stop_when_solved``) or a tuning study pruned the run."""
+        steps_spent = self.max_env_steps > 0 and self.env_steps >= self.max_env_steps
+        return self._closed or steps_spent or self.pruned_at is not None
+
+    @property
+    def _closed(self) -> bool:
+        """No further episode is booked: the episode budget is spent, or solved and stopping."""
+        return (self.solved_at is not None and self.stop_when_solved) or self.n_episodes >= self.max_episodes
 
     @property
     def done(self) -> bool:
@@ -129,6 +144,8 @@ class Run:
         Returns ``td``, the next step's input."""
         self.last_td = td
         self.log_train()
+        if self.progress is not None and self.progress_every and self.n_episodes >= self._next_progress:
+            self._report_progress()
         last_eval = self.evals[-1]["episode"] if self.evals else 0
         if (self.eval_every and self.greedy_eval is not None and not self.done
                 and self.n_episodes - last_eval >= self.eval_every):
@@ -156,7 +173,7 @@ class Run:
         self.env_steps += self.num_envs
         finished = []
         for i in np.flatnonzero(done):
-            if self.finished:
+            if self._closed:
                 break
             finished.append(self._finish(int(i), bool(terminated[i]), stats, ended_info))
         self._ret[done] = 0.0
@@ -177,7 +194,8 @@ class Run:
         self.files.write_episode(ep)
         log_episode(self.logger, ep, self.success)
         self.console.episode(ep, self.evals[-1] if self.evals else None, self._peek_train_stats)
-        if self.success.judge == "training" and self.success.met(ep.rolling, self.n_episodes):
+        if (self.solved_at is None and self.success.judge == "training"
+                and self.success.met(ep.rolling, self.n_episodes)):
             self._solve("training", ep.rolling)
         return ep
 
@@ -197,6 +215,14 @@ class Run:
         log_evaluation(self.logger, row, self.success)
         self.console.evaluation(row)
         return result
+
+    def _report_progress(self) -> None:
+        """The rolling measure to the ``progress`` hook at the last multiple of ``progress_every``
+        episodes passed (the same steps for every run it is compared with); it may stop the run."""
+        step = self.n_episodes // self.progress_every * self.progress_every
+        self._next_progress = step + self.progress_every
+        if step > 0 and not self.done and self.progress(step, self.rolling()):
+            self.pruned_at = self.n_episodes
 
     def _solve(self, judge: str, value: float) -> None:
         self.solved_at, self.decided_by, self.solved_value = self.n_episodes, judge, value

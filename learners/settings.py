@@ -80,6 +80,12 @@ class RunSettings:
     video_steps: int = param(500, "env steps in that video", ge=0, le=100_000)
     torch_threads: int = param(1, "intra-op threads; small networks are fastest on one", ge=1,
                                le=256)
+    max_env_steps: int = param(0, "stop training after this many env steps (all copies counted)",
+                               ge=0, note="0 = no limit; the episode budget is the learner's nepisodes")
+    stop_when_solved: bool = param(True, "end training once the task counts as solved (false: spend "
+                                         "the whole budget, as a tuning trial does)")
+    trial: int | None = param(None, "the Optuna trial this run reports to (set by "
+                                    "hydra/sweeper=optuna)", ge=0)
 
 
 GROUPS = ("robot", "task", "learner", "logger")

@@ -190,6 +190,7 @@ def _finished(run_dir: Path, summary: dict) -> dict:
         final_mean_length=float(np.mean(lengths)) if rows else None,
         final_mean_return=float(np.mean(rewards)) if rows else None,
         wall_s=_field(summary, "wall_s"), env_steps=_field(summary, "env_steps", int),
+        pruned_at=_field(summary, "pruned_at", int, optional=True),
     )
     return out | _optional_files(run_dir, at)
 

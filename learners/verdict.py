@@ -45,6 +45,7 @@ def run_summary(run) -> dict:
         "env_steps": run.env_steps,
         "wall_s": run.wall_s,
         "divergences": run.divergences,
+        **({"pruned_at": run.pruned_at} if run.pruned_at is not None else {}),
     }
 
 
@@ -82,6 +83,8 @@ def verdict_lines(summary: dict, run_dir: Path) -> list[str]:
         f"last-{s['window']} mean {_num(s['last_rolling'])}{unit}, mean of the 100 best episodes "
         f"{_num(s['mean_of_100_best_episodes'])}{unit} (the seeds' \"best 100 score\")",
         f"  greedy policy: {_num(s['greedy'])}{unit} ({s['evaluations']} evaluations)",
+        *([f"  stopped early by the tuning study (pruned) at episode {s['pruned_at']}"]
+          if s.get("pruned_at") is not None else []),
         f"  {s['env_steps']} env steps in {s['wall_s']:.1f}s "
         f"({s['env_steps'] / max(s['wall_s'], 1e-9):.0f} steps/s)",
         f"results in {run_dir}",

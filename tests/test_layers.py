@@ -1,7 +1,7 @@
 """Import layering of the project, read statically with ``ast`` (nothing is imported).
 
 Layers, bottom to top: ``params`` <- ``robots`` <- ``tasks`` <- ``learners`` <- the entry
-points (``train.py``, ``compare.py``, ``bench/*.py``). A module imports from its own
+points (``train.py``, ``compare.py``, ``bench/*.py``, the Hydra plugin ``hydra_plugins/``). A module imports from its own
 layer or lower ones only; project modules form no import cycle; the packages neither
 import an entry point nor edit ``sys.path``. Every import counts, also one inside a
 function (it runs the first time that function does).
@@ -15,8 +15,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("params", "robots", "tasks", "learners")
-ENTRY_POINTS = ("train", "compare", "bench")
-LAYER = {"params": 0, "robots": 1, "tasks": 2, "learners": 3, "train": 4, "compare": 4, "bench": 4}
+ENTRY_POINTS = ("train", "compare", "bench", "hydra_plugins")
+LAYER = {"params": 0, "robots": 1, "tasks": 2, "learners": 3, "train": 4, "compare": 4, "bench": 4,
+         "hydra_plugins": 4}
 LIST_EDITS = {"insert", "append", "extend", "remove", "pop", "clear", "reverse", "sort"}
 
 
@@ -35,7 +36,7 @@ class Import:
 def project_modules(root: Path) -> dict[str, Path]:
     """Dotted module name -> file, for every ``.py`` of the packages and the entry points."""
     modules = {}
-    for package in PACKAGES:
+    for package in (*PACKAGES, "hydra_plugins"):
         for path in sorted((root / package).rglob("*.py")):
             parts = path.relative_to(root).with_suffix("").parts
             modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path

@@ -1,0 +1,1 @@
+"""Hydra plugin: the ``optuna`` sweeper (``hydra/sweeper=optuna``), see :mod:`.optuna_sweeper`."""

@@ -1,0 +1,247 @@
+"""Tuning a learner with Optuna: search spaces, the trial jobs' link to their study, and
+the tuned file a study ends with.
+
+A search space (``conf/search/<learner>.yaml``) maps a setting to a range in Hydra's
+sweep grammar, the same as ``hydra-optuna-sweeper``'s ``params``::
+
+    learner.lr: tag(log, interval(1e-4, 1e-2))   # float, sampled on a log scale
+    learner.batch_size: choice(32, 64, 128)      # categorical
+    learner.nepisodes: int(interval(100, 500))   # integer
+    learner.hidden: choice([64, 64], [128, 128]) # categorical of lists
+
+The sweeper (``hydra_plugins/rl_optuna_sweeper``) asks the study for a trial, runs it
+as one job per seed and tells the study the mean of their scores. Each job reports its
+rolling measure to the study every ``report_every`` episodes (:class:`TrialLink`); the
+first seed's values are the trial's intermediate values, and every seed's job stops
+when the pruner says the trial is hopeless.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import os
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+from omegaconf import OmegaConf
+
+from params import ConfigError, did_you_mean
+
+SAMPLED = "choice(...), interval(...), int(interval(...)), tag(log, interval(...)) or range(...)"
+
+
+@dataclass
+class Param:
+    """One searched setting: its key, Optuna distribution and, for a categorical, the
+    value behind each label (Optuna's choices must be plain scalars)."""
+
+    key: str
+    distribution: Any
+    labels: dict[str, Any] | None = None
+
+    def value(self, sampled: Any) -> Any:
+        """The setting's value for Optuna's sample ``sampled``."""
+        if self.labels is not None:
+            return self.labels[sampled]
+        return float(f"{sampled:.4g}") if isinstance(sampled, float) else sampled
+
+    def extremes(self) -> list[Any]:
+        """The values the space can give that bound it (every choice of a categorical)."""
+        if self.labels is not None:
+            return list(self.labels.values())
+        return [self.distribution.low, self.distribution.high]
+
+
+def override_value(value: Any) -> str:
+    """``value`` as Hydra's command line reads it back."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(override_value(v) for v in value) + "]"
+    if value is None:
+        return "null"
+    return str(value)
+
+
+def parse_space(space: Mapping[str, Any], where: str) -> dict[str, Param]:
+    """The search space ``space`` (key -> Hydra sweep expression) as :class:`Param`s;
+    ``where`` names it in errors."""
+    import optuna.distributions as od
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, RangeSweep
+
+    parser = OverridesParser.create()
+    params: dict[str, Param] = {}
+    for key, expr in space.items():
+        text = f"{key}: {expr}"
+        try:
+            value = parser.parse_override(f"{key}={expr}").value()
+        except Exception as err:  # noqa: BLE001 - the grammar's errors come in several types
+            raise ConfigError(f"{where}: {text} does not parse ({str(err).splitlines()[0]}); "
+                              f"use {SAMPLED}") from None
+        log = "log" in getattr(value, "tags", set())
+        if isinstance(value, ChoiceSweep):
+            labels = {override_value(v): v for v in value.list}
+            params[key] = Param(key, od.CategoricalDistribution(list(labels)), labels)
+        elif isinstance(value, IntervalSweep):
+            low, high = value.start, value.end
+            if not low < high:
+                raise ConfigError(f"{where}: {text} is an empty range (its low end must be below its high end)")
+            if log and low <= 0:
+                raise ConfigError(f"{where}: {text} samples on a log scale: its low end must be > 0")
+            ints = isinstance(low, int) and isinstance(high, int)
+            dist = (od.IntDistribution(low, high, log=log) if ints
+                    else od.FloatDistribution(float(low), float(high), log=log))
+            params[key] = Param(key, dist)
+        elif isinstance(value, RangeSweep):
+            values = list(_range_values(value))
+            if not values:
+                raise ConfigError(f"{where}: {text} is an empty range")
+            if not all(isinstance(v, int) for v in (value.start, value.stop, value.step)):
+                labels = {override_value(v): v for v in values}
+                params[key] = Param(key, od.CategoricalDistribution(list(labels)), labels)
+            else:
+                params[key] = Param(key, od.IntDistribution(values[0], values[-1], step=abs(value.step)))
+        else:
+            raise ConfigError(f"{where}: {text} is one value, not a range; use {SAMPLED} "
+                              "(a fixed value goes on the command line)")
+    if not params:
+        raise ConfigError(f"{where} has no setting to search")
+    return params
+
+
+def _range_values(r) -> Iterable[Any]:
+    value = r.start
+    while (r.step > 0 and value < r.stop) or (r.step < 0 and value > r.stop):
+        yield value
+        value += r.step
+
+
+def load_space(path: Path, override: str | None = None) -> dict[str, Param]:
+    """The search space in ``path`` (a YAML mapping)."""
+    try:
+        raw = OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+    except FileNotFoundError:
+        raise ConfigError(f"no search space {path}: write one (see conf/search/) or point "
+                          "hydra.sweeper.search at one") from None
+    except Exception as err:  # noqa: BLE001 - yaml and OmegaConf raise many types
+        raise ConfigError(f"{path} does not parse ({type(err).__name__})") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path} must map settings to ranges (key: interval(...)); got a {type(raw).__name__}")
+    return parse_space(_flatten(raw), str(path))
+
+
+def _flatten(node: dict, prefix: str = "") -> dict[str, Any]:
+    """``{learner: {lr: ...}}`` and ``{learner.lr: ...}`` alike, as dotted keys."""
+    out: dict[str, Any] = {}
+    for key, value in node.items():
+        name = f"{prefix}{key}"
+        out.update(_flatten(value, name + ".") if isinstance(value, dict) else {name: value})
+    return out
+
+
+def check_space(params: Mapping[str, Param], config: Any, where: str,
+                check: Callable[[list[str]], None]) -> None:
+    """Every searched key must be a setting of ``config`` (the composed run config), and
+    every value the space can give must pass ``check`` (the run's own validation of the
+    overrides ``[key=value]``): a bad range is refused before any trial runs."""
+    for key, param in params.items():
+        parent, _, leaf = key.rpartition(".")
+        node = OmegaConf.select(config, parent) if parent else config
+        if node is None or not OmegaConf.is_dict(node) or leaf not in node:
+            names = sorted(str(k) for k in node) if OmegaConf.is_dict(node) else []
+            hint = did_you_mean(leaf, names, prefix=f"{parent}." if parent else "")
+            raise ConfigError(f"{where}: {key} is not a setting of this run; {hint}"
+                              f"allowed{' in ' + parent if parent else ''}: {', '.join(names)}")
+        for value in param.extremes():
+            try:
+                check([f"{key}={override_value(value)}"])
+            except ConfigError as err:
+                raise ConfigError(f"{where}: {key} can be {override_value(value)}, which the run "
+                                  f"refuses: {err}") from None
+
+
+def make_pruner(settings: Mapping[str, Any] | None):
+    """Optuna's median pruner with ``settings`` (``n_startup_trials``, ``n_warmup_steps``:
+    episodes), or none for ``None``/``{}``."""
+    import optuna
+
+    if not settings:
+        return optuna.pruners.NopPruner()
+    return optuna.pruners.MedianPruner(**dict(settings))
+
+
+def open_storage(url: str):
+    """Optuna's storage at ``url`` (``sqlite:///file.db``, any SQLAlchemy URL), refused
+    in one line when it cannot be opened."""
+    import optuna
+
+    try:
+        if url.startswith("sqlite:///"):
+            Path(url[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
+        return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
+    except Exception as err:  # noqa: BLE001 - SQLAlchemy and drivers raise many types
+        reason = " ".join(str(err).split()) or type(err).__name__
+        raise ConfigError(f"hydra.sweeper.storage={url} cannot be opened: {reason[:200]}") from None
+
+
+def _engine_kwargs(url: str) -> dict:
+    # Several processes write one SQLite file: wait for its lock instead of failing.
+    return {"connect_args": {"timeout": 60}} if url.startswith("sqlite") else {}
+
+
+class TrialLink:
+    """A trial job's line to its study: reports the rolling measure (the first seed's job
+    only) and asks the pruner whether to stop. A study it cannot reach is one warning,
+    and the run goes on unpruned."""
+
+    def __init__(self, storage: str, study: str, number: int, lead: bool,
+                 pruner: Mapping[str, Any] | None, every: int, run_dir: Path) -> None:
+        import optuna
+
+        self.every, self.lead, self.number = int(every), lead, number
+        self._storage = open_storage(storage)
+        self._study = optuna.load_study(study_name=study, storage=self._storage, pruner=make_pruner(pruner))
+        study_id = self._storage.get_study_id_from_name(study)
+        self._trial_id = self._storage.get_trial_id_from_study_id_trial_number(study_id, number)
+        self._pruner = self._study.pruner
+        where = f"{socket.gethostname()}:{os.getpid()}"
+        key = "worker" if lead else f"worker_{os.getpid()}"
+        self._storage.set_trial_user_attr(self._trial_id, key, where)
+        if lead:
+            self._storage.set_trial_user_attr(self._trial_id, "run_dir", str(run_dir))
+
+    def __call__(self, step: int, value: float) -> bool:
+        """Reports ``value`` at ``step`` episodes; True when the study prunes the trial."""
+        import optuna
+
+        try:
+            frozen = self._storage.get_trial(self._trial_id)
+            if frozen.state != optuna.trial.TrialState.RUNNING:
+                return False  # told already (e.g. a resumed job): nothing to report to
+            if self.lead and math.isfinite(value):
+                self._storage.set_trial_intermediate_value(self._trial_id, step, float(value))
+                frozen = self._storage.get_trial(self._trial_id)
+            return bool(self._pruner.prune(self._study, frozen))
+        except Exception as err:  # noqa: BLE001 - the study is a remote database too
+            print(f"warning: trial {self.number}: cannot reach the study ({type(err).__name__}: "
+                  f"{str(err).splitlines()[0] if str(err) else ''}); the run goes on unpruned")
+            self.every = 0
+            return False
+
+
+def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header: list[str]) -> str:
+    """A ``conf/tuned/<robot>_<learner>.yaml``: ``base`` (the tuned file the study ran with,
+    if any) with the best trial's ``values`` (dotted keys) set, under ``header``."""
+    conf = OmegaConf.create(dict(base or {}))
+    for key, value in values.items():
+        OmegaConf.update(conf, key, value, force_add=True)
+    lines = ["# @package _global_", *(f"# {line}".rstrip() for line in header)]
+    return "\n".join(lines) + "\n" + OmegaConf.to_yaml(conf)
+
+
+def now_utc() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

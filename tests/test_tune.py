@@ -1,0 +1,202 @@
+"""Tuning with Optuna through Hydra (hydra/sweeper=optuna): search spaces, their checks,
+the trial jobs' reports and pruning, a study shared by two workers, the tuned file."""
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import optuna
+import pytest
+from omegaconf import OmegaConf
+
+from learners.settings import check_run_config
+from learners.tuning import TrialLink, check_space, load_space, open_storage, parse_space, tuned_text
+from params import ConfigError
+from tasks.factory import compose, conf_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+LEARNERS = sorted(p.stem for p in (conf_dir() / "learner").glob("*.yaml"))
+
+
+def cli(*args: str, cwd: Path = ROOT, timeout: int = 600) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return subprocess.run([sys.executable, "train.py", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout, env=env)
+
+
+# -- search spaces ---------------------------------------------------------------
+def test_sweep_grammar_becomes_optuna_distributions():
+    space = parse_space({"learner.lr": "tag(log, interval(1e-4, 1e-2))", "learner.gamma": "interval(0.9, 0.99)",
+                         "learner.updates": "int(interval(1, 16))", "learner.hidden": "choice([64,64],[128,128])",
+                         "num_envs": "range(4, 17, 4)"}, "test")
+    lr = space["learner.lr"].distribution
+    assert isinstance(lr, optuna.distributions.FloatDistribution) and lr.log and (lr.low, lr.high) == (1e-4, 1e-2)
+    assert isinstance(space["learner.gamma"].distribution, optuna.distributions.FloatDistribution)
+    assert isinstance(space["learner.updates"].distribution, optuna.distributions.IntDistribution)
+    hidden = space["learner.hidden"]
+    assert hidden.distribution.choices == ("[64,64]", "[128,128]")
+    assert hidden.value("[128,128]") == [128, 128]
+    envs = space["num_envs"].distribution
+    assert (envs.low, envs.high, envs.step) == (4, 16, 4)
+    assert space["learner.lr"].value(0.00123456789) == 0.001235  # 4 significant digits, as the job gets it
+
+
+@pytest.mark.parametrize("expr, words", [
+    ("interval(0.5, 0.1)", "empty range"),
+    ("interval(0.1, 0.1)", "empty range"),
+    ("range(5, 5)", "empty range"),
+    ("tag(log, interval(0, 1))", "log scale"),
+    ("0.5", "one value, not a range"),
+    ("interval(0.1,", "does not parse"),
+])
+def test_a_bad_range_is_one_line(expr, words):
+    with pytest.raises(ConfigError) as err:
+        parse_space({"learner.lr": expr}, "conf/search/x.yaml")
+    message = str(err.value)
+    assert words in message and "learner.lr" in message and "\n" not in message
+
+
+def _check(base: list[str]):
+    return lambda extra: check_run_config(compose(overrides=[*base, *extra]))
+
+
+def test_an_unknown_setting_in_a_space_is_named_with_the_closest_one():
+    base = ["learner=dqn"]
+    with pytest.raises(ConfigError, match=r"learner\.lrr is not a setting of this run; did you mean learner\.lr\?"):
+        check_space(parse_space({"learner.lrr": "interval(0.1, 0.2)"}, "s.yaml"), compose(overrides=base), "s.yaml",
+                    _check(base))
+
+
+def test_a_range_the_run_refuses_is_refused_before_any_trial():
+    base = ["learner=dqn"]
+    with pytest.raises(ConfigError, match=r"learner\.lr can be -0\.1, which the run refuses: learner\.lr must be"):
+        check_space(parse_space({"learner.lr": "interval(-0.1, 0.2)"}, "s.yaml"), compose(overrides=base), "s.yaml",
+                    _check(base))
+
+
+def test_every_learner_has_a_search_space():
+    assert {p.stem for p in (conf_dir() / "search").glob("*.yaml")} >= set(LEARNERS)
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in (conf_dir() / "search").glob("*.yaml")))
+def test_every_search_space_fits_its_learner(name):
+    robot, _, learner = name.rpartition("_") if name not in LEARNERS else ("", "", name)
+    base = [f"robot={robot or 'cartpole'}", f"learner={learner}", "max_env_steps=1000", "stop_when_solved=false"]
+    space = load_space(conf_dir() / "search" / f"{name}.yaml")
+    check_space(space, compose(overrides=base), name, _check(base))
+
+
+@pytest.mark.parametrize("url", ["postgresql://nobody@127.0.0.1:1/none", "not a url", "sqlite:////proc/x/y.db"])
+def test_a_storage_that_cannot_be_opened_is_one_line(url):
+    with pytest.raises(ConfigError, match=r"hydra\.sweeper\.storage=.* cannot be opened: ") as err:
+        open_storage(url)
+    assert "\n" not in str(err.value)
+
+
+# -- the trial jobs' link to the study ---------------------------------------------
+def test_a_trial_below_the_median_is_pruned_and_reports_only_from_its_first_seed(tmp_path):
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    pruner = {"n_startup_trials": 1, "n_warmup_steps": 0}
+    study = optuna.create_study(study_name="s", storage=url, direction="maximize",
+                                pruner=optuna.pruners.MedianPruner(**pruner))
+    good = study.ask()
+    for step in (10, 20):
+        good.report(100.0, step)
+    study.tell(good, 100.0)
+    poor = study.ask()
+    lead = TrialLink(url, "s", poor.number, lead=True, pruner=pruner, every=10, run_dir=tmp_path / "a")
+    other = TrialLink(url, "s", poor.number, lead=False, pruner=pruner, every=10, run_dir=tmp_path / "b")
+    assert other(10, 1.0) is False  # reports nothing, and nothing is reported yet
+    assert lead(10, 1.0) is True
+    assert other(20, 500.0) is True  # the first seed's values decide for every seed
+    frozen = study.trials[poor.number]
+    assert frozen.intermediate_values == {10: 1.0}
+    assert frozen.user_attrs["run_dir"] == str(tmp_path / "a")
+    study.tell(poor, state=optuna.trial.TrialState.PRUNED)
+    assert lead(20, 1.0) is False  # a trial already told (a resumed job) is left alone
+
+
+def test_the_tuned_file_keeps_the_previous_ones_other_settings():
+    text = tuned_text({"learner.alpha": 0.3, "learner.number_splits": 7},
+                      {"num_envs": 8, "learner": {"alpha": 0.1, "gamma": 0.99}}, ["study x", "best 1.2"])
+    assert text.startswith("# @package _global_\n# study x\n# best 1.2\n")
+    conf = OmegaConf.create(text)
+    assert conf.num_envs == 8 and conf.learner.alpha == 0.3 and conf.learner.gamma == 0.99
+    assert conf.learner.number_splits == 7
+
+
+# -- the budget a trial gets ----------------------------------------------------------
+def test_max_env_steps_ends_training_and_stop_when_solved_false_trains_past_solved(tmp_path):
+    base = ["quiet=true", "eval_episodes=0", "num_envs=4", "task.win.threshold=5", "task.win.min_episodes=1"]
+    stop = cli(f"hydra.run.dir={tmp_path / 'a'}", *base, "learner.nepisodes=40")
+    past = cli(f"hydra.run.dir={tmp_path / 'b'}", *base, "learner.nepisodes=40", "stop_when_solved=false")
+    steps = cli(f"hydra.run.dir={tmp_path / 'c'}", *base, "learner.nepisodes=100000", "max_env_steps=300",
+                "stop_when_solved=false")
+    for proc in (stop, past, steps):
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    first = OmegaConf.load(tmp_path / "a" / "summary.json")
+    assert first.solved and first.episodes == first.solved_at
+    later = OmegaConf.load(tmp_path / "b" / "summary.json")
+    assert later.solved and later.solved_at == first.solved_at and later.episodes == 40
+    capped = OmegaConf.load(tmp_path / "c" / "summary.json")
+    assert 300 <= capped.env_steps < 304
+    assert "or 300 env steps, training past 'solved'" in steps.stdout
+
+
+# -- the sweeper end to end -------------------------------------------------------------
+@pytest.fixture
+def project_copy(tmp_path):
+    """The project in a scratch folder: the study writes conf/tuned/ there, not here."""
+    copy = tmp_path / "project"
+    copy.mkdir()
+    for name in ("train.py", "robots", "tasks", "learners", "params", "conf", "hydra_plugins"):
+        src = ROOT / name
+        if src.is_dir():
+            shutil.copytree(src, copy / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(src, copy / name)
+    return copy
+
+
+def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(project_copy, tmp_path):
+    url = f"sqlite:///{tmp_path / 'studies.db'}"
+    assert not (project_copy / "conf" / "tuned" / "cartpole_n1try.yaml").exists()
+    proc = cli("-m", "hydra/sweeper=optuna", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+               "robot=cartpole", "learner=n1try", "eval_episodes=2", "num_envs=4",
+               "hydra.sweeper.n_trials=2", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[3]",
+               "hydra.sweeper.budget_steps=400", "hydra.sweeper.report_every=5", "hydra.sweeper.write_tuned=true",
+               f"hydra.sweeper.storage={url}", f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=project_copy)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    study = optuna.load_study(study_name="cartpole-stay_up-n1try", storage=url)
+    trials = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(trials) == 2
+    assert all(t.intermediate_values for t in trials)  # reported from inside the jobs
+    assert len({t.user_attrs["worker"] for t in trials}) == 2  # two processes, one study
+    tuned = project_copy / "conf" / "tuned" / "cartpole_n1try.yaml"
+    assert tuned.read_text().startswith("# @package _global_\n# Tuned by Optuna")
+    best = OmegaConf.create(tuned.read_text())
+    assert "best trial" in proc.stdout and f"wrote {tuned}" in proc.stdout
+
+    run = cli("robot=cartpole", "learner=n1try", "learner.nepisodes=2", "eval_episodes=0", "quiet=true",
+              f"hydra.run.dir={tmp_path / 'next'}", cwd=project_copy)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert "tuned: conf/tuned/cartpole_n1try.yaml" in run.stdout
+    used = OmegaConf.load(tmp_path / "next" / "config.yaml")
+    assert used.learner.lr == best.learner.lr and used.learner.batch_size == best.learner.batch_size
+
+
+@pytest.mark.parametrize("args, words", [
+    (["seed=0,1"], "the study picks the values"),
+    (["hydra.sweeper.storage=postgresql://nobody@127.0.0.1:1/none"], "cannot be opened"),
+    (["hydra.sweeper.search=MISSING.yaml"], "no search space MISSING.yaml"),
+    (["hydra.sweeper.n_trials=0"], "hydra.sweeper.n_trials must be an integer >= 1"),
+])
+def test_bad_tuning_input_is_one_line(tmp_path, args, words):
+    storage = [] if any("storage" in a for a in args) else [f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}"]
+    proc = cli("-m", "hydra/sweeper=optuna", "learner=qlearn", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+               *storage, *args)
+    assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], proc.stderr
