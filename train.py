@@ -222,9 +222,15 @@ def trial_link(cfg: DictConfig, run_dir: Path):
                           "tune with: python train.py -m hydra/sweeper=optuna ...")
     from learners.tuning import TrialLink
 
-    return TrialLink(str(sweeper.storage), str(sweeper.study), int(cfg.trial),
-                     lead=int(cfg.seed) == int(sweeper.seeds[0]), pruner=sweeper.pruner,
-                     every=int(sweeper.report_every), run_dir=run_dir)
+    try:
+        return TrialLink(str(sweeper.storage), str(sweeper.study), int(cfg.trial),
+                         lead=int(cfg.seed) == int(sweeper.seeds[0]), pruner=sweeper.pruner,
+                         every=int(sweeper.report_every), run_dir=run_dir)
+    except ConfigError:
+        raise
+    except Exception as err:  # noqa: BLE001 - a missing study or trial, a database error
+        raise ConfigError(f"trial={cfg.trial}: study {sweeper.study} in {sweeper.storage} has no such "
+                          f"trial to report to ({type(err).__name__}: {_one_line(err)})") from None
 
 
 def _one_line(err: BaseException) -> str:

@@ -46,6 +46,9 @@ def planned_jobs(sweep_dir: Path) -> Plan:
     try:  # whatever is wrong with the file, the job folders still tell the rest
         cfg = OmegaConf.load(path)
         sweeper = cfg.hydra.sweeper
+        if str(sweeper.get("_target_")).endswith(".OptunaSweeper"):  # hydra/sweeper=optuna
+            # It asks its study for one batch of trials at a time: no job is planned ahead.
+            return Plan(None, {k: cfg.hydra.runtime.choices.get(k) for k in PICKS})
         if not str(sweeper.get("_target_")).endswith(".BasicSweeper"):
             return Plan(None, note=f"{path}: sweeper {sweeper.get('_target_')} is not Hydra's basic "
                                    "sweeper: jobs that never started cannot be listed")

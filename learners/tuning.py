@@ -30,6 +30,21 @@ from omegaconf import OmegaConf
 
 from params import ConfigError, did_you_mean
 
+@dataclass
+class Plan:
+    """What every trial of a sweep shares: the picks, the command line's overrides
+    (``given``) and all a job gets besides its trial's values (``fixed``), the space."""
+
+    robot: str
+    task: str
+    learner: str
+    given: list[str]
+    fixed: list[str]
+    space_file: Path
+    params: dict
+    measure: str
+
+
 SAMPLED = "choice(...), interval(...), int(interval(...)), tag(log, interval(...)) or range(...)"
 
 

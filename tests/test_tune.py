@@ -178,6 +178,7 @@ def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(projec
     assert tuned.read_text().startswith("# @package _global_\n# Tuned by Optuna")
     best = OmegaConf.create(tuned.read_text())
     assert "best trial" in proc.stdout and f"wrote {tuned}" in proc.stdout
+    assert "trial=0" in proc.stdout and "cannot be listed" not in proc.stdout + proc.stderr  # the comparison
 
     run = cli("robot=cartpole", "learner=n1try", "learner.nepisodes=2", "eval_episodes=0", "quiet=true",
               f"hydra.run.dir={tmp_path / 'next'}", cwd=project_copy)
@@ -200,3 +201,10 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], proc.stderr
+
+
+def test_trial_outside_a_tuning_sweep_is_one_line(tmp_path):
+    proc = cli("trial=3", "learner.nepisodes=1", f"hydra.run.dir={tmp_path / 'run'}")
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "trial=3 is set by hydra/sweeper=optuna" in lines[0], proc.stderr

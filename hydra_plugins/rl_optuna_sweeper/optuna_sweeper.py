@@ -3,253 +3,44 @@
     python train.py -m hydra/sweeper=optuna hydra/launcher=joblib robot=cube learner=qlearn
 
 Each trial samples the learner's search space (``conf/search/<learner>.yaml``, or
-``<robot>_<learner>.yaml`` where a robot has its own), runs one
-job per seed through Hydra's launcher (basic, joblib, submitit: Slurm) with the same
-budget (``budget_steps`` env steps, training past "solved"), and scores the mean of the
-jobs' scores: the task's own measure as the comparison reads it. Jobs report their
-rolling measure every ``report_every`` episodes, and the median pruner stops hopeless
-trials. The study lives in ``storage`` (an SQLite file by default, any SQL database by
-URL), so sweeps started on several machines share it. The best trial ends as a tuned
-file: ``tuned_<robot>_<learner>.yaml`` in the sweep folder, and with ``write_tuned=true``
+``<robot>_<learner>.yaml`` where a robot has its own), runs one job per seed through
+Hydra's launcher (basic, joblib, submitit: Slurm) with the same budget (``budget_steps``
+env steps, training past "solved"), and scores the mean of the jobs' scores: the task's
+own measure as the comparison reads it. Jobs report their rolling measure every
+``report_every`` episodes, and the median pruner stops hopeless trials. The study lives
+in ``storage`` (an SQLite file by default, any SQL database by URL), so sweeps started on
+several machines share it. The best trial ends as a tuned file:
+``tuned_<robot>_<learner>.yaml`` in the sweep folder, and with ``write_tuned=true``
 ``conf/tuned/<robot>_<learner>.yaml``, which the next plain run uses.
 
 Why not ``hydra-optuna-sweeper``: it pins optuna < 3, whose SQLite storage fails with
 SQLAlchemy 2 (what pip resolves today), and its jobs cannot report intermediate values,
 so there is no pruning.
+
+Hydra imports this module whenever any app starts (to find plugins): the work is in
+``_impl`` (a name Hydra's scan skips), imported when a sweep is set up.
 """
 
-from __future__ import annotations
+from typing import Any, List
 
-import statistics
-from pathlib import Path
-from typing import Any, Sequence
-
-from hydra.core.plugins import Plugins
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
-from omegaconf import DictConfig, OmegaConf, open_dict
-
-from learners.comparison import score
-from learners.settings import check_run_config
-from learners.summary import summarize_run
-from learners.tuning import (check_space, load_space, make_pruner, now_utc, open_storage, override_value,
-                             tuned_text)
-from params import ConfigError
-from tasks.factory import conf_dir
-
-# Settings the sweeper itself gives every job: the command line may not.
-OWN = ("seed", "trial", "max_env_steps", "stop_when_solved")
+from omegaconf import DictConfig
 
 
 class OptunaSweeper(Sweeper):
-    """Asks Optuna for trials, launches each as one job per seed, tells it their mean score."""
+    """Hydra's face of :class:`._impl.TuningSweep` (settings: ``conf/hydra/sweeper/optuna.yaml``)."""
 
-    def __init__(self, study: str, storage: str, n_trials: int = 12, trials_per_batch: int = 1,
-                 seeds: Sequence[int] = (0, 1), search: str | None = None, budget_steps: int = 50_000,
-                 report_every: int = 50, pruner: dict | None = None, startup_trials: int = 5,
-                 sampler_seed: int | None = None, write_tuned: bool = False) -> None:
-        self.study_name, self.storage_url = str(study), str(storage)
-        self.n_trials, self.trials_per_batch = int(n_trials), int(trials_per_batch)
-        self.seeds = [int(s) for s in seeds]
-        self.search, self.budget_steps, self.report_every = search, int(budget_steps), int(report_every)
-        self.pruner = dict(pruner) if pruner else None
-        self.startup_trials, self.sampler_seed = int(startup_trials), sampler_seed
-        self.write_tuned = bool(write_tuned)
-        self.config: DictConfig | None = None
-        self.launcher = None
-        self.hydra_context: HydraContext | None = None
+    def __init__(self, **settings: Any) -> None:
+        self.settings = settings
+        self.sweep_impl = None
 
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig) -> None:
-        self.hydra_context, self.config = hydra_context, config
-        self.launcher = Plugins.instance().instantiate_launcher(
-            hydra_context=hydra_context, task_function=task_function, config=config)
+        from ._impl import TuningSweep
 
-    # -- checks before any trial ------------------------------------------------
-    def _check_settings(self) -> None:
-        bad = [(name, value, rule) for name, value, rule in (
-            ("n_trials", self.n_trials, self.n_trials >= 1), ("trials_per_batch", self.trials_per_batch,
-             self.trials_per_batch >= 1), ("budget_steps", self.budget_steps, self.budget_steps >= 1),
-            ("report_every", self.report_every, self.report_every >= 1),
-            ("seeds", self.seeds, len(self.seeds) >= 1 and len(set(self.seeds)) == len(self.seeds)))
-            if not rule]
-        if bad:
-            name, value, _ = bad[0]
-            need = "distinct seeds, at least one" if name == "seeds" else "an integer >= 1"
-            raise ConfigError(f"hydra.sweeper.{name} must be {need}; got {value!r}")
+        self.sweep_impl = TuningSweep(**self.settings)
+        self.sweep_impl.setup(hydra_context=hydra_context, task_function=task_function, config=config)
 
-    def _fixed(self, arguments: list[str]) -> list[str]:
-        """The command line's overrides, given to every job; sweeps and the sweeper's own keys refused."""
-        parser = _parser()
-        for override in parser.parse_overrides(arguments):
-            key = override.get_key_element()
-            if override.is_sweep_override():
-                raise ConfigError(f"{override.input_line}: the study picks the values; put ranges in the search "
-                                  "space (conf/search/<learner>.yaml or hydra.sweeper.search) and seeds in "
-                                  "hydra.sweeper.seeds=[0,1]")
-            if key in OWN:
-                raise ConfigError(f"{override.input_line}: the sweeper sets {key} for each job "
-                                  "(hydra.sweeper.seeds, hydra.sweeper.budget_steps)")
-        return list(arguments)
-
-    def _compose(self, overrides: list[str]) -> DictConfig:
-        assert self.hydra_context is not None and self.config is not None
-        cfg = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
-        with open_dict(cfg):
-            del cfg["hydra"]
-        return cfg
-
-    def _hydra_overrides(self) -> list[str]:
-        """The command line's ``hydra...`` overrides (the sweeper's settings among them)."""
-        assert self.config is not None
-        return [str(o) for o in self.config.hydra.overrides.hydra if not str(o).startswith("hydra.sweep.dir")]
-
-    def _budget(self) -> list[str]:
-        return [f"max_env_steps={self.budget_steps}", "stop_when_solved=false"]
-
-    # -- the study ----------------------------------------------------------------
-    def sweep(self, arguments: list[str]) -> Any:
-        import optuna
-
-        assert self.config is not None and self.launcher is not None
-        optuna.logging.set_verbosity(optuna.logging.WARNING)
-        self._check_settings()
-        fixed = self._fixed(arguments)
-        choices = self.config.hydra.runtime.choices
-        robot, task, learner = (str(choices.get(k)) for k in ("robot", "task", "learner"))
-        space_file = Path(self.search) if self.search else search_file(robot, learner)
-        params = load_space(space_file)
-        base = self._compose([*fixed, *self._budget()])
-        check_run_config(base)
-        check_space(params, base, str(space_file),
-                    lambda extra: check_run_config(self._compose([*fixed, *self._budget(), *extra])))
-        measure = _measure_of(base)
-        study = self._open_study(measure)
-        sweep_dir = Path(str(self.config.hydra.sweep.dir))
-        sweep_dir.mkdir(parents=True, exist_ok=True)
-        OmegaConf.save(self.config, sweep_dir / "multirun.yaml")
-        print(f"tuning {learner} on {robot}/{task}: study {self.study_name} in {self.storage_url}\n"
-              f"  {self.n_trials} trials x seeds {self.seeds}, {self.budget_steps} env steps each, objective: "
-              f"{measure} (the task's score), pruning: {self.pruner or 'off'}, space: {space_file}", flush=True)
-        results, job_idx, done = [], 0, 0
-        while done < self.n_trials and not (sweep_dir / ".stop").exists():
-            batch = [study.ask({k: p.distribution for k, p in params.items()})
-                     for _ in range(min(self.trials_per_batch, self.n_trials - done))]
-            values = [{k: p.value(t.params[k]) for k, p in params.items()} for t in batch]
-            jobs = [[*fixed, *self._budget(), *(f"{k}={override_value(v)}" for k, v in vals.items()),
-                     f"seed={seed}", f"trial={t.number}"]
-                    for t, vals in zip(batch, values) for seed in self.seeds]
-            returns = self.launcher.launch(jobs, initial_job_idx=job_idx)
-            job_idx += len(jobs)
-            n = len(self.seeds)
-            for i, (trial, vals) in enumerate(zip(batch, values)):
-                self._tell(study, trial, vals, returns[i * n:(i + 1) * n])
-            results.append(returns)
-            done += len(batch)
-        self._finish(study, params, robot, learner, measure, fixed, space_file, sweep_dir)
-        return results
-
-    def _open_study(self, measure: str):
-        import optuna
-
-        storage = open_storage(self.storage_url)
-        sampler = optuna.samplers.TPESampler(n_startup_trials=self.startup_trials, seed=self.sampler_seed)
-        study = optuna.create_study(study_name=self.study_name, storage=storage, sampler=sampler,
-                                    pruner=make_pruner(self.pruner), direction="maximize", load_if_exists=True)
-        known = study.user_attrs.get("measure")
-        if known is None:
-            study.set_user_attr("measure", measure)
-        elif known != measure:
-            raise ConfigError(f"study {self.study_name} in {self.storage_url} scores {known}, this run's task "
-                              f"{measure}: name another study (hydra.sweeper.study=...)")
-        return study
-
-    def _tell(self, study, trial, values: dict, returns: list) -> None:
-        """The trial's value: the mean of its seeds' scores (pruned if any job was pruned)."""
-        import optuna
-
-        jobs = [summarize_run(_run_dir(r)) if _run_dir(r) else {"status": "failed", "error": "no run folder"}
-                for r in returns]
-        failed = [j for j in jobs if j.get("status") != "ok"]
-        pruned = [j for j in jobs if j.get("pruned_at") is not None]
-        shown = " ".join(f"{k}={override_value(v)}" for k, v in values.items())
-        if failed:
-            study.tell(trial, state=optuna.trial.TrialState.FAIL)
-            print(f"trial {trial.number} failed: {failed[0].get('error') or failed[0].get('status')} ({shown})",
-                  flush=True)
-            return
-        scores = [score(j)[0] for j in jobs]
-        if pruned:
-            study.tell(trial, state=optuna.trial.TrialState.PRUNED)
-            print(f"trial {trial.number} pruned at episode {pruned[0]['pruned_at']} ({shown})", flush=True)
-            return
-        value = statistics.fmean(float(s) for s in scores if s is not None) if any(
-            s is not None for s in scores) else float("nan")
-        study.tell(trial, value)
-        per_seed = ", ".join(f"{s:.4g}" if s is not None else "-" for s in scores)
-        print(f"trial {trial.number}: {value:.4g} (seeds {per_seed}) {shown}", flush=True)
-
-    def _finish(self, study, params: dict, robot: str, learner: str, measure: str, fixed: list[str],
-                space_file: Path, sweep_dir: Path) -> None:
-        import optuna
-
-        states = [t.state for t in study.trials]
-        count = {s: states.count(s) for s in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED,
-                                              optuna.trial.TrialState.FAIL)}
-        complete = count[optuna.trial.TrialState.COMPLETE]
-        print(f"study {self.study_name}: {len(states)} trials ({complete} complete, "
-              f"{count[optuna.trial.TrialState.PRUNED]} pruned, {count[optuna.trial.TrialState.FAIL]} failed)")
-        if not complete:
-            print("no trial completed: no tuned file written")
-            return
-        best = study.best_trial
-        values = {k: p.value(best.params[k]) for k, p in params.items() if k in best.params}
-        header = [
-            f"Tuned by Optuna ({now_utc()}): study {self.study_name} in {self.storage_url}",
-            f"best trial {best.number}: {measure} {best.value:.4g} (mean over seeds {self.seeds}), of "
-            f"{len(states)} trials ({complete} complete, {count[optuna.trial.TrialState.PRUNED]} pruned)",
-            f"budget per trial and seed: {self.budget_steps} env steps, training past 'solved'; "
-            f"pruner: {self.pruner or 'none'}; search space: {space_file.name}",
-            f"command: python train.py -m {' '.join(self._hydra_overrides() + fixed)}",
-        ]
-        tuned_name = f"{robot}_{learner}.yaml"
-        base_file = conf_dir() / "tuned" / tuned_name
-        base = self.config.hydra.runtime.choices.get("tuned")
-        base_values = OmegaConf.to_container(OmegaConf.load(base_file)) if base and base_file.is_file() else None
-        if base_values:
-            header.append(f"settings not searched are the previous {tuned_name}'s")
-        text = tuned_text(values, base_values, header)
-        out = sweep_dir / f"tuned_{tuned_name}"
-        out.write_text(text)
-        print(f"best trial {best.number}: {best.value:.4g} " + " ".join(
-            f"{k}={override_value(v)}" for k, v in values.items()))
-        print(f"tuned file: {out}")
-        if self.write_tuned:
-            base_file.write_text(text)
-            print(f"wrote {base_file}: the next `python train.py robot={robot} learner={learner}` uses it")
-        else:
-            print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
-
-
-def search_file(robot: str, learner: str) -> Path:
-    """``conf/search/<robot>_<learner>.yaml`` where there is one (settings only that robot's
-    configs have, e.g. bins per state entry), else ``conf/search/<learner>.yaml``."""
-    pair = conf_dir() / "search" / f"{robot}_{learner}.yaml"
-    return pair if pair.is_file() else conf_dir() / "search" / f"{learner}.yaml"
-
-
-def _parser():
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    return OverridesParser.create()
-
-
-def _run_dir(ret) -> Path | None:
-    try:
-        return Path(str(ret.hydra_cfg.hydra.runtime.output_dir))
-    except Exception:  # noqa: BLE001 - a job that never composed has no config
-        return None
-
-
-def _measure_of(cfg: DictConfig) -> str:
-    win = cfg.task.get("win") if "task" in cfg else None
-    return str(win.get("measure")) if win is not None else "measure"
+    def sweep(self, arguments: List[str]) -> Any:
+        assert self.sweep_impl is not None, "setup() first"
+        return self.sweep_impl.sweep(arguments)
