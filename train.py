@@ -371,7 +371,7 @@ def main(cfg: DictConfig) -> None:
         with run_lock(run_dir), tee_console(run_dir / "train.log"):
             summary = run(cfg, run_dir, resume=resume, choices=choices, changes=changes,
                           start=None if resume else lambda: start_run(cfg, run_dir, overrides),
-                          progress=trial_link(cfg, run_dir))
+                          progress=None if resume else trial_link(cfg, run_dir))  # its study moved on
     except (ConfigError, CheckpointError, InstantiationException) as err:
         return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)
     except OSError as err:  # the run folder: missing, read-only, full

@@ -191,8 +191,6 @@ def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(projec
 @pytest.mark.parametrize("args, words", [
     (["seed=0,1"], "the study picks the values"),
     (["hydra.sweeper.storage=postgresql://nobody@127.0.0.1:1/none"], "cannot be opened"),
-    (["hydra.sweeper.search=MISSING.yaml"], "no search space MISSING.yaml"),
-    (["hydra.sweeper.n_trials=0"], "hydra.sweeper.n_trials must be an integer >= 1"),
 ])
 def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     storage = [] if any("storage" in a for a in args) else [f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}"]
@@ -201,6 +199,27 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], proc.stderr
+
+
+@pytest.mark.parametrize("settings, args, words", [
+    ({"n_trials": 0}, [], "hydra.sweeper.n_trials must be an integer >= 1; got 0"),
+    ({"seeds": [1, 1]}, [], "hydra.sweeper.seeds must be distinct seeds"),
+    ({}, ["learner.lr=0.1,0.2"], "the study picks the values"),
+    ({}, ["trial=3"], "the sweeper sets trial for each job"),
+    ({}, ["max_env_steps=10"], "hydra.sweeper.budget_steps"),
+])
+def test_the_sweepers_own_checks(settings, args, words):
+    from hydra_plugins.rl_optuna_sweeper._impl import TuningSweep
+
+    sweep = TuningSweep(study="s", storage="sqlite://", **settings)
+    with pytest.raises(ConfigError, match=words.replace(".", r"\.").replace("[", r"\[")):
+        sweep._check_settings()
+        sweep._fixed(args)
+
+
+def test_a_missing_search_space_is_one_line():
+    with pytest.raises(ConfigError, match="no search space MISSING.yaml"):
+        load_space(Path("MISSING.yaml"))
 
 
 def test_trial_outside_a_tuning_sweep_is_one_line(tmp_path):
