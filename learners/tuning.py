@@ -43,6 +43,7 @@ class Plan:
     space_file: Path
     params: dict
     measure: str
+    current: dict | None = None  # the run's own values as a trial, where the space holds them
 
 
 SAMPLED = "choice(...), interval(...), int(interval(...)), tag(log, interval(...)) or range(...)"
@@ -62,6 +63,18 @@ class Param:
         if self.labels is not None:
             return self.labels[sampled]
         return float(f"{sampled:.4g}") if isinstance(sampled, float) else sampled
+
+    def sample_of(self, value: Any) -> Any:
+        """Optuna's sample for the setting's ``value``, or None where the space cannot give it."""
+        if self.labels is not None:
+            label = override_value(value)
+            return label if label in self.labels else None
+        d = self.distribution
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not d.low <= value <= d.high:
+            return None
+        if isinstance(d.low, int) and not float(value).is_integer():
+            return None
+        return int(value) if isinstance(d.low, int) else float(value)
 
     def extremes(self) -> list[Any]:
         """The values the space can give that bound it (every choice of a categorical)."""
@@ -177,6 +190,15 @@ def check_space(params: Mapping[str, Param], config: Any, where: str,
             except ConfigError as err:
                 raise ConfigError(f"{where}: {key} can be {override_value(value)}, which the run "
                                   f"refuses: {err}") from None
+
+
+def current_trial(params: Mapping[str, Param], config: Any) -> dict[str, Any] | None:
+    """Optuna's params for the values ``config`` already has, if the space holds them all."""
+    samples = {}
+    for key, param in params.items():
+        value = OmegaConf.select(config, key)
+        samples[key] = param.sample_of(OmegaConf.to_container(value) if OmegaConf.is_config(value) else value)
+    return samples if all(s is not None for s in samples.values()) else None
 
 
 def make_pruner(settings: Mapping[str, Any] | None):

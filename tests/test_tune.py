@@ -12,7 +12,8 @@ import pytest
 from omegaconf import OmegaConf
 
 from learners.settings import check_run_config
-from learners.tuning import TrialLink, check_space, load_space, open_storage, parse_space, tuned_text
+from learners.tuning import (TrialLink, check_space, current_trial, load_space, open_storage, parse_space,
+                             tuned_text)
 from params import ConfigError
 from tasks.factory import compose, conf_dir
 
@@ -227,3 +228,14 @@ def test_trial_outside_a_tuning_sweep_is_one_line(tmp_path):
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "trial=3 is set by hydra/sweeper=optuna" in lines[0], proc.stderr
+
+
+def test_a_new_study_starts_from_the_current_configuration_where_the_space_holds_it():
+    space = load_space(conf_dir() / "search" / "dqn.yaml")
+    defaults = current_trial(space, compose(overrides=["learner=dqn", "~tuned"]))
+    assert defaults["num_envs"] == "1" and defaults["learner.lr"] == 0.001 and defaults["learner.hidden"] == "[64,64]"
+    # The cart-pole's tuned dqn trains per finished episode: outside this space.
+    assert current_trial(space, compose(overrides=["learner=dqn"])) is None
+    cube = current_trial(load_space(conf_dir() / "search" / "cube_qlearn.yaml"),
+                         compose(overrides=["robot=cube", "learner=qlearn"]))
+    assert cube["learner.number_splits.wheel_speed"] == 21 and cube["learner.gamma"] == 0.995

@@ -13,8 +13,8 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from learners.comparison import score
 from learners.settings import check_run_config
 from learners.summary import summarize_run
-from learners.tuning import (Plan, check_space, load_space, make_pruner, now_utc, open_storage, override_value,
-                             tuned_text)
+from learners.tuning import (Plan, check_space, current_trial, load_space, make_pruner, now_utc, open_storage,
+                             override_value, tuned_text)
 from params import ConfigError
 from tasks.factory import conf_dir
 
@@ -28,14 +28,14 @@ class TuningSweep:
     def __init__(self, study: str, storage: str, n_trials: int = 12, trials_per_batch: int = 1,
                  seeds: Sequence[int] = (0, 1), search: str | None = None, budget_steps: int = 50_000,
                  report_every: int = 50, pruner: dict | None = None, startup_trials: int = 5,
-                 sampler_seed: int | None = None, write_tuned: bool = False) -> None:
+                 sampler_seed: int | None = None, write_tuned: bool = False, start_from_current: bool = True) -> None:
         self.study_name, self.storage_url = str(study), str(storage)
         self.n_trials, self.trials_per_batch = int(n_trials), int(trials_per_batch)
         self.seeds = [int(s) for s in seeds]
         self.search, self.budget_steps, self.report_every = search, int(budget_steps), int(report_every)
         self.pruner = dict(pruner) if pruner else None
         self.startup_trials, self.sampler_seed = int(startup_trials), sampler_seed
-        self.write_tuned = bool(write_tuned)
+        self.write_tuned, self.start_from_current = bool(write_tuned), bool(start_from_current)
         self.config: DictConfig | None = None
         self.launcher = None
         self.hydra_context: HydraContext | None = None
@@ -109,7 +109,8 @@ class TuningSweep:
         base = self._compose(fixed)
         check_run_config(base)
         check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
-        return Plan(robot, task, learner, given, fixed, space_file, params, _measure_of(base))
+        return Plan(robot, task, learner, given, fixed, space_file, params, _measure_of(base),
+                    current_trial(params, base))
 
     # -- the study ----------------------------------------------------------------
     def sweep(self, arguments: list[str]) -> Any:
@@ -126,6 +127,12 @@ class TuningSweep:
               f"  {self.n_trials} trials x seeds {self.seeds}, {self.budget_steps} env steps each, objective: "
               f"{plan.measure} (the task's score), pruning: {self.pruner or 'off'}, space: {plan.space_file}",
               flush=True)
+        if self.start_from_current and not study.trials:
+            if plan.current is not None:  # the study's first trial: what a plain run does now
+                study.enqueue_trial(plan.current)
+                print("  trial 0 is the current configuration (start_from_current)", flush=True)
+            else:
+                print("  the current configuration lies outside the space: every trial is sampled", flush=True)
         results, done = [], 0
         while done < self.n_trials and not (sweep_dir / ".stop").exists():
             batch = [study.ask({k: p.distribution for k, p in plan.params.items()})
