@@ -1,18 +1,55 @@
 """Wall-clock and env steps for dqn and qlearn to reach the win criterion on
-cartpole/stay_up, over 3 seeds (run by hand).
+cartpole/stay_up, over 3 seeds, and what a whole process costs around it (run by hand).
 
     python bench/time_to_solve.py [--seeds 0 1 2] [--num-envs-dqn 16] [--num-envs-qlearn 1]
 
-Last lines: ``SOLVE <learner> cartpole/stay_up median_wall_s=<v> solved=<k>/3``
-(the median over the seeds that solved; ``nan`` if none did).
+Per learner, a Hydra sweep over the seeds; ``wall_s`` is the run's own clock to the
+solving episode (training, from the run's start). Then one plain process,
+``python train.py robot=cartpole learner=dqn seed=<first seed> eval_episodes=0
+quiet=true``, timed from outside from its start to its exit, beside the part of it
+before the first env step (imports, config, building; ``first_step_s`` of its
+summary.json, by the kernel's process clock) and its run's own time to solve.
+
+Last lines: ``START dqn cartpole/stay_up process_s=<start to exit> first_step_s=<start
+to the first env step> wall_to_solve_s=<in the run> rest_s=<the remainder: after the
+verdict is known, writing and plotting, and exiting>`` and ``SOLVE <learner>
+cartpole/stay_up median_wall_s=<v> solved=<k>/3`` (the median over the seeds that
+solved; ``nan`` if none did).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import re
 import statistics
+import subprocess
+import sys
+import time
 
-from sweep import fmt, run_sweep
+from sweep import ROOT, fmt, run_sweep
+from learners.summary import summarize_run  # noqa: E402  (sweep puts the root on the path)
+
+
+def whole_process(seed: int, num_envs: int) -> str:
+    """One plain ``train.py`` dqn run, timed from outside; its START line."""
+    cmd = [sys.executable, "train.py", "robot=cartpole", "learner=dqn", f"seed={seed}",
+           "eval_episodes=0", "quiet=true"]
+    if num_envs != 16:  # the tuned file's
+        cmd.append(f"num_envs={num_envs}")
+    print("running:", " ".join(cmd), flush=True)
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    process_s = time.perf_counter() - start
+    found = re.search(r"^VERDICT .* run_dir=(.+)$", proc.stdout, re.MULTILINE)
+    if proc.returncode != 0 or found is None:
+        sys.exit(f"error: train.py exit code {proc.returncode}\n{proc.stdout}{proc.stderr}")
+    run_dir = ROOT / found.group(1)
+    first = json.loads((run_dir / "summary.json").read_text()).get("first_step_s")
+    solve = summarize_run(run_dir).get("wall_to_solve")
+    rest = None if first is None or solve is None else process_s - first - solve
+    return (f"START dqn cartpole/stay_up process_s={process_s:.1f} first_step_s={fmt(first, '.1f')} "
+            f"wall_to_solve_s={fmt(solve, '.1f')} rest_s={fmt(rest, '.1f')}")
 
 
 def main() -> None:
@@ -32,7 +69,9 @@ def main() -> None:
             print(f"{learner:7s} seed={r.get('seed')} num_envs={n} solved={r.get('solved')} "
                   f"episodes={fmt(r.get('episodes_to_solve'))} env_steps={fmt(r.get('steps_to_solve'))} "
                   f"wall_s={fmt(r.get('wall_to_solve'), '.1f')}")
+    start_line = whole_process(args.seeds[0], args.num_envs_dqn)
     print()
+    print(start_line)
     for learner, runs in results.items():
         won = [r["wall_to_solve"] for r in runs if r.get("solved")]
         median = statistics.median(won) if won else float("nan")

@@ -9,8 +9,8 @@ tensor (:class:`RowReplayBuffer`).
 The loss is :func:`td_loss`, the same number TorchRL's ``DQNLoss`` with a TD(0)
 estimator computes (``tests/test_dqn.py`` checks it). Updates are most of a DQN run's
 wall-clock, and on a 4x64x64x2 network nearly all of an update is per-call overhead,
-so the hot path avoids it: minibatches are plain tensors indexed from the buffer's
-storage (no TensorDict), the network runs layer by layer (:func:`layer_by_layer`),
+so the hot path avoids it: transitions reach the buffer's storage in one write per
+update rather than per env step, minibatches are plain tensors indexed from it (no TensorDict), the network runs layer by layer (:func:`layer_by_layer`),
 gradients are clipped in two foreach calls and Adam is fused. The exploring policy is
 one forward on the observation tensor. ``bench/update_rate.py`` times the parts.
 
@@ -142,22 +142,64 @@ class RowReplayBuffer(ReplayBuffer):
     :meth:`sample_transitions` draws the indices itself, the very draw of TorchRL's
     ``RandomSampler`` (``torch.randint`` on torch's global generator), and indexes ``rows``:
     ~30 us for 128 rows on a busy 2-core machine, where ``sample()`` takes ~50 us and the
-    ``TensorDictReplayBuffer`` this replaced ~200 us (``bench/update_rate.py``). ``extend``
-    (~0.1 ms per env step through TorchRL's writer) is the buffer's cost left.
+    ``TensorDictReplayBuffer`` this replaced ~200 us (``bench/update_rate.py``).
+
+    :meth:`put` queues rows instead of writing them: TorchRL's ``extend`` costs ~60 us a
+    call whatever its size, and a DQN adds a few rows per env step but reads the buffer
+    only when it updates. The queue is written by one ``extend`` of its rows, in order, as
+    soon as anything touches the storage (the length, a sample, ``rows``, the state,
+    ``extend`` itself: every path of ``ReplayBuffer`` goes through ``_storage``), and
+    before it would hold more rows than the buffer, so the buffer never sees the
+    difference: the same rows at the same places, the same cursor and length.
     """
 
     def __init__(self, capacity: int, width: int, batch_size: int,
                  device: torch.device | str = "cpu") -> None:
+        self._queue: list[torch.Tensor] = []
+        self._queued = 0
+        self._capacity = int(capacity)
         rows = torch.zeros(capacity, width, device=device)
         super().__init__(storage=TensorStorage(rows, device=device), sampler=RandomSampler(),
                          batch_size=batch_size)
         self.empty()  # a TensorStorage made from a tensor counts it full
-        self.rows = rows
+        self._rows = rows
+
+    @property
+    def _storage(self):
+        if self._queued:
+            self.flush()
+        return self.__dict__.get("_storage_")
+
+    @_storage.setter
+    def _storage(self, storage) -> None:
+        self.__dict__["_storage_"] = storage
+
+    @property
+    def rows(self) -> torch.Tensor:
+        """The storage tensor, queued rows written."""
+        if self._queued:
+            self.flush()
+        return self._rows
+
+    def put(self, rows: torch.Tensor) -> None:
+        """Adds ``rows`` (``[n, width]``) after those stored, as ``extend`` would, by the
+        next time the buffer is read."""
+        if self._queued + len(rows) > self._capacity:
+            self.flush()  # one extend never wraps onto its own rows
+        self._queue.append(rows)
+        self._queued += len(rows)
+
+    def flush(self) -> None:
+        """Writes the queued rows (one ``extend``)."""
+        queue, self._queue, self._queued = self._queue, [], 0
+        if queue:
+            self.extend(queue[0] if len(queue) == 1 else torch.cat(queue))
 
     def sample_transitions(self, stored: int) -> Transitions:
         """A minibatch drawn uniformly from the first ``stored`` rows (``len(self)``)."""
         index = torch.randint(0, stored, (self.batch_size,))
-        return unpack(self.rows.index_select(0, index.to(self.rows.device)))
+        rows = self.rows
+        return unpack(rows.index_select(0, index.to(rows.device)))
 
     def transitions(self) -> Transitions:
         """Every stored transition, in storage order."""
@@ -388,7 +430,7 @@ class DQN:
         if self.done_episode_reward is not None:
             batch = batch._replace(reward=torch.where(
                 batch.terminated, float(self.done_episode_reward), batch.reward))
-        self.buffer.extend(pack(batch).to(self.device))
+        self.buffer.put(pack(batch).to(self.device))
 
     def optimize(self, n: int) -> None:
         """``n`` gradient steps on minibatches from the replay buffer."""

@@ -27,6 +27,7 @@ and saves its whole state every ``checkpoint_every`` episodes through the
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Mapping
@@ -47,6 +48,19 @@ from tasks.base import Success
 # train/* scalars: at the step boundary after a step that finished an episode, and at least
 # every TRAIN_LOG_STEPS env steps (long episodes), and once at the end.
 TRAIN_LOG_STEPS = 1000
+
+
+def process_age() -> float | None:
+    """Seconds since this process started, by the kernel's clock (``/proc``, to 10 ms:
+    interpreter start and imports included); None where there is no ``/proc``."""
+    try:
+        with open("/proc/self/stat") as f:
+            ticks = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return max(0.0, uptime - ticks / os.sysconf("SC_CLK_TCK"))
 
 
 class Run:
@@ -94,6 +108,7 @@ class Run:
         self.decided_by: str | None = None  # "training" or "greedy", once solved
         self.solved_value: float | None = None  # the judged mean that solved it
         self.stop_requested = False
+        self.first_step_s: float | None = None  # process start to the first step (``start``)
         self.divergences = 0  # the env's count of physics divergences (truncated episodes)
         self._last_checkpoint = 0
         self._ret = np.zeros(num_envs)
@@ -129,6 +144,7 @@ class Run:
     def start(self, env) -> TensorDictBase:
         """The first step's input: where a resumed run stopped (``resume_td``), else a reset."""
         self.last_td = self.resume_td if self.resume_td is not None else env.reset()
+        self.first_step_s = process_age()
         return self.last_td
 
     def record_step(self, env, td: TensorDictBase,

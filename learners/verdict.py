@@ -45,6 +45,8 @@ def run_summary(run) -> dict:
         "env_steps": run.env_steps,
         "wall_s": run.wall_s,
         "divergences": run.divergences,
+        # imports, config and build: process start to the first env step (this process's)
+        "first_step_s": getattr(run, "first_step_s", None),
         **({"pruned_at": run.pruned_at} if run.pruned_at is not None else {}),
     }
 

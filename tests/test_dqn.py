@@ -192,6 +192,30 @@ def test_td_loss_equals_torchrl_dqnloss(loss, double, tau):
     torch.testing.assert_close(ours, theirs)
 
 
+def test_queued_rows_land_as_one_extend_per_put_would():
+    """``put`` queues rows and writes them when the buffer is read: the storage, cursor and
+    length are those of TorchRL's ``extend`` per call, across wrap-arounds of the ring."""
+    from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
+
+    from learners.dqn import RowReplayBuffer
+
+    ours = RowReplayBuffer(50, 3, batch_size=4)
+    theirs = ReplayBuffer(storage=TensorStorage(torch.zeros(50, 3)), sampler=RandomSampler())
+    theirs.empty()
+    gen = torch.Generator().manual_seed(0)
+    for step, size in enumerate([7, 16, 1, 16, 16, 30, 5, 16, 49, 3, 16] * 3):
+        rows = torch.randn(size, 3, generator=gen)
+        ours.put(rows)
+        theirs.extend(rows)
+        if step % 4 == 3:  # read now and then, as updates do
+            assert len(ours) == len(theirs)
+    state, expected = ours.state_dict(), theirs.state_dict()
+    assert torch.equal(state["_storage"]["_storage"], expected["_storage"]["_storage"])
+    assert state["_storage"]["_len"] == expected["_storage"]["_len"]
+    assert state["_writer"] == expected["_writer"]
+    assert torch.equal(ours.rows, theirs.storage._storage)
+
+
 def test_training_state_roundtrip_and_old_format_refused():
     task = StayUp(CartPole())
     a = variant("dqn", batch_size=16)

@@ -54,6 +54,17 @@ def test_every_robot_is_registered_with_its_default_task():
     assert env_id("cartpole", "stay_up") == "MujocoRL/CartPoleStayUp-v0"
 
 
+def test_registration_reads_what_a_composition_gives():
+    """The ids are registered from the YAML files without composing: the same default task
+    and time limit as the composed config of every robot."""
+    from tasks import factory
+    from tasks.gym_env import _plain_default
+
+    for robot in factory.robot_names():
+        task, cfg = factory.robot_default(robot)
+        assert _plain_default(robot) == (task, int(cfg.task.max_episode_steps))
+
+
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_make_and_check_env(make, name):
     robot, n_obs, n_actions, _ = EXPECTED[name]
