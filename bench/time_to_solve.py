@@ -57,10 +57,13 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--num-envs-dqn", type=int, default=16)
     parser.add_argument("--num-envs-qlearn", type=int, default=1)
+    parser.add_argument("--learners", nargs="+", default=["dqn", "qlearn"], choices=["dqn", "qlearn"])
     args = parser.parse_args()
     seeds = ",".join(map(str, args.seeds))
     results = {}
     for learner, n in (("dqn", args.num_envs_dqn), ("qlearn", args.num_envs_qlearn)):
+        if learner not in args.learners:
+            continue
         _, runs = run_sweep(f"time_to_solve_{learner}", [
             "robot=cartpole", f"learner={learner}", f"seed={seeds}", f"num_envs={n}",
             "eval_episodes=0"])
