@@ -149,8 +149,7 @@ def run(cfg: DictConfig, run_dir: Path, resume: bool = False,
                      eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume,
                      max_env_steps=int(cfg.get("max_env_steps", 0)),
                      stop_when_solved=bool(cfg.get("stop_when_solved", True)))
-        if progress is not None:
-            record.progress, record.progress_every = progress, progress.every
+        record.progress = progress
         if resume:
             record.resume_td = load_training_state(state_path, learner, env, record)
             print(f"resuming {run_dir} after episode {record.n_episodes} ({record.env_steps} env steps)")

@@ -9,24 +9,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
+from params import dotted
 from tasks.base import Success
 from tasks.factory import GROUPS, compose
 
 PICKS = (*GROUPS, "tuned")  # the config groups, not values
 SHOWN_CHANGES = 5  # values a tuned file changed, named on its line (the rest counted)
-
-
-def _flat(node: Any, prefix: str = "") -> dict[str, Any]:
-    if isinstance(node, Mapping):
-        out: dict[str, Any] = {}
-        for key, value in node.items():
-            out.update(_flat(value, f"{prefix}{key}."))
-        return out
-    return {prefix[:-1]: node}
 
 
 def tuned_changes(cfg: DictConfig, choices: Mapping[str, str | None],
@@ -42,8 +34,8 @@ def tuned_changes(cfg: DictConfig, choices: Mapping[str, str | None],
                         [*kept, "~tuned"])
     except Exception:  # noqa: BLE001 - the banner still names the file
         return None
-    before = _flat(OmegaConf.to_container(plain, resolve=True))
-    after = _flat(OmegaConf.to_container(cfg, resolve=True))
+    before = dotted(OmegaConf.to_container(plain, resolve=True))
+    after = dotted(OmegaConf.to_container(cfg, resolve=True))
     return [f"{key} {before.get(key)} -> {value}" for key, value in after.items()
             if before.get(key) != value]
 

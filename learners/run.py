@@ -89,9 +89,8 @@ class Run:
         self.greedy_eval = None  # greedy_eval() -> evaluate()'s result; set by the trainer
         self.train_stats = None  # train_stats() -> the learner's train/* numbers; set by its train
         # progress(episodes, rolling) -> True to stop early: a tuning study's report and pruning
-        # (learners.tuning), called every progress_every episodes; set by train.py
+        # (learners.tuning.TrialLink), called every progress.every episodes (0: no more); set by train.py
         self.progress = None
-        self.progress_every = 0
         self._next_progress = 0
         self.pruned_at: int | None = None  # the episode a tuning study stopped the run at
         self._train_logged: int | None = None  # env steps at the last train/* point
@@ -160,7 +159,7 @@ class Run:
         Returns ``td``, the next step's input."""
         self.last_td = td
         self.log_train()
-        if self.progress is not None and self.progress_every and self.n_episodes >= self._next_progress:
+        if self.progress is not None and self.progress.every and self.n_episodes >= self._next_progress:
             self._report_progress()
         last_eval = self.evals[-1]["episode"] if self.evals else 0
         if (self.eval_every and self.greedy_eval is not None and not self.done
@@ -233,10 +232,11 @@ class Run:
         return result
 
     def _report_progress(self) -> None:
-        """The rolling measure to the ``progress`` hook at the last multiple of ``progress_every``
+        """The rolling measure to the ``progress`` hook at the last multiple of ``progress.every``
         episodes passed (the same steps for every run it is compared with); it may stop the run."""
-        step = self.n_episodes // self.progress_every * self.progress_every
-        self._next_progress = step + self.progress_every
+        every = self.progress.every
+        step = self.n_episodes // every * every
+        self._next_progress = step + every
         if step > 0 and not self.done and self.progress(step, self.rolling()):
             self.pruned_at = self.n_episodes
 

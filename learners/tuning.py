@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from omegaconf import OmegaConf
 
-from params import ConfigError, did_you_mean
+from params import ConfigError, did_you_mean, dotted
 
 @dataclass
 class Plan:
@@ -159,16 +159,7 @@ def load_space(path: Path, override: str | None = None) -> dict[str, Param]:
         raise ConfigError(f"{path} does not parse ({type(err).__name__})") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"{path} must map settings to ranges (key: interval(...)); got a {type(raw).__name__}")
-    return parse_space(_flatten(raw), str(path))
-
-
-def _flatten(node: dict, prefix: str = "") -> dict[str, Any]:
-    """``{learner: {lr: ...}}`` and ``{learner.lr: ...}`` alike, as dotted keys."""
-    out: dict[str, Any] = {}
-    for key, value in node.items():
-        name = f"{prefix}{key}"
-        out.update(_flatten(value, name + ".") if isinstance(value, dict) else {name: value})
-    return out
+    return parse_space(dotted(raw), str(path))  # {learner: {lr: ..}} and {learner.lr: ..} alike
 
 
 def check_space(params: Mapping[str, Param], config: Any, where: str,

@@ -46,7 +46,7 @@ def run_summary(run) -> dict:
         "wall_s": run.wall_s,
         "divergences": run.divergences,
         # imports, config and build: process start to the first env step (this process's)
-        "first_step_s": getattr(run, "first_step_s", None),
+        "first_step_s": run.first_step_s,
         **({"pruned_at": run.pruned_at} if run.pruned_at is not None else {}),
     }
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Mapping
 from typing import Any
 
 
@@ -31,6 +32,16 @@ def finite(value: Any) -> bool:
 def whole(value: Any) -> bool:
     """Whether ``value`` is a finite number with an integer value (``3`` or ``3.0``)."""
     return finite(value) and float(value).is_integer()
+
+
+def dotted(node: Any, prefix: str = "") -> dict[str, Any]:
+    """A nested mapping's leaves by dotted key (``{"a": {"b": 1}}`` -> ``{"a.b": 1}``)."""
+    if not isinstance(node, Mapping):
+        return {prefix[:-1]: node}
+    out: dict[str, Any] = {}
+    for key, value in node.items():
+        out.update(dotted(value, f"{prefix}{key}."))
+    return out
 
 
 def did_you_mean(word: str, choices: "list[str] | tuple[str, ...]", prefix: str = "") -> str:

@@ -239,3 +239,28 @@ def test_a_new_study_starts_from_the_current_configuration_where_the_space_holds
     cube = current_trial(load_space(conf_dir() / "search" / "cube_qlearn.yaml"),
                          compose(overrides=["robot=cube", "learner=qlearn"]))
     assert cube["learner.number_splits.wheel_speed"] == 21 and cube["learner.gamma"] == 0.995
+
+
+def test_a_trial_that_loses_its_study_warns_once_and_trains_on(tmp_path, capsys):
+    import math
+
+    from learners.run import Run
+    from tasks.base import Success
+
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    study = optuna.create_study(study_name="s", storage=url, direction="maximize")
+    link = TrialLink(url, "s", study.ask().number, lead=True, pruner=None, every=10, run_dir=tmp_path / "a")
+
+    def lost(*args):
+        raise RuntimeError("database is gone")
+
+    link._storage.get_trial = lost
+    run = Run(tmp_path / "run", 1, 1000, Success("length", "steps", "steps balanced", math.inf), quiet=True)
+    run.progress = link
+    for n in (10, 20, 30):
+        run.n_episodes = n
+        run.values.append(1.0)
+        run.end_step(None)
+    warned = [line for line in capsys.readouterr().out.splitlines() if "cannot reach the study" in line]
+    assert len(warned) == 1 and "database is gone" in warned[0]
+    assert run.pruned_at is None and not run.done

@@ -16,7 +16,7 @@ from learners.summary import summarize_run
 from learners.tuning import (Plan, check_space, current_trial, load_space, make_pruner, now_utc, open_storage,
                              override_value, tuned_text)
 from params import ConfigError
-from tasks.factory import conf_dir
+from tasks.factory import GROUPS, conf_dir
 
 # Settings the sweeper itself gives every job: the command line may not.
 OWN = ("seed", "trial", "max_env_steps", "stop_when_solved")
@@ -103,7 +103,7 @@ class TuningSweep:
         given = self._fixed(arguments)
         fixed = [*self._trial_defaults(given), *given, *self._budget()]
         choices = self.config.hydra.runtime.choices
-        robot, task, learner = (str(choices.get(k)) for k in ("robot", "task", "learner"))
+        robot, task, learner = (str(choices.get(k)) for k in GROUPS)
         space_file = Path(self.search) if self.search else search_file(robot, learner)
         params = load_space(space_file)
         base = self._compose(fixed)
