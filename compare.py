@@ -2,7 +2,7 @@
 
     python compare.py multirun/2026-11-21/12-00-00
 
-Prints the table of :mod:`learners.comparison` (one row per robot/task, learner and
+Prints the table of :mod:`sweeps.comparison` (one row per robot/task, learner and
 setting of the swept hyperparameters; the headline: the IQM of the task's own measure
 over seeds with its 95% bootstrap confidence interval) and one line per job that did
 not finish, and writes ``comparison.csv``, ``comparison.md`` and ``comparison.png``
@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from learners.comparison import NotASweep, report
+from sweeps.comparison import NotASweep, report
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -52,6 +52,7 @@ import torch  # noqa: E402
 from mujoco import rollout  # noqa: E402
 
 from tasks import factory  # noqa: E402
+from runs import catalog
 from robots.physics import default_threads  # noqa: E402
 
 SIZES = (1, 16, 64, 256, 1024)
@@ -149,7 +150,7 @@ def memory_probe(robot: str, n: int) -> None:
     """In a fresh process (``--memory-of``): builds our env of ``n`` copies, steps it 50
     times (restarts, buffers, TorchRL's caches) and prints its peak resident set and the
     resident set just before building it (imports done), in MiB."""
-    cfg = factory.compose(robot)
+    cfg = catalog.compose(robot)
     try:
         base = _status_mib("VmRSS")
         with open("/proc/self/clear_refs", "w") as f:  # the high-water mark := now (Linux)
@@ -194,7 +195,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="per measurement (all rounds)")
     parser.add_argument("--rounds", type=int, default=10, help="interleaved rounds per measurement")
-    parser.add_argument("--robots", nargs="+", default=factory.robot_names())
+    parser.add_argument("--robots", nargs="+", default=catalog.robot_names())
     parser.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
     parser.add_argument("--memory-of", nargs=2, metavar=("ROBOT", "NUM_ENVS"),
                         help=argparse.SUPPRESS)  # the child of env_memory
@@ -208,7 +209,7 @@ def main() -> None:
           f"interleaved rounds; load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     ratios = []
     for robot in args.robots:
-        cfg, task_name = factory.compose(robot), factory.default_task(robot)
+        cfg, task_name = catalog.compose(robot), catalog.default_task(robot)
         probe = factory.build_env(cfg, 1, seed=0)
         model, substeps = probe.model, probe.task.n_substeps
         probe.close()

@@ -25,8 +25,8 @@ from pathlib import Path
 
 from sweep import fmt, job_summaries, run_sweep
 
-from learners.evaluate import evaluate, measure_of
-from tasks.factory import make_env
+from runs.evaluate import evaluate, measure_of
+from runs.catalog import make_env
 
 ROBOTS = ["cartpole", "cube", "turtlebot"]
 LEARNERS = ["qlearn", "n1try", "mbalunovic", "ruippeixotog", "dqn"]

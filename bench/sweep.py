@@ -10,7 +10,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from learners.summary import summarize_run  # noqa: E402
+from runs.summary import summarize_run  # noqa: E402
 
 
 def run_sweep(name: str, overrides: list[str]) -> tuple[Path, list[dict]]:

@@ -28,7 +28,7 @@ import sys
 import time
 
 from sweep import ROOT, fmt, run_sweep
-from learners.summary import summarize_run  # noqa: E402  (sweep puts the root on the path)
+from runs.summary import summarize_run  # noqa: E402  (sweep puts the root on the path)
 
 
 def whole_process(seed: int, num_envs: int) -> str:

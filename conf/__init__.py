@@ -1,1 +1,1 @@
-"""The Hydra configs, shipped as package data (found by tasks.factory.conf_dir)."""
+"""The Hydra configs, shipped as package data (found by tasks.catalog.conf_dir)."""

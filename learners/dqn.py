@@ -37,8 +37,7 @@ import copy
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Callable, Iterator, NamedTuple
+from typing import Any, Callable, Iterator, Mapping, NamedTuple
 
 import torch
 from tensordict import TensorDictBase
@@ -47,8 +46,7 @@ from torch import nn
 from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 from torchrl.modules import MLP, QValueActor
 
-from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from learners.run import Run
+from learners.base import Loop, StateMismatch
 from params import require
 from params.declare import REQUIRED, check_fields, param
 
@@ -501,10 +499,9 @@ class DQN:
         """The exploring policy acts with the schedule's current epsilon."""
         self.explorer.epsilon = float(self.schedule.value)
 
-    def train(self, env, run: Run) -> None:
+    def train(self, env, run: Loop) -> None:
         """Collects from the batched ``env`` and learns until ``run`` is done."""
         self._sync_epsilon()
-        run.train_stats = self.train_stats
         self.tracker.restart(self.optimizer_steps)
         td = run.start(env)
         while not run.done:
@@ -537,7 +534,7 @@ class DQN:
 
     def load_training_state(self, state: dict) -> None:
         if state.get("format", 1) != FORMAT:
-            raise CheckpointError(
+            raise StateMismatch(
                 f"the training checkpoint holds a DQN state of format {state.get('format', 1)}, "
                 f"this code reads format {FORMAT} (its replay buffer changed); resume it with "
                 "the version that wrote it, or start the run afresh")
@@ -561,21 +558,22 @@ class DQN:
 
     def _check_arch(self, arch: dict, path) -> None:
         if arch != self._arch():
-            raise CheckpointError(
+            raise StateMismatch(
                 f"checkpoint {path} does not fit this run: it has network {arch}, "
                 f"this run builds {self._arch()}")
 
-    def save(self, path: Path, meta: dict) -> None:
-        save_checkpoint(path, {
+    def model_state(self) -> dict:
+        """The trained network, its optimiser and schedule (``model.pt``)."""
+        return {
             "kind": "dqn", "arch": self._arch(), "actor": self.actor.state_dict(),
             "optimizer": self.optimizer.state_dict(), "schedule": self.schedule.state_dict(),
-            "optimizer_steps": self.optimizer_steps, "meta": meta,
-        })
+            "optimizer_steps": self.optimizer_steps,
+        }
 
-    def load(self, path: Path) -> None:
-        """Loads saved weights (and optimiser, schedule) into the built learner."""
-        ckpt = load_checkpoint(path, kind="dqn")
-        self._check_arch(ckpt["arch"], path)
+    def load_model_state(self, ckpt: Mapping, where: str) -> None:
+        """Loads saved weights (and optimiser, schedule) into the built learner; ``where``
+        names the state's origin in a :class:`StateMismatch`."""
+        self._check_arch(ckpt["arch"], where)
         self.actor.load_state_dict(ckpt["actor"])
         self._load_optimizer(ckpt["optimizer"])
         self.schedule.load_state_dict(ckpt["schedule"])

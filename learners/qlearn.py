@@ -36,7 +36,6 @@ from __future__ import annotations
 import math
 from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Iterator, Mapping, Sequence
 
 import numpy as np
@@ -44,8 +43,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from learners.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from learners.run import Run
+from learners.base import Loop, StateMismatch
 from params import require
 from params.declare import check_fields, param
 from tasks.base import Bounds
@@ -254,9 +252,8 @@ class QLearn:
         if self.policy.epsilon > self.epsilon_min:
             self.policy.epsilon *= self.epsilon_discount
 
-    def train(self, env, run: Run) -> None:
+    def train(self, env, run: Loop) -> None:
         """Runs episodes on ``env`` until ``run`` is done (budget or win)."""
-        run.train_stats = self.train_stats
         td = run.start(env)
         while not run.done:
             td = self.policy(td)  # act: epsilon-greedy on the table
@@ -271,14 +268,15 @@ class QLearn:
 
     def training_state(self) -> dict:
         """Everything the next update depends on (for resuming a run)."""
-        return {**self.state_dict(), "generator": self.policy.generator.get_state()}
+        return {**self.model_state(), "generator": self.policy.generator.get_state()}
 
     def load_training_state(self, state: dict) -> None:
-        self._load(state, "the training checkpoint")
+        self.load_model_state(state, "the training checkpoint")
         self.policy.epsilon = float(state["epsilon"])
         self.policy.generator.set_state(state["generator"])
 
-    def state_dict(self) -> dict:
+    def model_state(self) -> dict:
+        """The Q-table, its visited flags, epsilon and the state mapping (``model.pt``)."""
         return {
             "kind": "qlearn",
             "table": self.policy.table.clone(),
@@ -288,18 +286,13 @@ class QLearn:
             "n_actions": self.policy.n_actions,
         }
 
-    def save(self, path: Path, meta: dict) -> None:
-        save_checkpoint(path, {**self.state_dict(), "meta": meta})
-
-    def load(self, path: Path) -> None:
-        """Loads a saved Q-table into the built policy, checking it fits."""
-        self._load(load_checkpoint(path, kind="qlearn"), path)
-
-    def _load(self, ckpt: dict, path) -> None:
+    def load_model_state(self, ckpt: Mapping, where: str) -> None:
+        """Loads a saved Q-table into the built policy, checking it fits; ``where`` names the
+        state's origin in a :class:`StateMismatch`."""
         mine = self.policy.discretizer.describe()
         if ckpt["discretizer"] != mine or ckpt["n_actions"] != self.policy.n_actions:
-            raise CheckpointError(
-                f"checkpoint {path} does not fit this run: it has state {ckpt['discretizer']} "
+            raise StateMismatch(
+                f"checkpoint {where} does not fit this run: it has state {ckpt['discretizer']} "
                 f"x {ckpt['n_actions']} actions, this run has {mine} x {self.policy.n_actions}"
             )
         self.policy.table.copy_(ckpt["table"])

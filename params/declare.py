@@ -10,7 +10,7 @@ A robot, task or learner is a dataclass whose parameter fields are made by
 From that one line come the constructor's signature (the dataclass's), its
 check (:func:`check_fields` in ``__post_init__``), the config validator's check
 before anything is built (:func:`check_values`, used by
-``learners.settings``), the one-line error message, and the README's
+``runs.settings``), the one-line error message, and the README's
 parameter tables (:func:`table`). Checks that relate two parameters, or a
 parameter and the robot, stay in the owner's ``__post_init__``.
 """

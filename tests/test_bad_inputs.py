@@ -17,6 +17,7 @@ import torch
 from hydra.core.global_hydra import GlobalHydra
 
 import train
+from runs import session
 from test_validation import CASES
 
 TRIED = [
@@ -76,8 +77,8 @@ def test_a_full_disk_mid_run_is_one_line_and_the_last_checkpoint_survives(tmp_pa
             raise OSError(28, "No space left on device", str(path))
         real_save(path, *args)
 
-    real_save = train.save_training_state
-    monkeypatch.setattr(train, "save_training_state", save)
+    real_save = session.save_training_state
+    monkeypatch.setattr(session, "save_training_state", save)
     code = cli(["learner.nepisodes=200", "checkpoint_every=20", "eval_episodes=0"], tmp_path,
                monkeypatch)
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]

@@ -1,8 +1,8 @@
-"""The comparison (learners.comparison; compare.py re-runs it) tells the truth about a
+"""The comparison (sweeps.comparison; compare.py re-runs it) tells the truth about a
 sweep: one row per setting of the swept hyperparameters, the task's own measure per
 seed summarized by its IQM and a 95% bootstrap interval, every job that did not
 finish listed as what it is, and no traceback on a damaged job folder. A sweep
-prints it when it ends (learners.sweep_state's callback), never failing the sweep.
+prints it when it ends (sweeps.state's callback), never failing the sweep.
 
 The fast tests build fake sweep folders (multirun.yaml and job folders as
 train.py writes them) in ``tmp_path``; one test runs a real tiny sweep.
@@ -24,9 +24,9 @@ import pytest
 from omegaconf import OmegaConf
 
 import compare
-from learners import comparison
-from learners.stats import iqm, iqm_ci
-from learners.sweep_state import RecordSweep
+from sweeps import comparison
+from sweeps.stats import iqm, iqm_ci
+from sweeps.state import RecordSweep
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ["learner.nepisodes=5", "eval_episodes=0", "quiet=True"]

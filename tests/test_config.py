@@ -8,7 +8,8 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import train
-from learners import discovery
+from hydra.utils import instantiate
+from runs import catalog
 from tasks import factory
 from params import ConfigError
 
@@ -30,7 +31,7 @@ def test_every_robot_learner_pair_composes_and_builds(robot, learner):
     OmegaConf.resolve(cfg)
     env = factory.build_env(cfg, num_envs=2, seed=0)
     try:
-        agent = train.instantiate(cfg.learner, _convert_="all")
+        agent = instantiate(cfg.learner, _convert_="all")
         agent.build(env.task)
         td = agent.policy(env.reset())
         assert env.step(td)["next", "observation"].shape[0] == 2
@@ -56,20 +57,20 @@ def test_task_fits_robot_or_says_which_robot_it_needs(robot, task):
 
 def test_every_task_fits_a_robot_and_every_robot_its_default_task():
     for task in TASKS:
-        assert any(discovery.built(robot, task) for robot in ROBOTS), f"task {task} fits no robot"
+        assert any(catalog.built(robot, task) for robot in ROBOTS), f"task {task} fits no robot"
     for robot in ROBOTS:
-        assert discovery.built(robot, factory.default_task(robot)) is not None
+        assert catalog.built(robot, catalog.default_task(robot)) is not None
 
 
 def test_every_tuned_file_names_a_robot_and_a_learner(monkeypatch):
     """Hydra applies conf/tuned/<robot>_<learner>.yaml to that pair only: any other name never."""
-    orphans = [name for name, pair in discovery.tuned_pairs().items() if pair is None]
+    orphans = [name for name, pair in catalog.tuned_pairs().items() if pair is None]
     assert not orphans, f"conf/tuned files naming no <robot>_<learner> pair: {orphans}"
-    real = discovery.names
-    monkeypatch.setattr(discovery, "names",
+    real = catalog.names
+    monkeypatch.setattr(catalog, "names",
                         lambda group: real(group) + (["cartpole_dqnn"] if group == "tuned" else []))
-    assert discovery.tuned_pairs()["cartpole_dqnn"] is None
-    assert discovery.tuned_pairs()["cartpole_dqn"] == ("cartpole", "dqn")
+    assert catalog.tuned_pairs()["cartpole_dqnn"] is None
+    assert catalog.tuned_pairs()["cartpole_dqn"] == ("cartpole", "dqn")
 
 
 def test_task_follows_robot_and_can_be_overridden():
@@ -110,7 +111,7 @@ def test_unknown_option_and_key_fail_with_hydra_message():
 def test_bad_values_give_one_line_naming_the_key(override, key):
     cfg = compose_cfg(override)
     with pytest.raises(Exception) as err:
-        learner = train.instantiate(cfg.learner, _convert_="all")
+        learner = instantiate(cfg.learner, _convert_="all")
         env = factory.build_env(cfg, num_envs=1, seed=0)
         learner.build(env.task)
     message = train._one_line(err.value)

@@ -10,8 +10,8 @@ import pytest
 from hydra.core.global_hydra import GlobalHydra
 
 import train
-from learners.console import Console, Tee, summary_line, tee_console
-from learners.episode import Episode
+from runs.console import Console, Tee, summary_line, tee_console
+from runs.episode import Episode
 from tasks.base import Success
 
 SUCCESS = Success(measure="length", unit="steps", description="steps balanced", threshold=250,

@@ -9,15 +9,16 @@ import numpy as np
 import pytest
 import torch
 
-from learners.resume import env_state
+from runs.resume import env_state
 from robots.base import CONTRACT as ROBOT_CONTRACT
 from robots.base import Robot, check_robot
 from tasks import factory
+from runs import catalog
 from tasks.base import CONTRACT as TASK_CONTRACT
 from tasks.base import Task, check_task
 
-TASKS = sorted(p.stem for p in (factory.conf_dir() / "task").glob("*.yaml"))
-ROBOTS = factory.robot_names()
+TASKS = sorted(p.stem for p in (catalog.conf_dir() / "task").glob("*.yaml"))
+ROBOTS = catalog.robot_names()
 
 
 def robot_of(task: str) -> str:
@@ -25,7 +26,7 @@ def robot_of(task: str) -> str:
     fits = []
     for robot in ROBOTS:
         try:
-            factory.build_task(factory.compose(robot, task))
+            factory.build_task(catalog.compose(robot, task))
             fits.append(robot)
         except ValueError:
             pass
@@ -34,7 +35,7 @@ def robot_of(task: str) -> str:
 
 
 def env_of(task: str, num_envs: int = 3, seed: int = 0):
-    return factory.build_env(factory.compose(robot_of(task), task), num_envs, seed)
+    return factory.build_env(catalog.compose(robot_of(task), task), num_envs, seed)
 
 
 def random_steps(env, n: int, seed: int = 0):
@@ -87,7 +88,7 @@ def test_declared_state_is_the_whole_state_of_a_task(task):
 
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_every_robot_fulfils_the_contract(robot):
-    r = factory.build_robot(factory.compose(robot))
+    r = factory.build_robot(catalog.compose(robot))
     check_robot(r)
     assert r.state_dict() == {}
 
@@ -101,7 +102,7 @@ def _without(cls: type, member: str) -> type:
 @pytest.mark.parametrize("task", TASKS)
 @pytest.mark.parametrize("member", TASK_CONTRACT)
 def test_a_task_without_a_contract_member_fails(task, member):
-    t = factory.build_task(factory.compose(robot_of(task), task))
+    t = factory.build_task(catalog.compose(robot_of(task), task))
     cls = type(t)
     if member in vars(cls) and callable(vars(cls)[member]) and member in Task.__abstractmethods__:
         with pytest.raises(TypeError, match=member):
@@ -120,7 +121,7 @@ def test_a_task_without_a_contract_member_fails(task, member):
 @pytest.mark.parametrize("robot", ROBOTS)
 @pytest.mark.parametrize("member", ROBOT_CONTRACT)
 def test_a_robot_without_a_contract_member_fails(robot, member):
-    r = factory.build_robot(factory.compose(robot))
+    r = factory.build_robot(catalog.compose(robot))
     cls = type(r)
     if member in Robot.__abstractmethods__:
         with pytest.raises(TypeError, match=member):

@@ -11,10 +11,10 @@ import torch
 from dm_control import mjcf
 from torchrl.envs.utils import check_env_specs
 
-from learners.evaluate import evaluate
+from runs.evaluate import evaluate
 from learners.qlearn import QLearn
-from learners.run import Run
-from learners.seeding import seed_everything
+from runs.run import Run
+from runs.seeding import seed_everything
 from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.physics import BatchedPhysics

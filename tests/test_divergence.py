@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from learners.qlearn import QLearn
-from learners.run import Run
+from runs.run import Run
 from robots.physics import BatchedPhysics
 
 HUGE_GAIN = 1e7  # N per unit command: about a third of the copies blow up per step

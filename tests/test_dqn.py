@@ -9,12 +9,13 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
-from learners.checkpoint import CheckpointError
+from runs.checkpoint import CheckpointError, load_model, save_model
+from learners.base import StateMismatch
 from learners.dqn import DQN, Transitions, unpack
-from learners.evaluate import evaluate
-from learners.run import Run
+from runs.evaluate import evaluate
+from runs.run import Run
 from learners.schedules import LinearEpsilon
-from learners.seeding import seed_everything
+from runs.seeding import seed_everything
 from robots.cartpole import CartPole
 from tasks.env import RobotTaskEnv
 from tasks.stay_up import StayUp
@@ -135,10 +136,10 @@ def test_checkpoint_rebuilds_the_network_and_rejects_mismatch(tmp_path):
     task = StayUp(CartPole())
     a = variant("dqn")
     a.build(task)
-    a.save(tmp_path / "model.pt", meta={})
+    save_model(tmp_path / "model.pt", a, meta={})
     b = variant("dqn")
     b.build(task)
-    b.load(tmp_path / "model.pt")
+    load_model(tmp_path / "model.pt", b)
     obs = torch.randn(5, 4)
     from tensordict import TensorDict
     qa = a.actor(TensorDict(observation=obs, batch_size=[5]))["action_value"]
@@ -147,12 +148,12 @@ def test_checkpoint_rebuilds_the_network_and_rejects_mismatch(tmp_path):
     c = variant("n1try")
     c.build(task)
     with pytest.raises(CheckpointError, match="does not fit"):
-        c.load(tmp_path / "model.pt")
+        load_model(tmp_path / "model.pt", c)
     from learners.qlearn import QLearn
     q = QLearn()
     q.build(task)
     with pytest.raises(CheckpointError, match="'dqn' learner"):
-        q.load(tmp_path / "model.pt")
+        load_model(tmp_path / "model.pt", q)
 
 
 def test_bad_dqn_values_are_one_line_errors():
@@ -229,7 +230,7 @@ def test_training_state_roundtrip_and_old_format_refused():
     assert len(b.buffer) == 40 and torch.equal(b.buffer.rows, a.buffer.rows)
     assert b.optimizer_steps == 3
     old = {k: v for k, v in state.items() if k != "format"}  # saved before format 2
-    with pytest.raises(CheckpointError, match="format 1"):
+    with pytest.raises(StateMismatch, match="format 1"):
         b.load_training_state(old)
 
 

@@ -43,7 +43,7 @@ def test_csv_logger_is_the_default(tmp_path):
 
 
 def test_missing_logger_backend_is_a_one_line_error(tmp_path, monkeypatch):
-    from learners.loggers import make_logger
+    from runs.loggers import make_logger
     from params import ConfigError
     import importlib.util
     real = importlib.util.find_spec

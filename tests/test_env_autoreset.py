@@ -12,6 +12,7 @@ from torchrl.collectors import Collector
 from torchrl.envs import EnvBase
 
 from tasks import factory
+from runs import catalog
 from tasks.env import RobotTaskEnv
 
 
@@ -22,7 +23,7 @@ class GenericPathEnv(RobotTaskEnv):
 
 
 def make_pair(robot, num_envs, seed=0, max_episode_steps=None):
-    cfg = factory.compose(robot)
+    cfg = catalog.compose(robot)
 
     def build(cls):
         task = factory.build_task(cfg)
@@ -120,7 +121,7 @@ def test_collector_data_matches_the_generic_path_and_restarts_correctly():
         collector = Collector(env, None, frames_per_batch=frames, total_frames=2 * frames)
         batches.append([batch.clone() for batch in collector])
         collector.shutdown()
-    task = factory.build_task(factory.compose("cartpole"))
+    task = factory.build_task(catalog.compose("cartpole"))
     for ours, reference in zip(*batches):
         assert_same(ours, reference)
         check_restarts(ours, task)
@@ -150,7 +151,7 @@ def test_outputs_are_fresh_tensors_every_call(make_cartpole_env):
 
 def test_step_alone_never_resets(make_cartpole_env):
     """Only ``step_and_maybe_reset`` restarts copies: ``step`` leaves an ended episode
-    as it ended (this is no TorchRL auto-reset env), as ``tasks.gym_env`` and the
+    as it ended (this is no TorchRL auto-reset env), as ``runs.gym_env`` and the
     evaluation rely on."""
     env = make_cartpole_env(2, seed=0)
     td = env.reset()

@@ -16,8 +16,9 @@ from gymnasium.utils.env_checker import check_env
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from tasks import factory
-from tasks.gym_env import MujocoRLEnv, default_tasks, env_id, register_envs
+import runs.register_gym  # noqa: F401  (registers the MujocoRL ids)
+from runs import catalog
+from runs.gym_env import MujocoRLEnv, default_tasks, env_id, register_envs
 
 ROOT = Path(__file__).resolve().parents[1]
 BIG = np.finfo(np.float32).max  # the bound of an entry the task knows no bound for
@@ -54,14 +55,23 @@ def test_every_robot_is_registered_with_its_default_task():
     assert env_id("cartpole", "stay_up") == "MujocoRL/CartPoleStayUp-v0"
 
 
+def test_importing_the_packages_registers_nothing():
+    """Only an explicit call (``register_envs``, or importing ``runs.register_gym``)
+    registers the ids: importing ``tasks``, ``runs`` or ``learners`` does not."""
+    code = ("import gymnasium as gym, tasks, runs.gym_env, runs.run, learners.dqn\n"
+            "print(sorted(k for k in gym.registry if k.startswith('MujocoRL/')))\n"
+            "runs.gym_env.register_envs()\n"
+            "print(len([k for k in gym.registry if k.startswith('MujocoRL/')]))\n")
+    assert run_python(["-c", code])[-2:] == ["[]", str(len(EXPECTED))]
+
+
 def test_registration_reads_what_a_composition_gives():
     """The ids are registered from the YAML files without composing: the same default task
     and time limit as the composed config of every robot."""
-    from tasks import factory
-    from tasks.gym_env import _plain_default
+    from runs.gym_env import _plain_default
 
-    for robot in factory.robot_names():
-        task, cfg = factory.robot_default(robot)
+    for robot in catalog.robot_names():
+        task, cfg = catalog.robot_default(robot)
         assert _plain_default(robot) == (task, int(cfg.task.max_episode_steps))
 
 
@@ -144,7 +154,7 @@ def test_make_kwargs_override_task_and_robot_parameters(make):
 def test_composing_inside_a_running_hydra_app_keeps_its_state():
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         app = GlobalHydra.instance().hydra
-        cfg = factory.compose("cube")
+        cfg = catalog.compose("cube")
         assert cfg.task._target_ == "tasks.one_disk_walk.OneDiskWalk"
         assert GlobalHydra.instance().hydra is app
         assert compose(config_name="config").robot._target_ == "robots.cartpole.CartPole"
@@ -160,23 +170,23 @@ def run_python(args: list[str], cwd: Path | str = "/", timeout: int = 300) -> li
 
 
 def run_script(tmp_path: Path, source: str) -> list[str]:
-    """Runs ``source`` as a client's script file (workers import it again: see tasks.gym_env)."""
+    """Runs ``source`` as a client's script file (workers import it again: see runs.gym_env)."""
     script = tmp_path / "client.py"
     script.write_text(textwrap.dedent(source))
     return run_python([str(script)], cwd=tmp_path)
 
 
-def test_plain_gymnasium_user_makes_it_after_import_tasks_or_with_the_prefix():
+def test_plain_gymnasium_user_makes_it_after_the_import_or_with_the_prefix():
     """No script file (``python -c``): a spawned worker has nothing to import again, so it
-    takes the prefixed id, which imports tasks there too."""
+    takes the prefixed id, which imports runs.register_gym there too."""
     code = textwrap.dedent("""
         import gymnasium as gym
-        env = gym.make("tasks:MujocoRL/TurtleBot2Maze-v0")  # imports tasks first
+        env = gym.make("runs.register_gym:MujocoRL/TurtleBot2Maze-v0")  # imports runs.register_gym first
         obs, _ = env.reset(seed=1)
         print(env.spec.id, obs.shape, obs in env.observation_space)
-        import tasks
+        import runs.register_gym
         print(gym.make("MujocoRL/CartPoleStayUp-v0").spec.id)
-        envs = gym.vector.AsyncVectorEnv([lambda: gym.make("tasks:MujocoRL/CartPoleStayUp-v0")])
+        envs = gym.vector.AsyncVectorEnv([lambda: gym.make("runs.register_gym:MujocoRL/CartPoleStayUp-v0")])
         print(envs.reset(seed=0)[0].shape)
         envs.close()
         """)
@@ -190,7 +200,7 @@ def test_sb3_dqn_trains_on_the_bare_id_in_subprocess_workers(tmp_path):
         import os
         import torch
         torch.set_num_threads(1)
-        import tasks  # registers the MujocoRL ids: here, and in each worker importing this file
+        import runs.register_gym  # registers the MujocoRL ids: here, and in each worker importing this file
         from stable_baselines3 import DQN
         from stable_baselines3.common.env_util import make_vec_env
         from stable_baselines3.common.vec_env import SubprocVecEnv
@@ -213,7 +223,7 @@ def test_async_vector_env_makes_the_bare_id_in_spawned_workers(tmp_path):
     out = run_script(tmp_path, """
         import multiprocessing
         import gymnasium as gym
-        import tasks  # registers the MujocoRL ids: here, and in each worker importing this file
+        import runs.register_gym  # registers the MujocoRL ids: here, and in each worker importing this file
 
         def make():
             return gym.make("MujocoRL/TurtleBot2Maze-v0")

@@ -23,23 +23,25 @@ CLIENT = """
     from omegaconf import OmegaConf
 
     import learners
+    from runs.checkpoint import save_model
     from tasks import factory
+    from runs import catalog
 
     site = Path(sys.argv[1])
     for module in (factory, learners):
         assert Path(module.__file__).is_relative_to(site), module.__file__  # not the source tree
-    env = gym.make("tasks.gym_env:MujocoRL/CartPoleStayUp-v0")
+    env = gym.make("runs.register_gym:MujocoRL/CartPoleStayUp-v0")
     env.reset(seed=0)
     obs, reward, *_ = env.step(1)
     print(env.spec.id, obs.shape, reward)
-    cfg = factory.compose("cartpole", learner="dqn")  # a run folder: its config and model
+    cfg = catalog.compose("cartpole", learner="dqn")  # a run folder: its config and model
     learner = instantiate(cfg.learner, _convert_="all")
     learner.build(factory.build_task(cfg))
     Path("run").mkdir()
     OmegaConf.save(cfg, "run/config.yaml", resolve=True)
-    learner.save(Path("run/model.pt"), meta={})
-    sys.argv = ["learners.video", "run", "--steps", "3", "--width", "1280", "--height", "720"]
-    runpy.run_module("learners.video", run_name="__main__", alter_sys=True)  # python -m
+    save_model(Path("run/model.pt"), learner, meta={})
+    sys.argv = ["runs.video", "run", "--steps", "3", "--width", "1280", "--height", "720"]
+    runpy.run_module("runs.video", run_name="__main__", alter_sys=True)  # python -m
 """
 
 

@@ -1,7 +1,8 @@
 """Import layering of the project, read statically with ``ast`` (nothing is imported).
 
-Layers, bottom to top: ``params`` <- ``robots`` <- ``tasks`` <- ``learners`` <- the entry
-points (``train.py``, ``compare.py``, ``bench/*.py``, the Hydra plugin ``hydra_plugins/``). A module imports from its own
+Layers, bottom to top: ``params`` <- ``robots`` <- ``tasks`` <- ``learners`` <- ``runs`` <-
+``sweeps`` <- the entry points (``train.py``, ``compare.py``, ``bench/*.py``, the Hydra plugins
+``hydra_plugins/``). A module imports from its own
 layer or lower ones only; project modules form no import cycle; the packages neither
 import an entry point nor edit ``sys.path``. Every import counts, also one inside a
 function (it runs the first time that function does).
@@ -14,10 +15,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("params", "robots", "tasks", "learners")
+PACKAGES = ("params", "robots", "tasks", "learners", "runs", "sweeps")
 ENTRY_POINTS = ("train", "compare", "bench", "hydra_plugins")
-LAYER = {"params": 0, "robots": 1, "tasks": 2, "learners": 3, "train": 4, "compare": 4, "bench": 4,
-         "hydra_plugins": 4}
+LAYER = {"params": 0, "robots": 1, "tasks": 2, "learners": 3, "runs": 4, "sweeps": 5, "train": 6,
+         "compare": 6, "bench": 6, "hydra_plugins": 6}
 LIST_EDITS = {"insert", "append", "extend", "remove", "pop", "clear", "reverse", "sort"}
 
 
@@ -193,7 +194,8 @@ def _listing(problems: list[str]) -> str:
 
 def test_no_upward_imports():
     problems = upward_imports(ROOT)
-    assert not problems, ("imports of a higher layer (params <- robots <- tasks <- learners <- entry points):"
+    assert not problems, ("imports of a higher layer (params <- robots <- tasks <- learners <- runs <- sweeps <- "
+                          "entry points):"
                           + _listing(problems))
 
 
@@ -224,6 +226,10 @@ def test_checks_catch_what_they_guard(tmp_path):
         "tasks/b.py": "def f():\n    from . import a\n",
         "learners/__init__.py": "",
         "learners/video.py": "import sys\n\ndef g():\n    sys.path = ['.']\n    import train\n",
+        "runs/__init__.py": "",
+        "runs/run.py": "from sweeps.tuning import TrialLink\n",
+        "sweeps/__init__.py": "",
+        "sweeps/tuning.py": "from runs import run\n",
         "train.py": "from learners import video\n",
         "bench/sweep.py": "import sys\nsys.path.append('..')\nfrom learners.video import g\n",
         "bench/x.py": "from sweep import run\n",
@@ -234,17 +240,19 @@ def test_checks_catch_what_they_guard(tmp_path):
     assert upward_imports(tmp_path) == [
         "robots/cube.py imports tasks.base (tasks is above robots)",
         "learners/video.py imports train (train is above learners)",
+        "runs/run.py imports sweeps.tuning (sweeps is above runs)",
     ]
     assert sorted(import_cycles(tmp_path)) == [
         "learners.video -> train -> learners.video",
         "robots.cube -> tasks.base -> robots.cube",
+        "runs.run -> sweeps.tuning -> runs.run",
         "tasks.a -> tasks.b -> tasks.a",
     ]
     assert entry_point_imports(tmp_path) == ["learners/video.py:5 imports train"]
     assert sys_path_edits(tmp_path) == ["robots/cube.py:3 edits sys.path", "learners/video.py:4 edits sys.path"]
     assert import_graph(tmp_path)["bench.x"] == {"bench.sweep"}
 
-    for name in ("robots/cube.py", "tasks/b.py", "learners/video.py"):
+    for name in ("robots/cube.py", "tasks/b.py", "learners/video.py", "runs/run.py"):
         (tmp_path / name).write_text("import params\n")
     assert (upward_imports(tmp_path), import_cycles(tmp_path), entry_point_imports(tmp_path),
             sys_path_edits(tmp_path)) == ([], [], [], [])

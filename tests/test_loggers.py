@@ -9,11 +9,12 @@ import torch
 from hydra.utils import instantiate
 
 from learners.dqn import UpdateStats
-from learners.evaluate import greedy_evaluation
-from learners.loggers import flat_config, log_hparams, make_logger
-from learners.run import Run
-from learners.seeding import seed_everything
-from tasks.factory import build_env, compose
+from runs.evaluate import greedy_evaluation
+from runs.loggers import flat_config, log_hparams, make_logger
+from runs.run import Hooks, Run
+from runs.seeding import seed_everything
+from tasks.factory import build_env
+from runs.catalog import compose
 
 DQN_SHORT = ["learner.nepisodes=24", "learner.learning_starts=32", "learner.batch_size=32",
              "eval_every=10"]
@@ -27,11 +28,13 @@ def train(run_dir: Path, learner: str, logger: str, overrides: list[str]):
     env = build_env(cfg, int(cfg.num_envs), int(cfg.seed), learner.nsteps)
     eval_env = build_env(cfg, 2, int(cfg.seed) + 10_000, learner.nsteps)
     learner.build(env.task, seed_everything(int(cfg.seed)))
-    record = Run(run_dir, env.num_envs, learner.nepisodes, env.task.success,
-                 extra_fields=tuple(learner.stats), quiet=True, eval_every=int(cfg.eval_every))
-    record.logger = make_logger(cfg.logger.kind, run_dir, exp_name="run")
-    log_hparams(record.logger, cfg)
-    record.greedy_eval = lambda: greedy_evaluation(learner, eval_env, int(cfg.seed) + 10_000)
+    logger = make_logger(cfg.logger.kind, run_dir, exp_name="run")
+    log_hparams(logger, cfg)
+    hooks = Hooks(greedy_eval=lambda: greedy_evaluation(learner, eval_env, int(cfg.seed) + 10_000),
+                  train_stats=learner.train_stats)
+    record = Run(run_dir, env.num_envs, learner.nepisodes, env.task.success, logger=logger,
+                 extra_fields=tuple(learner.stats), quiet=True, eval_every=int(cfg.eval_every),
+                 hooks=hooks)
     try:
         learner.train(env, record)
         record.close()

@@ -12,10 +12,10 @@ import pytest
 from hydra.utils import get_object
 from omegaconf import OmegaConf
 
-from learners import discovery, doc
+import readme_tables as doc
 from params import ConfigError
 from params.declare import check_values, param, specs, table
-from tasks.factory import conf_dir
+from runs.catalog import conf_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,7 +34,7 @@ CONFIGS = list(_base_configs())
 
 
 def test_top_level_keys_are_declared_with_the_yaml_values():
-    from learners.settings import RunSettings
+    from runs.settings import RunSettings
 
     top = OmegaConf.to_container(OmegaConf.load(conf_dir() / "config.yaml"))
     for spec in specs(RunSettings):
@@ -90,14 +90,14 @@ def test_every_parameter_says_what_it_means():
 def test_readme_tables_are_current():
     text = (ROOT / "README.md").read_text()
     block = text.partition(doc.BEGIN)[2].partition(doc.END)[0]
-    assert block.strip() == doc.tables().strip(), "README tables are stale: python -m learners.doc --write"
+    assert block.strip() == doc.tables().strip(), "README tables are stale: python -m readme_tables --write"
 
 
 def test_readme_discovery_tables_are_current():
     text = (ROOT / "README.md").read_text()
     block = text.partition(doc.DISCOVERY_BEGIN)[2].partition(doc.DISCOVERY_END)[0]
-    assert block.strip() == discovery.tables().strip(), \
-        "README discovery tables are stale: python -m learners.doc --write"
+    assert block.strip() == doc.discovery_tables().strip(), \
+        "README discovery tables are stale: python -m readme_tables --write"
 
 
 def test_write_fills_both_blocks_and_says_when_nothing_changed(tmp_path):

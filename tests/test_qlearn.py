@@ -5,11 +5,11 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from learners.checkpoint import CheckpointError
-from learners.evaluate import evaluate
+from runs.checkpoint import CheckpointError, load_model, save_model
+from runs.evaluate import evaluate
 from learners.qlearn import Discretizer, QLearn
-from learners.run import Run
-from learners.seeding import seed_everything
+from runs.run import Run
+from runs.seeding import seed_everything
 from robots.cartpole import CartPole
 from tasks.base import Bounds
 from tasks import factory
@@ -122,19 +122,19 @@ def test_epsilon_one_explores_uniformly_and_noise_option_too():
 def test_checkpoint_roundtrip_and_clear_errors(tmp_path):
     q = learner()
     q.policy.table.uniform_()
-    q.save(tmp_path / "model.pt", meta={})
+    save_model(tmp_path / "model.pt", q, meta={})
     q2 = learner()
-    q2.load(tmp_path / "model.pt")
+    load_model(tmp_path / "model.pt", q2)
     assert torch.equal(q2.policy.table, q.policy.table)
     with pytest.raises(CheckpointError, match="does not exist"):
-        q2.load(tmp_path / "missing.pt")
+        load_model(tmp_path / "missing.pt", q2)
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="not a readable checkpoint"):
-        q2.load(tmp_path / "bad.pt")
+        load_model(tmp_path / "bad.pt", q2)
     other = QLearn(number_splits=3)
     other.build(FakeTask())
     with pytest.raises(CheckpointError, match="does not fit"):
-        other.load(tmp_path / "model.pt")
+        load_model(tmp_path / "model.pt", other)
 
 
 def random_policy(n_actions, seed):

@@ -15,8 +15,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from learners.checkpoint import CheckpointError, content_checksum, load_checkpoint, save_checkpoint
-from learners.resume import check_targets, new_run_identity, read_run_json, run_identity
+from runs.checkpoint import CheckpointError, content_checksum, load_checkpoint, save_checkpoint
+from runs.resume import check_targets, new_run_identity, read_run_json, run_identity
 from params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -211,7 +211,7 @@ def test_save_fsyncs_the_file_before_the_rename_and_the_folder_after(tmp_path, m
 @pytest.mark.parametrize("node,target", [
     ("learner", "os.system"),
     ("robot", "builtins.eval"),
-    ("learner", "learners.checkpoint.os.system"),  # a project module's import of os
+    ("learner", "runs.checkpoint.os.system"),  # a project module's import of os
 ])
 def test_a_target_outside_the_project_is_refused_and_nothing_runs(tmp_path, killed, node, target):
     run_dir = clone(killed, tmp_path / "run")
@@ -232,9 +232,9 @@ def test_check_targets_allows_the_project_classes_only():
         "robot": {"_target_": "robots.cartpole.CartPole"}, "task": {"_target_": "tasks.stay_up.StayUp"},
         "learner": {"_target_": "learners.dqn.DQN",
                     "epsilon": {"_target_": "learners.schedules.LinearEpsilon"}}}))
-    for target in ("subprocess.Popen", "learners.checkpoint.torch.load",
-                   "learners.checkpoint.save_checkpoint",
-                   "learners.resume.importlib.import_module", "robots", "learners..qlearn.QLearn",
+    for target in ("subprocess.Popen", "runs.checkpoint.torch.load",
+                   "runs.checkpoint.save_checkpoint",
+                   "runs.resume.importlib.import_module", "robots", "learners..qlearn.QLearn",
                    "learners.nothing.Here", "${oc.env:HOME}", 3, None):
         for cfg in ({"learner": {"_target_": target}}, {"a": [{"b": {"_target_": target}}]}):
             with pytest.raises(ConfigError, match="is not allowed"):

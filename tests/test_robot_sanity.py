@@ -20,13 +20,14 @@ import pytest
 import torch
 
 from tasks import factory
+from runs import catalog
 
-ROBOTS = factory.robot_names()
+ROBOTS = catalog.robot_names()
 STEPS = 200
 
 
 def env_for(robot: str, num_envs: int, seed: int = 0):
-    return factory.build_env(factory.compose(robot), num_envs, seed)
+    return factory.build_env(catalog.compose(robot), num_envs, seed)
 
 
 def drive(env, actions: torch.Tensor) -> np.ndarray:

@@ -18,9 +18,9 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from learners.evaluate import evaluate
-from learners.run import Run
-from learners.verdict import verdict_lines
+from runs.evaluate import evaluate
+from runs.run import Hooks, Run
+from runs.verdict import verdict_lines
 from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.turtlebot import TurtleBot
@@ -57,8 +57,8 @@ def judge(tmp_path, make_task, policy, episodes: int, num_envs: int = 2, eval_co
     as train.py does, and returns the run's summary and verdict lines."""
     env = RobotTaskEnv(make_task(), num_envs=num_envs, seed=0)
     eval_env = RobotTaskEnv(make_task(), num_envs=eval_copies, seed=10_000)
-    run = Run(tmp_path, num_envs, episodes, env.task.success, quiet=True, eval_every=episodes // 2)
-    run.greedy_eval = lambda: evaluate(eval_env, policy)
+    run = Run(tmp_path, num_envs, episodes, env.task.success, quiet=True, eval_every=episodes // 2,
+              hooks=Hooks(greedy_eval=lambda: evaluate(eval_env, policy)))
     td = run.start(env)
     while not run.done:
         td, td_next = env.step_and_maybe_reset(policy(td))

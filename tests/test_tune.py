@@ -11,11 +11,11 @@ import optuna
 import pytest
 from omegaconf import OmegaConf
 
-from learners.settings import check_run_config
-from learners.tuning import (TrialLink, check_space, current_trial, load_space, open_storage, parse_space,
+from runs.settings import check_run_config
+from sweeps.tuning import (TrialLink, check_space, current_trial, load_space, open_storage, parse_space,
                              tuned_text)
 from params import ConfigError
-from tasks.factory import compose, conf_dir
+from runs.catalog import compose, conf_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 LEARNERS = sorted(p.stem for p in (conf_dir() / "learner").glob("*.yaml"))
@@ -152,7 +152,7 @@ def project_copy(tmp_path):
     """The project in a scratch folder: the study writes conf/tuned/ there, not here."""
     copy = tmp_path / "project"
     copy.mkdir()
-    for name in ("train.py", "robots", "tasks", "learners", "params", "conf", "hydra_plugins"):
+    for name in ("train.py", "robots", "tasks", "learners", "runs", "sweeps", "params", "conf", "hydra_plugins"):
         src = ROOT / name
         if src.is_dir():
             shutil.copytree(src, copy / name, ignore=shutil.ignore_patterns("__pycache__"))
@@ -210,7 +210,7 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     ({}, ["max_env_steps=10"], "hydra.sweeper.budget_steps"),
 ])
 def test_the_sweepers_own_checks(settings, args, words):
-    from hydra_plugins.rl_optuna_sweeper._impl import TuningSweep
+    from sweeps.optuna_sweep import TuningSweep
 
     sweep = TuningSweep(study="s", storage="sqlite://", **settings)
     with pytest.raises(ConfigError, match=words.replace(".", r"\.").replace("[", r"\[")):
@@ -244,7 +244,7 @@ def test_a_new_study_starts_from_the_current_configuration_where_the_space_holds
 def test_a_trial_that_loses_its_study_warns_once_and_trains_on(tmp_path, capsys):
     import math
 
-    from learners.run import Run
+    from runs.run import Hooks, Run
     from tasks.base import Success
 
     url = f"sqlite:///{tmp_path / 's.db'}"
@@ -255,8 +255,8 @@ def test_a_trial_that_loses_its_study_warns_once_and_trains_on(tmp_path, capsys)
         raise RuntimeError("database is gone")
 
     link._storage.get_trial = lost
-    run = Run(tmp_path / "run", 1, 1000, Success("length", "steps", "steps balanced", math.inf), quiet=True)
-    run.progress = link
+    run = Run(tmp_path / "run", 1, 1000, Success("length", "steps", "steps balanced", math.inf), quiet=True,
+              hooks=Hooks(progress=link))
     for n in (10, 20, 30):
         run.n_episodes = n
         run.values.append(1.0)

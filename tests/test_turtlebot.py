@@ -12,10 +12,10 @@ from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from torchrl.envs.utils import check_env_specs
 
-from learners.evaluate import evaluate
+from runs.evaluate import evaluate
 from learners.qlearn import QLearn
-from learners.run import Run
-from learners.seeding import seed_everything
+from runs.run import Run
+from runs.seeding import seed_everything
 from robots.cartpole import CartPole
 from robots.turtlebot import TurtleBot
 from params import ConfigError

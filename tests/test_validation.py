@@ -1,8 +1,8 @@
 """Config validation: every bad value fails before any simulation with one line naming
-the key, the value and what is allowed (learners/settings.py and the constructors).
+the key, the value and what is allowed (runs/settings.py and the constructors).
 
 No env is built here (that compiles MuJoCo): a config is checked with
-``check_run_config`` and then built as far as train.run builds it before the env
+``check_run_config`` and then built as far as runs.session.build builds it before the env
 (learner, robot and task, the learner's tables or networks for that task).
 """
 
@@ -25,7 +25,7 @@ from omegaconf import OmegaConf
 
 import train
 from tasks import factory
-from learners.settings import check_run_config
+from runs.settings import check_run_config
 from params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,7 +50,7 @@ def default_task(robot: str):
 
 
 def build(cfg, parts: str = "all") -> None:
-    """What train.run does with ``cfg`` before it builds the env."""
+    """What runs.session.build does with ``cfg`` before it builds the env."""
     check_run_config(cfg)
     if parts in ("all", "task"):
         task = factory.build_task(cfg)

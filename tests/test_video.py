@@ -11,9 +11,11 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-import train
+from hydra.utils import instantiate
 from tasks import factory
-from learners import video
+from runs import catalog
+from runs import video
+from runs.checkpoint import save_model
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -37,7 +39,7 @@ def read_frames(path: Path) -> np.ndarray:
 @pytest.fixture
 def dqn_on_cartpole():
     cfg = config("robot=cartpole", "learner=dqn")
-    learner = train.instantiate(cfg.learner, _convert_="all")
+    learner = instantiate(cfg.learner, _convert_="all")
     env = factory.build_env(cfg, num_envs=1, seed=0)
     learner.build(env.task)
     yield cfg, learner, env
@@ -71,7 +73,7 @@ def save_run_folder(cfg, learner, run_dir: Path) -> Path:
     """The two files of a finished run that the video CLI reads."""
     run_dir.mkdir(parents=True)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-    learner.save(run_dir / "model.pt", meta={})
+    save_model(run_dir / "model.pt", learner, meta={})
     return run_dir
 
 
@@ -136,10 +138,10 @@ def test_train_with_video_flag_writes_policy_mp4(tmp_path):
     assert read_frames(tmp_path / "policy.mp4").shape[0] == 10
 
 
-@pytest.mark.parametrize("robot", factory.robot_names())
+@pytest.mark.parametrize("robot", catalog.robot_names())
 def test_every_robot_renders_full_hd(robot):
     """The arena sizes MuJoCo's offscreen buffer for 1920 x 1080 (its default is 640 x 480)."""
-    env = factory.make_env(robot)
+    env = catalog.make_env(robot)
     env.reset()
     frame = env.render(1920, 1080)
     assert frame.shape == (1080, 1920, 3) and frame.std() > 5  # a picture, not a blank

@@ -17,8 +17,8 @@ Why not ``hydra-optuna-sweeper``: it pins optuna < 3, whose SQLite storage fails
 SQLAlchemy 2 (what pip resolves today), and its jobs cannot report intermediate values,
 so there is no pruning.
 
-Hydra imports this module whenever any app starts (to find plugins): the work is in
-``_impl`` (a name Hydra's scan skips), imported when a sweep is set up.
+Hydra imports this module whenever any app starts (to find plugins), so it stays a thin
+shell: the work is :mod:`sweeps.optuna_sweep`, imported when a sweep is set up.
 """
 
 from typing import Any, List
@@ -29,14 +29,15 @@ from omegaconf import DictConfig
 
 
 class OptunaSweeper(Sweeper):
-    """Hydra's face of :class:`._impl.TuningSweep` (settings: ``conf/hydra/sweeper/optuna.yaml``)."""
+    """Hydra's face of :class:`sweeps.optuna_sweep.TuningSweep` (settings:
+    ``conf/hydra/sweeper/optuna.yaml``)."""
 
     def __init__(self, **settings: Any) -> None:
         self.settings = settings
         self.sweep_impl = None
 
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig) -> None:
-        from ._impl import TuningSweep
+        from sweeps.optuna_sweep import TuningSweep
 
         self.sweep_impl = TuningSweep(**self.settings)
         self.sweep_impl.setup(hydra_context=hydra_context, task_function=task_function, config=config)

@@ -1,6 +1,6 @@
 """One finished training episode, as the run's outputs report it.
 
-:class:`~learners.run.Run` makes one :class:`Episode` per finished episode;
+:class:`~runs.run.Run` makes one :class:`Episode` per finished episode;
 the metrics files, the console and the logger each read what they show from
 it.
 """

@@ -273,3 +273,23 @@ def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header
 
 def now_utc() -> str:
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def trial_link(cfg: Any, run_dir: Path, sweeper: Any) -> TrialLink | None:
+    """The Optuna study a ``trial=N`` job reports to (its ``sweeper``'s storage and study;
+    ``sweeper`` is the job's ``hydra.sweeper`` node); None for any other job."""
+    if cfg.get("trial") is None or cfg.mode != "train":
+        return None
+    if "rl_optuna_sweeper" not in str(sweeper.get("_target_", "")):
+        raise ConfigError(f"trial={cfg.trial} is set by hydra/sweeper=optuna for its own jobs; "
+                          "tune with: python train.py -m hydra/sweeper=optuna ...")
+    try:
+        return TrialLink(str(sweeper.storage), str(sweeper.study), int(cfg.trial),
+                         lead=int(cfg.seed) == int(sweeper.seeds[0]), pruner=sweeper.pruner,
+                         every=int(sweeper.report_every), run_dir=run_dir)
+    except ConfigError:
+        raise
+    except Exception as err:  # noqa: BLE001 - a missing study or trial, a database error
+        first = (str(err).strip().splitlines() or [""])[0]
+        raise ConfigError(f"trial={cfg.trial}: study {sweeper.study} in {sweeper.storage} has no such "
+                          f"trial to report to ({type(err).__name__}: {first})") from None

@@ -15,7 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from params import dotted
 from tasks.base import Success
-from tasks.factory import GROUPS, compose
+from runs.catalog import GROUPS, compose
 
 PICKS = (*GROUPS, "tuned")  # the config groups, not values
 SHOWN_CHANGES = 5  # values a tuned file changed, named on its line (the rest counted)

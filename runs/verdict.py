@@ -18,7 +18,7 @@ def training_means(values: list[float], window: int) -> np.ndarray:
 
 def run_summary(run) -> dict:
     """Solved or not and by which judge; the measure's headline numbers; the cost
-    (``run``: a :class:`~learners.run.Run`)."""
+    (``run``: a :class:`~runs.run.Run`)."""
     s = run.success
     values = np.asarray(run.values, dtype=float)
     rolling = training_means(values, s.window)  # the best of them is the headline

@@ -1,8 +1,8 @@
 """Gymnasium environments: every robot with its default task, built from conf/.
 
-Importing the ``tasks`` package (any module of it) registers one id per robot in
-``conf/robot/`` (with the task that robot's config picks), in the ``MujocoRL``
-namespace, each with the string entry point ``tasks.gym_env:MujocoRLEnv``:
+:func:`register_envs` (called by importing :mod:`runs.register_gym`) registers one id
+per robot in ``conf/robot/`` (with the task that robot's config picks), in the
+``MujocoRL`` namespace, each with the string entry point ``runs.gym_env:MujocoRLEnv``:
 
 - ``MujocoRL/CartPoleStayUp-v0`` (cartpole / stay_up)
 - ``MujocoRL/MovingCubeOneDiskWalk-v0`` (cube / one_disk_walk)
@@ -10,18 +10,19 @@ namespace, each with the string entry point ``tasks.gym_env:MujocoRLEnv``:
 
 ::
 
-    import gymnasium, tasks
+    import gymnasium, runs.register_gym
     env = gymnasium.make("MujocoRL/CartPoleStayUp-v0", pos_step=0.5)
-    env = gymnasium.make("tasks:MujocoRL/CartPoleStayUp-v0")  # imports tasks first
+    env = gymnasium.make("runs.register_gym:MujocoRL/CartPoleStayUp-v0")  # imports it first
 
 Gymnasium 1.x loads no plugins, so a process knows the ids once it has imported
-``tasks``. Subprocess workers (SB3's ``SubprocVecEnv``, ``AsyncVectorEnv``) do
-when the script that starts them imports ``tasks`` at its top: a forked worker
-inherits the registry, a spawned one (TorchRL makes spawn the default) and a
-forkserver one (SB3's default) import the main script again before they run.
-Without a script to import again (``python -c``, a notebook) write the id with
-the prefix, ``"tasks:MujocoRL/..."``: ``gymnasium.make`` in the worker imports
-``tasks`` first. ``gymnasium.make_vec`` sends workers the spec itself.
+``runs.register_gym`` (or called :func:`register_envs`). Subprocess workers (SB3's
+``SubprocVecEnv``, ``AsyncVectorEnv``) do when the script that starts them imports
+it at its top: a forked worker inherits the registry, a spawned one (TorchRL makes
+spawn the default) and a forkserver one (SB3's default) import the main script
+again before they run. Without a script to import again (``python -c``, a
+notebook) write the id with the prefix, ``"runs.register_gym:MujocoRL/..."``:
+``gymnasium.make`` in the worker imports that module first. ``gymnasium.make_vec``
+sends workers the spec itself.
 
 Keyword arguments to ``gymnasium.make`` override the task's parameters
 (``robot_params={...}`` the robot's); everything else comes from the Hydra
@@ -48,6 +49,7 @@ from gymnasium import spaces
 from omegaconf import DictConfig, OmegaConf
 
 from tasks import factory
+from runs import catalog
 from tasks.base import Task
 from tasks.env import RobotTaskEnv
 
@@ -64,7 +66,7 @@ def _camel(name: str) -> str:
 
 def default_tasks() -> dict[str, str]:
     """Robot name (one per ``conf/robot/*.yaml``) -> the task its config picks."""
-    return {robot: factory.default_task(robot) for robot in factory.robot_names()}
+    return {robot: catalog.default_task(robot) for robot in catalog.robot_names()}
 
 
 def env_id(robot: str, task: str) -> str:
@@ -144,7 +146,7 @@ class MujocoRLEnv(gym.Env):
 
     @staticmethod
     def _config(robot: str, robot_params: Mapping[str, Any], task_params: Mapping[str, Any]):
-        cfg = factory.compose(robot)
+        cfg = catalog.compose(robot)
         robot_cfg = _override(cfg.robot, robot_params, f"robot {robot}")
         task_cfg = _override(cfg.task, task_params, f"the task of robot {robot}")
         return OmegaConf.create({"robot": robot_cfg, "task": task_cfg})
@@ -204,7 +206,7 @@ def _plain_default(robot: str) -> tuple[str, int] | None:
     them, read from conf/robot/<robot>.yaml's ``defaults`` and conf/task/<task>.yaml; None
     where the files do not say it plainly (no plain ``/task`` default, no integer limit, a
     tuned file of the robot naming the limit): then only a composition knows."""
-    conf = factory.conf_dir()
+    conf = catalog.conf_dir()
     entries = OmegaConf.load(conf / "robot" / f"{robot}.yaml").get("defaults") or []
     tasks = [v for e in entries if isinstance(e, DictConfig) for k, v in e.items()
              if str(k).lstrip("/") == "task"]
@@ -219,17 +221,17 @@ def _plain_default(robot: str) -> tuple[str, int] | None:
 def register_envs() -> list[str]:
     """Registers (idempotently) one id per robot with its default task; returns the ids.
 
-    Each id's entry point is the string ``tasks.gym_env:MujocoRLEnv`` (a process that
+    Each id's entry point is the string ``runs.gym_env:MujocoRLEnv`` (a process that
     makes it imports this module) and its ``max_episode_steps`` (Gymnasium's
     ``TimeLimit``) the task's from the config; ``gymnasium.make(id, max_episode_steps=N)``
     changes it. Both come from the YAML files where they say them plainly, as every
-    shipped robot's do (three Hydra compositions cost ~0.3 s at each ``import tasks``).
+    shipped robot's do (three Hydra compositions cost ~0.3 s).
     """
     ids = []
-    for robot in factory.robot_names():
+    for robot in catalog.robot_names():
         plain = _plain_default(robot)
         if plain is None:
-            task, cfg = factory.robot_default(robot)
+            task, cfg = catalog.robot_default(robot)
             plain = task, int(cfg.task.max_episode_steps)
         task, steps = plain
         name = env_id(robot, task)
@@ -238,6 +240,3 @@ def register_envs() -> list[str]:
                          max_episode_steps=steps)
         ids.append(name)
     return ids
-
-
-register_envs()

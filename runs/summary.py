@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 
-from learners.metrics_files import rolling_field
+from runs.metrics_files import rolling_field
 
 # A run's status: "ok" (finished: summary.json without "interrupted"), "interrupted"
 # (Ctrl-C, or killed: partial metrics), "failed" (error.txt, or nothing usable),

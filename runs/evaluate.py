@@ -2,7 +2,8 @@
 what it measured.
 
 :func:`evaluate` runs any policy; :func:`greedy_evaluation` runs a learner's
-greedy policy from the same starts every time; :func:`measure_of` reads the
+greedy policy from the same starts every time (:class:`GreedyEvaluator` keeps a
+run's evaluation envs); :func:`measure_of` reads the
 task's success measure from the result and :func:`describe_evaluation` puts it
 in one line.
 """
@@ -13,8 +14,11 @@ from typing import Mapping
 
 import numpy as np
 import torch
+from omegaconf import DictConfig
 
 from tasks.base import Success
+from tasks.env import RobotTaskEnv
+from tasks.factory import build_env
 
 
 def _keep_info(info: dict[str, np.ndarray], info_fn, physics, copies: np.ndarray) -> None:
@@ -71,6 +75,25 @@ def greedy_evaluation(learner, env, seed: int) -> dict:
     env.set_seed(seed)
     with learner.greedy():
         return evaluate(env, learner.policy)
+
+
+class GreedyEvaluator:
+    """Greedy evaluations of ``learner`` on envs of the run's config kept for it (one per
+    number of copies, built when first asked for), each from ``seed``'s starts."""
+
+    def __init__(self, cfg: DictConfig, learner, seed: int) -> None:
+        self.cfg, self.learner, self.seed = cfg, learner, int(seed)
+        self.envs: dict[int, RobotTaskEnv] = {}
+
+    def __call__(self, copies: int) -> dict:
+        """One greedy episode in each of ``copies`` copies (:func:`greedy_evaluation`)."""
+        if copies not in self.envs:
+            self.envs[copies] = build_env(self.cfg, copies, self.seed, self.learner.nsteps)
+        return greedy_evaluation(self.learner, self.envs[copies], self.seed)
+
+    def close(self) -> None:
+        for env in self.envs.values():
+            env.close()
 
 
 def describe_evaluation(result: dict, success: Success) -> str:

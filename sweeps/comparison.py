@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from learners.comparison_plot import plot
-from learners.stats import format_iqm_ci, iqm_ci
-from learners.sweep_folder import sweep_jobs, swept_keys, swept_label
+from sweeps.comparison_plot import plot
+from sweeps.stats import format_iqm_ci, iqm_ci
+from sweeps.folder import sweep_jobs, swept_keys, swept_label
 
 IQM = "IQM [95% CI]"
 COLUMNS = ("robot/task", "learner", "swept", "measure", "score", IQM, "mean +- std", "seeds", "finished",

@@ -9,7 +9,7 @@ What a training run sends, every scalar at the step of the run's env steps
 (all copies' transitions so far): ``episode/<name>`` per finished episode
 (:func:`log_episode`, ``episode/index`` its number), ``eval/<name>`` per
 greedy evaluation (:func:`log_evaluation`), ``train/<name>`` the learner's
-``train_stats()`` (:func:`log_train`; when, :class:`~learners.run.Run` says),
+``train_stats()`` (:func:`log_train`; when, :class:`~runs.run.Run` says),
 ``run/<name>`` at the end (:func:`finish_log`) and the resolved config once at
 the start (:func:`log_hparams`). With no logger (``None``) they do nothing.
 W&B: TorchRL gives each group its own step metric (``episode/step``, ...),
@@ -25,8 +25,8 @@ from typing import Any, Mapping
 
 from omegaconf import DictConfig, OmegaConf
 
-from learners.episode import Episode
-from learners.metrics_files import rolling_field
+from runs.episode import Episode
+from runs.metrics_files import rolling_field
 from params import ConfigError
 from tasks.base import Success
 

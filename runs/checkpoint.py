@@ -7,7 +7,7 @@ bytes of each tensor, every value, every key). Loading recomputes it, so a
 damaged file is refused even where torch would read it (torch's zip reader
 does not check its records' CRCs, and a flipped byte in a tensor's data reads
 back as a different number). Checkpoints written before checksums existed
-(no ``"checksum"`` entry) still load; :mod:`learners.resume` requires one.
+(no ``"checksum"`` entry) still load; :mod:`runs.resume` requires one.
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+from learners.base import Learner, StateMismatch
 
 CHECKSUM = "checksum"  # the payload entry that holds content_checksum(everything else)
 
@@ -123,3 +125,18 @@ def load_checkpoint(path: Path | str, kind: str) -> dict:
             f"checkpoint {path} holds a {payload['kind']!r} learner, but this run's learner is {kind!r}"
         )
     return payload
+
+
+def save_model(path: Path | str, learner: Learner, meta: dict) -> None:
+    """``model.pt``: the learner's :meth:`~learners.base.Learner.model_state` and ``meta``
+    (the run's choices and resolved config)."""
+    save_checkpoint(path, {**learner.model_state(), "meta": meta})
+
+
+def load_model(path: Path | str, learner: Learner) -> None:
+    """Loads a ``model.pt`` into the built ``learner``; refused with one line if it is not
+    one of this learner's kind or does not fit it."""
+    try:
+        learner.load_model_state(load_checkpoint(path, kind=learner.kind), str(path))
+    except StateMismatch as err:
+        raise CheckpointError(str(err)) from None

@@ -17,7 +17,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-from learners.episode import Episode
+from runs.episode import Episode
 from tasks.base import Success
 
 BASE_FIELDS = ("episode", "env_index", "reward", "length", "terminated", "env_steps")

@@ -13,7 +13,7 @@ the next step depends on, so a resumed run continues bit for bit:
 - the global torch, numpy and ``random`` generators;
 - the run's identity (:func:`run_identity`: the run folder's ``run_id`` and a
   hash of its ``config.yaml``), so another run's checkpoint copied into the
-  folder is refused, and a checksum of all of it (:mod:`learners.checkpoint`).
+  folder is refused, and a checksum of all of it (:mod:`runs.checkpoint`).
 
 Everything is stored as tensors and plain Python values, so it loads with
 ``torch.load(weights_only=True)``.
@@ -22,7 +22,7 @@ Resuming refuses a checkpoint before any file of the run folder is touched:
 :func:`read_training_state` (read-only) checks the format, the checksum, the
 learner and the identity; :func:`load_training_state` then restores every part
 in memory, and only once all of it has loaded cuts the metrics files back to
-the checkpoint's episodes. ``train.py``'s ``resumed_config`` calls
+the checkpoint's episodes. ``runs.folder.resumed_config`` calls
 :func:`check_targets` and :func:`read_training_state` before the run starts.
 """
 
@@ -41,7 +41,8 @@ import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from tensordict import TensorDict, TensorDictBase
 
-from learners.checkpoint import CHECKSUM, CheckpointError, load_checkpoint, save_checkpoint
+from learners.base import StateMismatch
+from runs.checkpoint import CHECKSUM, CheckpointError, load_checkpoint, save_checkpoint
 from params import ConfigError
 
 # 3: the run's identity and a checksum; 2: the task's and robot's declared state_dict;
@@ -132,7 +133,7 @@ def _check_target(target: Any, key: str) -> None:
     module_name, _, attr = target.rpartition(".")
     if not (module_name and all(part.isidentifier() for part in target.split("."))):
         raise refusal
-    try:  # the module itself, not an attribute path through it (learners.checkpoint.os.system)
+    try:  # the module itself, not an attribute path through it (runs.checkpoint.os.system)
         module = importlib.import_module(module_name)
     except Exception:  # noqa: BLE001 - no such module in the project
         raise refusal from None
@@ -282,6 +283,8 @@ def load_training_state(path: Path, learner, env, run) -> TensorDictBase:
         run.reopen()
     except CheckpointError:
         raise
+    except StateMismatch as err:
+        raise CheckpointError(str(err)) from None
     except (KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError) as err:
         raise CheckpointError(f"checkpoint {path} does not fit this run ({type(err).__name__}: "
                               f"{str(err).splitlines()[0] if str(err) else ''})") from None

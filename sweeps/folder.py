@@ -3,7 +3,7 @@
 The jobs are those the sweep's ``multirun.yaml`` launches (expanded by Hydra's own
 BasicSweeper), so a job that never started is known too; without a usable
 multirun.yaml, the job folders found. Each job is a
-:func:`learners.summary.summarize_run` summary with its ``job`` number and
+:func:`runs.summary.summarize_run` summary with its ``job`` number and
 ``overrides``; a damaged job folder is a status and an ``error``, never an exception.
 """
 
@@ -16,8 +16,8 @@ from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
-from learners.summary import summarize_run
-from tasks.factory import GROUPS
+from runs.summary import summarize_run
+from runs.catalog import GROUPS
 
 PICKS = GROUPS  # config groups with their own columns, never in ``swept``
 

@@ -118,7 +118,7 @@ def _check_logger(logger: Any) -> None:
     kind = logger.get("kind")
     if kind not in LOGGERS:
         raise ConfigError(f"logger.kind must be one of {', '.join(LOGGERS)}; got {kind!r}")
-    from learners.loggers import NEEDS, make_logger
+    from runs.loggers import NEEDS, make_logger
 
     package = NEEDS.get(kind)
     if package is not None and importlib.util.find_spec(package) is None:

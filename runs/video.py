@@ -1,7 +1,7 @@
 """Videos of a policy: MP4 files of copy 0 of a ``RobotTaskEnv``, rendered headless.
 
-    python -m learners.video <run_dir> [--steps N]     # writes <run_dir>/policy.mp4
-    python -m learners.video <run_dir> --camera top --width 1280 --height 720
+    python -m runs.video <run_dir> [--steps N]     # writes <run_dir>/policy.mp4
+    python -m runs.video <run_dir> --camera top --width 1280 --height 720
 
 The CLI rebuilds the run's task and learner from ``<run_dir>/config.yaml`` and
 loads ``<run_dir>/model.pt``; the video shows the greedy policy. Frames are
@@ -23,6 +23,7 @@ from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from torchrl.envs.utils import step_mdp
 
+from runs.checkpoint import load_model
 from tasks.factory import build_env
 
 
@@ -89,7 +90,7 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
         learner.build(env.task)
         with warnings.catch_warnings():  # torchrl's target updater notes it is re-initialised
             warnings.filterwarnings("ignore", message="Updated already initialized")
-            learner.load(run_dir / "model.pt")
+            load_model(run_dir / "model.pt", learner)
         out = Path(out) if out else run_dir / "policy.mp4"
         with learner.greedy():
             record_video(env, learner.policy, out, n_steps=n_steps, **kwargs)

@@ -17,8 +17,8 @@ from typing import IO, Callable, Iterator, Mapping
 
 from tqdm import tqdm
 
-from learners.episode import Episode
-from learners.metrics_files import rolling_field
+from runs.episode import Episode
+from runs.metrics_files import rolling_field
 from tasks.base import Success
 
 SUMMARY_LINES = 20  # summary lines per run when log_every is 0

@@ -2,14 +2,14 @@
 evaluate, checkpoint and stop.
 
 Episodes in a batch end at different times; :class:`Run` turns each batched
-step into one :class:`~learners.episode.Episode` per finished episode, in the
+step into one :class:`~runs.episode.Episode` per finished episode, in the
 order they finish (ties by copy index), so the metrics read the same for any
-``num_envs``. Each episode goes to the CSV files (:mod:`learners.metrics_files`),
-the console (:mod:`learners.console`) and the logger (:mod:`learners.loggers`);
-``close`` gives the summary (:mod:`learners.verdict`) and draws the reward
-curve (:mod:`learners.plot`).
+``num_envs``. Each episode goes to the CSV files (:mod:`runs.metrics_files`),
+the console (:mod:`runs.console`) and the logger (:mod:`runs.loggers`);
+``close`` gives the summary (:mod:`runs.verdict`) and draws the reward
+curve (:mod:`runs.plot`).
 
-A learner's ``train`` is this loop::
+A learner's ``train`` is this loop (the :class:`learners.base.Loop` a Run is)::
 
     td = run.start(env)
     while not run.done:
@@ -22,32 +22,58 @@ A learner's ``train`` is this loop::
 
 A run can be stopped at a step boundary (``request_stop``, e.g. on Ctrl-C)
 and saves its whole state every ``checkpoint_every`` episodes through the
-``checkpoint`` hook ``end_step`` calls (see :mod:`learners.resume`).
+``checkpoint`` hook ``end_step`` calls (see :mod:`runs.resume`).
 """
 
 from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
+from typing import Callable, Mapping, Protocol
 
 import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-from learners.console import Console
-from learners.episode import Episode
-from learners.evaluate import measure_of
-from learners.loggers import finish_log, log_episode, log_evaluation, log_train
-from learners.metrics_files import MetricsFiles
-from learners.plot import plot_reward_curve
-from learners.verdict import run_summary
+from runs.console import Console
+from runs.episode import Episode
+from runs.evaluate import measure_of
+from runs.loggers import finish_log, log_episode, log_evaluation, log_train
+from runs.metrics_files import MetricsFiles
+from runs.plot import plot_reward_curve
+from runs.verdict import run_summary
 from tasks.base import Success
 
 # train/* scalars: at the step boundary after a step that finished an episode, and at least
 # every TRAIN_LOG_STEPS env steps (long episodes), and once at the end.
 TRAIN_LOG_STEPS = 1000
+
+
+class Progress(Protocol):
+    """A tuning trial's link (:class:`sweeps.tuning.TrialLink`): called with the episodes
+    so far and the rolling measure every ``every`` episodes (0: no more); True stops the run."""
+
+    every: int
+
+    def __call__(self, episodes: int, rolling: float) -> bool: ...
+
+
+@dataclass(frozen=True)
+class Hooks:
+    """What a :class:`Run` calls out to, all given when it is built (each optional):
+
+    - ``checkpoint(run, td)``: saves the whole training state at a step boundary;
+    - ``greedy_eval()``: a greedy evaluation's result (:func:`runs.evaluate.evaluate`'s);
+    - ``train_stats(reset=True)``: the learner's ``train/*`` numbers;
+    - ``progress``: a tuning trial's :class:`Progress` report.
+    """
+
+    checkpoint: Callable[[Run, TensorDictBase], None] | None = None
+    greedy_eval: Callable[[], dict] | None = None
+    train_stats: Callable[..., dict[str, float]] | None = None
+    progress: Progress | None = None
 
 
 def process_age() -> float | None:
@@ -78,19 +104,16 @@ class Run:
                  extra_fields: tuple[str, ...] = (), quiet: bool = False, logger=None,
                  checkpoint_every: int = 0, eval_every: int = 0, resume: bool = False,
                  verbose: bool = False, log_every: int = 0, max_env_steps: int = 0,
-                 stop_when_solved: bool = True) -> None:
+                 stop_when_solved: bool = True, hooks: Hooks | None = None) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.num_envs, self.max_episodes, self.success = num_envs, int(max_episodes), success
         self.extra_fields, self.quiet, self.logger = tuple(extra_fields), quiet, logger
         self.checkpoint_every, self.eval_every = int(checkpoint_every), int(eval_every)
         self.max_env_steps, self.stop_when_solved = int(max_env_steps), bool(stop_when_solved)
-        self.checkpoint = None  # checkpoint(td): saves the whole run; set by the trainer
-        self.greedy_eval = None  # greedy_eval() -> evaluate()'s result; set by the trainer
-        self.train_stats = None  # train_stats() -> the learner's train/* numbers; set by its train
-        # progress(episodes, rolling) -> True to stop early: a tuning study's report and pruning
-        # (learners.tuning.TrialLink), called every progress.every episodes (0: no more); set by train.py
-        self.progress = None
+        hooks = hooks or Hooks()
+        self._save, self.greedy_eval = hooks.checkpoint, hooks.greedy_eval
+        self.train_stats, self.progress = hooks.train_stats, hooks.progress
         self._next_progress = 0
         self.pruned_at: int | None = None  # the episode a tuning study stopped the run at
         self._train_logged: int | None = None  # env steps at the last train/* point
@@ -136,6 +159,15 @@ class Run:
         """True when the run is finished or a stop was asked."""
         return self.finished or self.stop_requested
 
+    def checkpoint(self, td: TensorDictBase) -> None:
+        """Saves the whole run, about to act on ``td``, through the ``checkpoint`` hook (if any)."""
+        if self._save is not None:
+            self._save(self, td)
+
+    def continue_from(self, td: TensorDictBase) -> None:
+        """A resumed run's first step acts on ``td`` (where the checkpoint stopped)."""
+        self.resume_td = td
+
     def request_stop(self) -> None:
         """Ends the run after the current step (the trainer then saves a checkpoint)."""
         self.stop_requested = True
@@ -166,7 +198,7 @@ class Run:
                 and self.n_episodes - last_eval >= self.eval_every):
             self.evaluate_greedy()
         due = self.checkpoint_every and self.n_episodes - self._last_checkpoint >= self.checkpoint_every
-        if due and self.checkpoint is not None and not self.done:  # the trainer saves the end
+        if due and not self.done:  # the session saves the end
             self.checkpoint(td)
             self._last_checkpoint = self.n_episodes
         return td

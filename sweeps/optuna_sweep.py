@@ -1,4 +1,7 @@
-"""The optuna sweeper's work (see :mod:`.optuna_sweeper`), imported when a tuning sweep starts."""
+"""The tuning sweep: Optuna asks for trials, each runs as one job per seed, the study is told
+their mean score (``hydra/sweeper=optuna``; Hydra's plugin class is the thin shell
+:class:`hydra_plugins.rl_optuna_sweeper.optuna_sweeper.OptunaSweeper`, which imports this
+module only when a tuning sweep starts)."""
 
 from __future__ import annotations
 
@@ -10,13 +13,13 @@ from hydra.core.plugins import Plugins
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from learners.comparison import score
-from learners.settings import check_run_config
-from learners.summary import summarize_run
-from learners.tuning import (Plan, check_space, current_trial, load_space, make_pruner, now_utc, open_storage,
-                             override_value, tuned_text)
 from params import ConfigError
-from tasks.factory import GROUPS, conf_dir
+from runs.catalog import GROUPS, conf_dir
+from runs.settings import check_run_config
+from runs.summary import summarize_run
+from sweeps.comparison import score
+from sweeps.tuning import (Plan, check_space, current_trial, load_space, make_pruner, now_utc, open_storage,
+                           override_value, tuned_text)
 
 # Settings the sweeper itself gives every job: the command line may not.
 OWN = ("seed", "trial", "max_env_steps", "stop_when_solved")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learners.metrics_files import rolling_field
+from runs.metrics_files import rolling_field
 from tasks.base import Success
 
 

@@ -1,0 +1,156 @@
+"""The README's generated tables: parameters, made from the declarations
+(:mod:`params.declare`), and what there is to pick (:mod:`runs.catalog`).
+
+    python -m readme_tables            # prints the tables
+    python -m readme_tables --write    # rewrites them in README.md between their markers
+
+One parameter table per class a config in ``conf/robot``, ``conf/task`` or
+``conf/learner`` names (and the exploration schedules the learners use), so a
+parameter's meaning, default and range are written once, in its class.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+from hydra.utils import get_object
+from omegaconf import OmegaConf
+
+from params.declare import specs, table
+from runs import catalog
+from runs.gym_env import env_id
+from tasks.base import Task
+
+BEGIN, END = "<!-- parameter tables: python -m readme_tables --write -->", "<!-- end of parameter tables -->"
+DISCOVERY_BEGIN = "<!-- discovery tables: python -m readme_tables --write -->"
+DISCOVERY_END = "<!-- end of discovery tables -->"
+
+
+def _targets(node, key: str):
+    """``(config key, class path)`` of a config node and of its nested ``_target_`` nodes."""
+    if isinstance(node, dict):
+        if isinstance(node.get("_target_"), str):
+            yield key, node["_target_"]
+        for k, v in node.items():
+            if isinstance(v, dict):
+                yield from _targets(v, f"{key}.{k}")
+
+
+def classes() -> dict[str, tuple[str, list[str]]]:
+    """Class path -> (config key, the config files naming it), in config order."""
+    found: dict[str, tuple[str, list[str]]] = {"runs.settings.RunSettings": ("", ["config.yaml"])}
+    for group in catalog.GROUPS:
+        for path in sorted((catalog.conf_dir() / group).glob("*.yaml")):
+            node = OmegaConf.to_container(OmegaConf.load(path))
+            node = node.get(group, node) if group == "robot" else node
+            for sub_key, target in _targets(node, group):
+                found.setdefault(target, (sub_key, []))[1].append(f"{group}/{path.name}")
+    return found
+
+
+def tables() -> str:
+    """Every declared class's table under a heading naming its config key and files."""
+    parts = []
+    for target, (key, files) in classes().items():
+        cls = get_object(target)
+        if not (dataclasses.is_dataclass(cls) and specs(cls)):
+            continue
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        where = f"`{key}`" if key else "top level"
+        parts.append(f"#### {where}: `{target}` ({', '.join(f'`conf/{f}`' for f in files)})\n\n"
+                     f"{doc}\n\n{table(cls)}\n")
+    return "\n".join(parts)
+
+
+def blocks() -> dict[tuple[str, str], str]:
+    """(begin marker, end marker) -> what goes between them in the README."""
+    return {(BEGIN, END): tables(), (DISCOVERY_BEGIN, DISCOVERY_END): discovery_tables()}
+
+
+def _row(*cells: str) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def _codes(items) -> str:
+    return ", ".join(f"`{x}`" for x in items) or "none"
+
+
+def _solved(task: Task) -> str:
+    s = task.success
+    judged = "greedy evaluation" if s.judge == "greedy" else f"last {s.window} training episodes"
+    return f"{s.describe()} ({judged})"
+
+
+def discovery_tables() -> str:
+    """Markdown tables of the robots, the tasks and the learners."""
+    fits = {(r, t): catalog.built(r, t) for r in catalog.robot_names() for t in catalog.names("task")}
+    tuned = [pair for pair in catalog.tuned_pairs().values() if pair]
+    return "\n\n".join((_robots(fits, tuned), _tasks(fits), _learners(tuned))) + "\n"
+
+
+def _table(intro: str, header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
+    return "\n".join([intro, "", _row(*header), _row(*["---"] * len(header)),
+                      *(_row(*row) for row in rows)])
+
+
+def _robots(fits: dict, tuned: list[tuple[str, str]]) -> str:
+    rows = []
+    for r in catalog.robot_names():
+        default = catalog.default_task(r)
+        rows.append((f"`{r}`", catalog.summary(catalog.conf_dir() / "robot" / f"{r}.yaml"), f"`{default}`",
+                     _codes(t for t in catalog.names("task") if fits[r, t]),
+                     _codes(lr for rr, lr in tuned if rr == r), f"`{env_id(r, default)}`"))
+    return _table("Robots (`robot=`); `robot=` alone picks its default task:",
+                  ("robot", "what", "default task", "tasks that fit", "tuned learners",
+                   "Gymnasium id"), rows)
+
+
+def _tasks(fits: dict) -> str:
+    rows = []
+    for t in catalog.names("task"):
+        fit = [r for r in catalog.robot_names() if fits[r, t]]
+        rows.append((f"`{t}`", catalog.summary(catalog.conf_dir() / "task" / f"{t}.yaml"), _codes(fit),
+                     _solved(fits[fit[0], t]) if fit else "-"))
+    return _table("Tasks (`task=`):", ("task", "what", "robots it fits", "solved when"), rows)
+
+
+def _learners(tuned: list[tuple[str, str]]) -> str:
+    rows = []
+    for lr in catalog.names("learner"):
+        path = catalog.conf_dir() / "learner" / f"{lr}.yaml"
+        rows.append((f"`{lr}`", f"`{OmegaConf.load(path)._target_}`", catalog.summary(path),
+                     _codes(r for r, ll in tuned if ll == lr)))
+    return _table("Learners (`learner=`); a tuned pair's file is "
+                  "`conf/tuned/<robot>_<learner>.yaml`:",
+                  ("learner", "class", "what", "tuned for robots"), rows)
+
+
+def rewrite(readme: Path) -> bool:
+    """Puts each of :func:`blocks` between its markers in ``readme``; whether it changed."""
+    text = new = readme.read_text()
+    for (begin, end), body in blocks().items():
+        head, sep, rest = new.partition(begin)
+        _, sep2, tail = rest.partition(end)
+        if not (sep and sep2):
+            raise SystemExit(f"{readme} has no {begin} ... {end} block")
+        new = f"{head}{begin}\n\n{body}\n{end}{tail}"
+    readme.write_text(new)
+    return new != text
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--write", action="store_true", help="rewrite the tables in README.md")
+    parser.add_argument("--readme", type=Path, default=Path("README.md"))
+    args = parser.parse_args(argv)
+    if not args.write:
+        sys.stdout.write("\n".join(blocks().values()))
+        return
+    print(f"{args.readme}: {'updated' if rewrite(args.readme) else 'already up to date'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,129 @@
+"""What there is to pick, read from ``conf/``: the config groups, robots, tasks, learners and
+tuned files, and the run config Hydra composes from them.
+
+    cfg = compose("cube", learner="dqn")                        # as train.py composes it
+    env = make_env("turtlebot", "wall", ["task.min_range=0.4"])  # an env by names
+    default_task("cube"), names("learner"), tuned_pairs()
+
+The configs are found through the installed ``conf`` package, so this works from any
+working directory and without an editable install. A task fits a robot when it
+builds with it: each task's ``setup`` refuses a robot of another class (:func:`built`).
+A description is the first sentence of the config file's header comment (:func:`summary`).
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+from typing import Sequence
+
+from hydra import compose as hydra_compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from params import ConfigError
+from tasks import factory
+from tasks.base import Task
+from tasks.env import RobotTaskEnv
+
+# The config groups a run picks by name (``robot=cube``); everything else is a value.
+GROUPS = ("robot", "task", "learner")
+
+
+def conf_dir() -> Path:
+    """The folder of the Hydra configs (``config.yaml``, ``robot/``, ``task/``, ...)."""
+    return Path(str(resources.files("conf")))
+
+
+def names(group: str) -> list[str]:
+    """The configs of ``conf/<group>/``, by name."""
+    return sorted(p.stem for p in (conf_dir() / group).glob("*.yaml"))
+
+
+def robot_names() -> list[str]:
+    """Every robot with a config in ``conf/robot/``."""
+    return names("robot")
+
+
+def tuned_file(robot: str, learner: str) -> Path:
+    """Where the tuned parameters of ``robot`` x ``learner`` live (the file may not exist)."""
+    return conf_dir() / "tuned" / f"{robot}_{learner}.yaml"
+
+
+def compose(robot: str | None = None, task: str | None = None, learner: str | None = None,
+            overrides: Sequence[str] = ()) -> DictConfig:
+    """The resolved run config, as ``python train.py robot=.. task=.. learner=.. <overrides>``
+    composes it (the robot's default task when ``task`` is None).
+
+    Works inside a running Hydra app too: that app's global state is restored.
+    """
+    picks = [f"{k}={v}" for k, v in (("robot", robot), ("task", task), ("learner", learner)) if v]
+    return _resolved(_compose([*picks, *overrides]))
+
+
+def default_task(robot: str) -> str:
+    """The task ``robot``'s config picks."""
+    return robot_default(robot)[0]
+
+
+def robot_default(robot: str) -> tuple[str, DictConfig]:
+    """``(task name, resolved config)`` of ``robot`` with the task its config picks, from
+    one composition (``default_task`` and ``compose(robot)`` together)."""
+    cfg = _compose([f"robot={robot}"])
+    return str(cfg.hydra.runtime.choices.task), _resolved(cfg)
+
+
+def _resolved(cfg: DictConfig) -> DictConfig:
+    with open_dict(cfg):
+        del cfg["hydra"]
+    OmegaConf.resolve(cfg)
+    return cfg
+
+
+def _compose(overrides: list[str]) -> DictConfig:
+    gh = GlobalHydra.instance()
+    app = gh.hydra if gh.is_initialized() else None
+    gh.clear()
+    try:
+        with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+            return hydra_compose(config_name="config", overrides=overrides, return_hydra_config=True)
+    finally:
+        if app is not None:
+            GlobalHydra.instance().clear()
+            GlobalHydra.instance().initialize(app)
+
+
+def make_env(robot: str, task: str | None = None, overrides: Sequence[str] = (),
+             num_envs: int = 1, seed: int = 0) -> RobotTaskEnv:
+    """The env of ``robot`` (and ``task``, else the robot's default) with Hydra ``overrides``
+    such as ``"task.pos_step=0.5"``."""
+    return factory.build_env(compose(robot, task, overrides=overrides), num_envs, seed)
+
+
+def summary(path: Path) -> str:
+    """The first sentence of the header comment of a config file (``@package`` lines left out)."""
+    words = []
+    for line in path.read_text().splitlines():
+        if not line.startswith("#"):
+            break
+        text = line.lstrip("#").strip()
+        if not text.startswith("@"):
+            words.append(text)
+    header = " ".join(words)
+    end = header.find(". ")
+    return header if end < 0 else header[: end + 1]
+
+
+def built(robot: str, task: str) -> Task | None:
+    """``task`` built with ``robot`` (no tuned file), or ``None`` where it does not fit."""
+    try:
+        return factory.build_task(compose(robot, task, overrides=["~tuned"]))
+    except ConfigError:
+        return None
+
+
+def tuned_pairs() -> dict[str, tuple[str, str] | None]:
+    """``conf/tuned/`` file name -> the ``(robot, learner)`` it tunes, ``None`` if it names
+    no such pair (Hydra would never apply it)."""
+    pairs = {f"{r}_{lr}": (r, lr) for r in robot_names() for lr in names("learner")}
+    return {stem: pairs.get(stem) for stem in names("tuned")}

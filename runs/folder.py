@@ -1,0 +1,142 @@
+"""A run's folder: making a new one, taking it (a lock), and reading an old one back.
+
+A run folder holds ``config.yaml`` (resolved) and ``run.json`` (the choices, the seed,
+the overrides and the run's identity) from its start; a resumed or evaluated run
+reads them back here, with only the few overrides each accepts.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Mapping
+
+from omegaconf import DictConfig, OmegaConf
+
+from params import ConfigError
+from runs.catalog import GROUPS
+from runs.checkpoint import CheckpointError
+from runs.resume import check_checkpoint, check_targets, load_run_config, new_run_identity, read_run_json
+
+# Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
+RESUME_OVERRIDES = ("resume", "quiet", "verbose", "log_every", "torch_threads", "video", "video_steps",
+                    "eval_episodes")
+PICKS = GROUPS  # the config groups a run folder fixes
+
+
+def is_run_folder(path) -> bool:
+    """Whether ``path`` holds a run's ``config.yaml``."""
+    return bool(path) and (Path(str(path)) / "config.yaml").is_file()
+
+
+def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, Path]:
+    """The config of the run folder ``cfg.resume``, with the few overrides a resume accepts."""
+    run_dir = Path(cfg.resume)
+    if not (run_dir / "config.yaml").is_file() or not (run_dir / "run.json").is_file():
+        raise CheckpointError(f"resume={run_dir} is not a run folder (it needs config.yaml and run.json)")
+    if not (run_dir / "checkpoint.pt").is_file():
+        raise CheckpointError(f"resume={run_dir} has no checkpoint.pt to continue from "
+                              "(it was run with checkpoint_every=0, or stopped before its first one)")
+    others = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in RESUME_OVERRIDES]
+    if others:
+        raise ConfigError(f"resume= continues a run with its own config; drop {' '.join(others)} "
+                          f"(allowed with resume: {', '.join(RESUME_OVERRIDES[1:])})")
+    read_run_json(run_dir)  # a damaged run.json is refused now, not when model.pt is written
+    saved = load_run_config(run_dir)
+    for key in RESUME_OVERRIDES[1:]:
+        if any(o.startswith(f"{key}=") for o in overrides):
+            saved[key] = cfg[key]
+    check_targets(saved)  # config.yaml is data: it may build only the project's own classes
+    check_checkpoint(run_dir, saved)  # this run's, intact: refused before any file is touched
+    return saved, run_dir
+
+
+def model_path(checkpoint: str | Path) -> Path:
+    """``checkpoint=``'s model file: the path itself, or a run folder's model.pt."""
+    path = Path(checkpoint)
+    if path.is_dir():
+        if not (path / "model.pt").is_file():
+            raise CheckpointError(f"checkpoint={path} is a folder without model.pt (a run folder "
+                                  "holds one once its run ends or stops)")
+        return path / "model.pt"
+    return path
+
+
+def run_folder_of(checkpoint: str | Path | None) -> Path | None:
+    """The run folder ``checkpoint=`` points into (the folder or a model.pt in it), if any."""
+    if not checkpoint:
+        return None
+    path = Path(checkpoint)
+    folder = path if path.is_dir() else path.parent
+    return folder if (folder / "config.yaml").is_file() and (folder / "run.json").is_file() else None
+
+
+def eval_config(cfg: DictConfig, overrides: list[str]) -> DictConfig:
+    """``mode=eval checkpoint=<run folder or its model.pt>``: the robot, task and learner of
+    the run's own config.yaml; the run settings (``eval_episodes``, ``seed``, ``video``, ...)
+    and every override of this command (a task parameter for a robustness test) on top."""
+    folder = run_folder_of(cfg.checkpoint)
+    saved = load_run_config(folder)
+    check_targets(saved)  # config.yaml is data: it may build only the project's own classes
+    evaluated = cfg.copy()
+    for group in PICKS:
+        if group in saved:
+            evaluated[group] = saved[group]
+    for override in overrides:  # robot./task./learner. values of this command, as composed
+        key = override.split("=", 1)[0].lstrip("+")
+        if "=" in override and not key.startswith("~") and key.split(".")[0] in PICKS and "." in key:
+            OmegaConf.update(evaluated, key, OmegaConf.select(cfg, key), merge=False, force_add=True)
+    evaluated.checkpoint = str(model_path(cfg.checkpoint))
+    return evaluated
+
+
+def with_run_choices(args: list[str]) -> list[str]:
+    """``mode=eval checkpoint=<run folder>``: the run's robot, task and learner (run.json's)
+    put on the command line, so its other overrides compose as for that run; a different
+    choice given with it is refused."""
+    given = dict(a.split("=", 1) for a in args if "=" in a and not a.startswith(("+", "~", "-")))
+    folder = run_folder_of(given.get("checkpoint")) if given.get("mode") == "eval" else None
+    if folder is None:
+        return args
+    saved = read_run_json(folder)
+    clash = [f"{k}={given[k]}" for k in PICKS if k in given and given[k] != saved.get(k)]
+    if clash:
+        raise ConfigError(f"checkpoint={folder} is a {'/'.join(str(saved.get(k)) for k in PICKS)} "
+                          f"run, evaluated with its own robot, task and learner; drop {' '.join(clash)}")
+    return [*(f"{k}={saved[k]}" for k in PICKS if k not in given and saved.get(k)), *args]
+
+
+@contextmanager
+def run_lock(run_dir: Path) -> Iterator[None]:
+    """Holds ``run_dir/.lock`` exclusively while the run lives; another process asking for
+    it gets a :class:`ConfigError`. The OS drops the lock when its holder dies, so a killed
+    run's folder is taken over by the next run (or resume) without ceremony."""
+    fd = os.open(run_dir / ".lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise ConfigError(f"run folder {run_dir} is in use by another run (pid {holder}); let it "
+                          "finish or pick another folder") from None
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        yield
+    finally:
+        os.close(fd)
+
+
+def start_run(cfg: DictConfig, run_dir: Path, choices: Mapping[str, str | None],
+              overrides: list[str]) -> None:
+    """A new run's folder: refused if it already holds a run; then config.yaml and run.json."""
+    if (run_dir / "config.yaml").exists() or (run_dir / "run.json").exists():
+        raise ConfigError(f"hydra.run.dir={run_dir} already holds a run; continue it with "
+                          f"resume={run_dir}, or pick another folder")
+    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    (run_dir / "run.json").write_text(json.dumps(
+        {group: choices.get(group) for group in ("robot", "task", "learner", "tuned")}
+        | {"seed": int(cfg.seed), "overrides": overrides} | new_run_identity(), indent=1))

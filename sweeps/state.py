@@ -1,0 +1,119 @@
+"""What the launching process knows of the sweep it runs: its folder, whether its
+comparison is printed yet, and whether it was asked to stop.
+
+A Hydra callback (``conf/config.yaml``: ``hydra.callbacks.sweep_state``) records the
+folder when the multirun starts, in the launching process, where no job's
+``HydraConfig`` exists (joblib runs the jobs in other processes); :func:`stop_sweep`
+reads it to stop a sweep cleanly on Ctrl-C (a ``.stop`` file that jobs not started
+yet see through :func:`sweep_stopped`). When the multirun ends, the same callback
+prints the comparison of the sweep's learners and writes its files into the folder
+(:func:`sweeps.comparison.report`), whatever the launcher.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from hydra.core.hydra_config import HydraConfig
+from hydra.experimental.callback import Callback
+
+from runs.summary import summarize_run
+from sweeps.comparison import NotASweep, report
+
+# The sweep's folder, whether it is compared yet, and the signal that stopped it (if any).
+SWEEP: dict[str, Any] = {"dir": None, "compared": False, "signal": None}
+
+
+class RecordSweep(Callback):
+    """Keeps the sweep folder in :data:`SWEEP` when a multirun starts; compares its jobs
+    when it ends."""
+
+    def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
+        SWEEP["dir"] = Path(str(config.hydra.sweep.dir))
+        SWEEP["compared"] = False
+
+    def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
+        # The folder as resolved at the start (its name holds the time: ${now:...}).
+        compare_sweep(SWEEP["dir"] or Path(str(config.hydra.sweep.dir)))
+
+
+def compare_sweep(folder: Path | None, stopped: str | None = None) -> None:
+    """Prints the comparison of the sweep in ``folder`` and writes its files there, once
+    per sweep (a stopped sweep's launcher asks again: Hydra skips ``on_multirun_end``
+    when the launcher raises; ``stopped``: the signal's name). Never raises: a failure
+    is one line, ``comparison failed: <reason>``, and the sweep's exit status stays its own."""
+    if SWEEP["compared"] or folder is None:
+        return
+    SWEEP["compared"] = True
+    print(flush=True)
+    try:
+        report(folder, stopped)
+    except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - the sweep itself is done
+        text = " ".join(str(err).split())
+        reason = text if isinstance(err, NotASweep) else f"{type(err).__name__}: {text}".rstrip(": ")
+        print(f"comparison failed: {reason}", file=sys.stderr, flush=True)
+    sys.stdout.flush()
+
+
+def sweep_dir() -> Path | None:
+    """The running sweep's folder: a job's own, else what the launcher recorded."""
+    try:
+        return Path(str(HydraConfig.get().sweep.dir))
+    except Exception:  # noqa: BLE001 - the launching process has no job config
+        return SWEEP["dir"]
+
+
+def stop_sweep(signum, frame) -> None:
+    """The launcher's Ctrl-C / SIGTERM during a sweep: running jobs (which get the signal
+    too) stop after their step and save; jobs not started yet are skipped (``.stop``)."""
+    if SWEEP["signal"] is not None and signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    SWEEP["signal"] = signum
+    folder = sweep_dir()
+    if folder is not None and folder.is_dir():
+        (folder / ".stop").write_text(signal.Signals(signum).name + "\n")
+    print(f"\n{signal.Signals(signum).name}: the sweep's running jobs stop after their step and "
+          "save a checkpoint; jobs not started are skipped (Ctrl-C again aborts)", file=sys.stderr)
+
+
+def sweep_stopped() -> bool:
+    """Inside a job: whether its sweep was asked to stop before the job began."""
+    folder = sweep_dir()
+    return folder is not None and (folder / ".stop").exists()
+
+
+def report_stopped_sweep(folder: Path) -> None:
+    """One resume command per job the stop left unfinished."""
+    for job in sorted(p for p in folder.iterdir() if p.is_dir()):
+        state = summarize_run(job)  # the same reading of a job folder compare.py uses
+        if state.get("resume"):
+            print(f"resume with: {state['resume']}")
+        elif state["status"] == "never started":
+            print(f"not started: {job.name}")
+
+
+def end_stopped_sweep() -> int | None:
+    """After a stopped sweep: the comparison of what finished and how to resume the rest;
+    the exit status (128 + the signal), or None if the sweep was not stopped."""
+    if SWEEP["signal"] is None:
+        return None
+    folder = sweep_dir()
+    if folder is not None and folder.is_dir():
+        # What finished; done already unless a job's exit skipped on_multirun_end.
+        compare_sweep(folder, stopped=signal.Signals(int(SWEEP["signal"])).name)
+        report_stopped_sweep(folder)
+    return 128 + int(SWEEP["signal"])
+
+
+def end_failed_sweep() -> bool:
+    """After a sweep whose launcher failed (e.g. a joblib worker killed from outside): the
+    comparison and the resume commands, if the sweep's folder exists; whether it did."""
+    folder = sweep_dir()
+    if folder is None or not folder.is_dir():
+        return False
+    compare_sweep(folder)  # Hydra skips on_multirun_end when the launcher raises
+    report_stopped_sweep(folder)
+    return True
