@@ -5,10 +5,11 @@ its parameters checked in ``__post_init__``). The run package (:mod:`runs`) then
 
 1. calls ``build(task, generator)`` once: the learner sizes its networks or table
    from the task's observations, tabular state and actions;
-2. calls ``train(env, loop)``: the learner acts on the batched ``env`` and learns
-   from each batch of transitions until ``loop.done``, handing every step to
-   ``loop`` (a :class:`Loop`), which books episodes, evaluates, checkpoints and
-   says when to stop;
+2. calls ``train(env, loop)`` (:func:`train`, the same loop for every learner):
+   ``begin()``, then step by step ``act(td)`` on the batched ``env``,
+   ``observe(td)`` to learn from the batch of transitions, ``end_episode()`` once
+   per finished episode, every step handed to ``loop`` (a :class:`Loop`), which
+   books episodes, evaluates, checkpoints and says when to stop;
 3. reads ``policy`` (inside ``with learner.greedy():`` for greedy acting) to
    evaluate or film the trained policy;
 4. saves and loads: ``model_state()`` is what ``model.pt`` holds (the trained
@@ -76,6 +77,14 @@ class Learner(Protocol):
 
     def train_stats(self, reset: bool = True) -> dict[str, float]: ...
 
+    def begin(self) -> None: ...
+
+    def act(self, tensordict: TensorDictBase) -> TensorDictBase: ...
+
+    def observe(self, tensordict: TensorDictBase) -> None: ...
+
+    def end_episode(self) -> None: ...
+
     def train(self, env, loop: Loop) -> None: ...
 
     def model_state(self) -> dict: ...
@@ -85,3 +94,17 @@ class Learner(Protocol):
     def training_state(self) -> dict: ...
 
     def load_training_state(self, state: Mapping) -> None: ...
+
+
+def train(learner: Learner, env, loop: Loop) -> None:
+    """Acts on the batched ``env`` and learns from each batch of transitions until
+    ``loop.done``; ``end_episode`` once per episode the step finished."""
+    learner.begin()
+    td = loop.start(env)
+    while not loop.done:
+        td = learner.act(td)
+        td, td_next = env.step_and_maybe_reset(td)
+        learner.observe(td)
+        for _ in loop.record_step(env, td, learner.stats):
+            learner.end_episode()
+        td = loop.end_step(td_next)

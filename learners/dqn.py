@@ -46,7 +46,7 @@ from torch import nn
 from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 from torchrl.modules import MLP, QValueActor
 
-from learners.base import Loop, StateMismatch
+from learners.base import Loop, StateMismatch, train
 from params import require
 from params.declare import REQUIRED, check_fields, param
 
@@ -499,25 +499,33 @@ class DQN:
         """The exploring policy acts with the schedule's current epsilon."""
         self.explorer.epsilon = float(self.schedule.value)
 
-    def train(self, env, run: Loop) -> None:
-        """Collects from the batched ``env`` and learns until ``run`` is done."""
+    def begin(self) -> None:
+        """Before the first step of a training session (a fresh run or a resumed one)."""
         self._sync_epsilon()
         self.tracker.restart(self.optimizer_steps)
-        td = run.start(env)
-        while not run.done:
-            td = self.explorer(td)  # act: epsilon-greedy on the Q-network
-            td, td_next = env.step_and_maybe_reset(td)
-            self.store(td)
-            self.schedule.step(td.numel())
-            if self.train_every == "step":
-                self.learn(self.updates * td.numel())
-            self._sync_epsilon()
-            for _ in run.record_step(env, td, self.stats):
-                self.schedule.episode_end()
-                if self.train_every == "episode":
-                    self.learn(self.updates)
-                self._sync_epsilon()
-            td = run.end_step(td_next)
+
+    def act(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Epsilon-greedy on the Q-network."""
+        return self.explorer(tensordict)
+
+    def observe(self, tensordict: TensorDictBase) -> None:
+        """Stores the batch of transitions and, per transition, learns as ``train_every`` says."""
+        self.store(tensordict)
+        self.schedule.step(tensordict.numel())
+        if self.train_every == "step":
+            self.learn(self.updates * tensordict.numel())
+        self._sync_epsilon()
+
+    def end_episode(self) -> None:
+        """After each finished episode: the schedule's episode step and per-episode updates."""
+        self.schedule.episode_end()
+        if self.train_every == "episode":
+            self.learn(self.updates)
+        self._sync_epsilon()
+
+    def train(self, env, run: Loop) -> None:
+        """Collects from the batched ``env`` and learns until ``run`` is done."""
+        train(self, env, run)
 
     # -- persistence ---------------------------------------------------------
     kind = "dqn"

@@ -43,7 +43,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from learners.base import Loop, StateMismatch
+from learners.base import Loop, StateMismatch, train
 from params import require
 from params.declare import check_fields, param
 from tasks.base import Bounds
@@ -249,19 +249,24 @@ class QLearn:
             self.policy.epsilon, self.policy.generator = saved
 
     def end_episode(self) -> None:
+        """After each finished episode: epsilon decays (down to ``epsilon_min``)."""
         if self.policy.epsilon > self.epsilon_min:
             self.policy.epsilon *= self.epsilon_discount
 
+    def begin(self) -> None:
+        """Before the first step of a training session: nothing to prepare."""
+
+    def act(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Epsilon-greedy on the table."""
+        return self.policy(tensordict)
+
+    def observe(self, tensordict: TensorDictBase) -> None:
+        """Learns from the batch of transitions."""
+        self.update(tensordict)
+
     def train(self, env, run: Loop) -> None:
         """Runs episodes on ``env`` until ``run`` is done (budget or win)."""
-        td = run.start(env)
-        while not run.done:
-            td = self.policy(td)  # act: epsilon-greedy on the table
-            td, td_next = env.step_and_maybe_reset(td)
-            self.update(td)  # learn from the batch of transitions
-            for _ in run.record_step(env, td, self.stats):
-                self.end_episode()  # epsilon decays once per finished episode
-            td = run.end_step(td_next)
+        train(self, env, run)
 
     # -- persistence ---------------------------------------------------------
     kind = "qlearn"
