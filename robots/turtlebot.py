@@ -134,6 +134,10 @@ class TurtleBot(Robot):
         physics.ctrl[:, self._act[1]] = np.clip(angular, -self.max_angular_speed,
                                                 self.max_angular_speed)
 
+    def stop(self, physics: BatchedPhysics, mask: np.ndarray) -> None:
+        """Zero linear and angular velocity commands for the ``mask`` copies (the others keep theirs)."""
+        physics.ctrl[np.ix_(mask, self._act)] = 0.0
+
     def odometry(self, physics: BatchedPhysics) -> Odometry:
         """Pose and velocities of every copy."""
         yaw = self._yaw.pos(physics)

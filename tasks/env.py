@@ -12,6 +12,11 @@ of it per call (``batch_size=[num_envs]``). Keys:
 A ``_reset`` mask resets only the marked copies. All randomness comes from one
 ``numpy.random.Generator`` seeded by ``set_seed``: same seed, same rollouts.
 
+Seed blocks: with a list of seeds (``seed=[3, 4, 5]``) the copies form equal
+blocks, one per seed, in order, each with a generator of its own, so each
+block's copies start their episodes exactly as an env of ``num_envs / len(seeds)``
+copies with that one seed would (several runs' envs in one physics batch).
+
 A copy whose physics diverges during a step (MuJoCo found it unstable: see
 ``robots.physics``) ends its episode there as truncated (``terminated`` false,
 ``done`` true) with reward 0 and, as next observation, its observation before
@@ -38,6 +43,7 @@ TorchRL "auto-reset" env, whose ``next`` observations would be the reset ones).
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
@@ -72,6 +78,17 @@ def _zero_rows(value, rows: np.ndarray):
     return value
 
 
+def _seed_blocks(num_envs: int, seed: int | Sequence[int]) -> list[int]:
+    """The seeds of ``seed`` (one, or one per block), checked against ``num_envs``."""
+    if int(num_envs) < 1:
+        raise ValueError(f"env.num_envs must be >= 1, got {num_envs}")
+    seeds = [int(s) for s in seed] if isinstance(seed, Sequence) else [int(seed)]
+    if not seeds or int(num_envs) % len(seeds):
+        raise ValueError(f"env.num_envs ({num_envs}) must be a multiple of the number of seed "
+                         f"blocks ({len(seeds)})")
+    return seeds
+
+
 def compile_model(arena) -> mujoco.MjModel:
     """Compiles a dm_control MJCF arena (with its attached robot) to an ``MjModel``."""
     return mujoco.MjModel.from_xml_string(arena.to_xml_string(), assets=arena.get_assets())
@@ -80,9 +97,9 @@ def compile_model(arena) -> mujoco.MjModel:
 class RobotTaskEnv(EnvBase):
     """A batched TorchRL environment for any task and the robot it has."""
 
-    def __init__(self, task: Task, num_envs: int = 1, seed: int = 0, nthread: int | None = None):
-        if int(num_envs) < 1:
-            raise ValueError(f"env.num_envs must be >= 1, got {num_envs}")
+    def __init__(self, task: Task, num_envs: int = 1, seed: int | Sequence[int] = 0,
+                 nthread: int | None = None):
+        seeds = _seed_blocks(num_envs, seed)
         check_task(task)
         super().__init__(batch_size=torch.Size([int(num_envs)]), device="cpu")
         self.task = task
@@ -106,7 +123,10 @@ class RobotTaskEnv(EnvBase):
         self.elapsed_steps = np.zeros(n, dtype=np.int64)
         self.divergences = 0  # diverged steps (ended episodes) since construction
         self.ended_info: dict[str, np.ndarray] = {}  # episode_info at each copy's last episode end
-        self._rng = np.random.default_rng(seed)
+        self.n_blocks = len(seeds)
+        self.block_size = n // self.n_blocks
+        self.block_divergences = np.zeros(self.n_blocks, dtype=np.int64)  # ``divergences`` by block
+        self._set_seed(seeds if self.n_blocks > 1 else seeds[0])
         # What step_mdp drops of the root (it takes the observation and the flags from next).
         self._mdp_dropped = frozenset(("next", "reward", "_reset", "done", "terminated", "truncated"))
         self._renderer: mujoco.Renderer | None = None
@@ -115,8 +135,31 @@ class RobotTaskEnv(EnvBase):
                              for i in range(self.model.ncam)]
 
     # -- EnvBase -----------------------------------------------------------------
-    def _set_seed(self, seed: int | None) -> None:
-        self._rng = np.random.default_rng(seed)
+    def _set_seed(self, seed: int | Sequence[int] | None) -> None:
+        """One generator (``_rng``), or with a list of seeds one per block (``_rngs``)."""
+        if isinstance(seed, Sequence):
+            if len(seed) != self.n_blocks:
+                raise ValueError(f"this env has {self.n_blocks} seed blocks; got {len(seed)} seeds")
+            self._rngs = [np.random.default_rng(int(s)) for s in seed]
+        else:
+            self._rngs = [np.random.default_rng(seed)]
+        self._rng = self._rngs[0]
+
+    def set_seed(self, seed: int | Sequence[int] | None = None, static_seed: bool = False):
+        """Seeds the env (a list: one seed per block) and returns the seed (TorchRL's next
+        seed for a single one)."""
+        if isinstance(seed, Sequence):
+            self._set_seed(seed)
+            return seed
+        return super().set_seed(seed, static_seed)
+
+    def block(self, b: int) -> slice:
+        """The copies of seed block ``b``."""
+        return slice(b * self.block_size, (b + 1) * self.block_size)
+
+    def seed_block(self, b: int) -> SeedBlock:
+        """Seed block ``b`` seen as an env of its own (see :class:`SeedBlock`)."""
+        return SeedBlock(self, b)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         mask, partial = np.ones(self.num_envs, dtype=bool), False
@@ -224,7 +267,14 @@ class RobotTaskEnv(EnvBase):
         if keep_ended_info:
             self._keep_ended_info(mask)
         self.physics.reset(mask)
-        self.task.initialize_episode(self.physics, mask, self._rng)
+        if len(self._rngs) == 1:
+            self.task.initialize_episode(self.physics, mask, self._rng)
+        else:  # each block draws from its own generator, as alone
+            for b, rng in enumerate(self._rngs):
+                block_mask = np.zeros_like(mask)
+                block_mask[self.block(b)] = mask[self.block(b)]
+                if block_mask.any():
+                    self.task.initialize_episode(self.physics, block_mask, rng)
         self.physics.forward(mask)
         self.elapsed_steps[mask] = 0
         return self.task.observation(self.physics)
@@ -266,6 +316,7 @@ class RobotTaskEnv(EnvBase):
     def _report_divergences(self, diverged: np.ndarray) -> None:
         for i in np.flatnonzero(diverged):
             self.divergences += 1
+            self.block_divergences[i // self.block_size] += 1
             _log.warning(
                 "physics diverged in env copy %d at step %d of its episode; episode "
                 "truncated (%d divergences so far)",
@@ -308,7 +359,9 @@ class RobotTaskEnv(EnvBase):
         self.elapsed_steps[:] = other.elapsed_steps
         self.divergences = other.divergences
         self.ended_info = {k: v.copy() for k, v in other.ended_info.items()}
-        self._rng.bit_generator.state = other._rng.bit_generator.state
+        for mine, theirs in zip(self._rngs, other._rngs, strict=True):
+            mine.bit_generator.state = theirs.bit_generator.state
+        self.block_divergences[:] = other.block_divergences
         self.task.load_state_dict(other.task.state_dict())
         self.task.robot.load_state_dict(other.task.robot.state_dict())
 
@@ -331,3 +384,47 @@ class RobotTaskEnv(EnvBase):
             self._renderer = None
         self.physics.close()
         super().close(raise_if_closed=raise_if_closed)
+
+
+class _Rows:
+    """Attribute access that slices every array attribute of ``inner`` to ``rows``."""
+
+    def __init__(self, inner, rows: slice) -> None:
+        self._inner, self._rows = inner, rows
+
+    def __getattr__(self, name: str):
+        value = getattr(self._inner, name)
+        return value[self._rows] if isinstance(value, np.ndarray) else value
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {k: v[self._rows] for k, v in self._inner.state_dict().items()}
+
+
+class SeedBlock:
+    """One seed block of a :class:`RobotTaskEnv`, read as an env of ``block_size`` copies:
+    what a run books and checkpoints (``num_envs``, ``divergences``, ``ended_info``, the
+    block's physics arrays, step counters, generator and per-copy task state). It does not
+    step: the whole env steps every block at once."""
+
+    def __init__(self, env: RobotTaskEnv, b: int) -> None:
+        self.env, self.index, self.rows = env, b, env.block(b)
+        self.num_envs = env.block_size
+        self.physics = _Rows(env.physics, self.rows)
+        self.task = _Rows(env.task, self.rows)
+        self.task.robot = _Rows(env.task.robot, self.rows)
+
+    @property
+    def divergences(self) -> int:
+        return int(self.env.block_divergences[self.index])
+
+    @property
+    def ended_info(self) -> dict[str, np.ndarray]:
+        return {k: v[self.rows] for k, v in self.env.ended_info.items()}
+
+    @property
+    def elapsed_steps(self) -> np.ndarray:
+        return self.env.elapsed_steps[self.rows]
+
+    @property
+    def _rng(self) -> np.random.Generator:
+        return self.env._rngs[self.index]

@@ -170,9 +170,7 @@ class MazeTask(Task):
             self.start_position_noise, self.start_position_noise, self.start_yaw_noise]
         pose = starts + noise
         self.robot.set_pose(physics, mask, pose[:, 0], pose[:, 1], pose[:, 2])
-        linear, angular = self.speeds[self.per_copy.action].T
-        self.robot.command_velocity(physics, np.where(mask, 0.0, linear),
-                                    np.where(mask, 0.0, angular))
+        self.robot.stop(physics, mask)  # the other copies keep their commands
         c = self.per_copy
         c.prev_xy[mask] = pose[:, :2]
         c.distance[mask] = c.winding[mask] = c.along[mask] = 0.0

@@ -1,0 +1,47 @@
+"""Seed blocks: one env of S x n copies, seeded ``[s1, ..., sS]``, is S envs of n copies
+seeded s1 ... sS, copy for copy, episode starts and restarts included (tasks/env.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from runs.catalog import compose, robot_names
+from tasks.factory import build_env
+
+SEEDS = (3, 7, 11)
+
+
+@pytest.mark.parametrize("robot", robot_names())
+def test_each_block_steps_exactly_as_its_seed_alone(robot):
+    n, steps = 2, 60
+    cfg = compose(robot)
+    batch = build_env(cfg, n * len(SEEDS), list(SEEDS))
+    alone = [build_env(cfg, n, s) for s in SEEDS]
+    actions = np.random.default_rng(0).integers(batch.task.n_actions, size=(steps, n * len(SEEDS)))
+    td_b = batch.reset()
+    tds = [env.reset() for env in alone]
+    restarts = 0
+    try:
+        for t in range(steps):
+            td_b.set("action", torch.as_tensor(actions[t]))
+            td_b, next_b = batch.step_and_maybe_reset(td_b)
+            for b, env in enumerate(alone):
+                tds[b].set("action", torch.as_tensor(actions[t, batch.block(b)]))
+                td, tds[b] = env.step_and_maybe_reset(tds[b])
+                for key in ("observation", "reward", "done", "terminated"):
+                    assert torch.equal(td_b["next", key][batch.block(b)], td["next", key]), (t, b, key)
+                assert torch.equal(next_b["observation"][batch.block(b)], tds[b]["observation"]), (t, b)
+            restarts += int(td_b["next", "done"].sum())
+            td_b = next_b
+    finally:
+        batch.close()
+        for env in alone:
+            env.close()
+    assert restarts > 0 or robot == "cube", "no episode ended: the restarts were not compared"
+
+
+def test_seed_blocks_must_divide_the_copies():
+    with pytest.raises(ValueError, match="multiple of the number of seed blocks"):
+        build_env(compose("cartpole"), 5, [0, 1])
