@@ -39,9 +39,11 @@ from runs.checkpoint import CheckpointError
 from runs.console import tee_console
 from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
                          with_run_choices)
+from runs.batch import BatchJob
 from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
+from sweeps.seed_batch import collect
 from sweeps.state import SWEEP, end_failed_sweep, end_stopped_sweep, stop_sweep, sweep_stopped
 from sweeps.tuning import trial_link
 
@@ -90,6 +92,8 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> dict:
     check_run_config(cfg)
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
     run_dir.mkdir(parents=True, exist_ok=True)
+    if not resume and collect(BatchJob(cfg, run_dir, choices, overrides, changes)):
+        return {}  # trained with the other seeds of its group (hydra/launcher=seeds)
     with run_lock(run_dir), tee_console(run_dir / "train.log"):
         # A resumed trial job trains without reporting: its study has moved on.
         progress = None if resume else trial_link(cfg, run_dir, HydraConfig.get().sweeper)
@@ -152,6 +156,9 @@ def cli() -> None:
             SWEEP["signal"] = stop.code - 128
         else:
             raise
+    except ConfigError as err:  # a launcher's or sweeper's own check, before any job starts
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
     except Exception as err:  # noqa: BLE001 - before a job starts, any failure is the input's
         if _IN_JOB:
             raise

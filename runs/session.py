@@ -122,7 +122,7 @@ def execute(cfg: DictConfig, run_dir: Path, resume: bool = False, choices: Mappi
         start_run(cfg, run_dir, choices, list(overrides))
     for line in banner_lines(cfg, choices, changes, session.success, run_dir, session.learner.nepisodes):
         print(line)
-    (run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(session.success), indent=1))
+    write_success(session)
     if cfg.mode == "train":
         summary, result = _train(session, make_run(session, resume, progress))
         if summary.get("interrupted"):
@@ -131,50 +131,69 @@ def execute(cfg: DictConfig, run_dir: Path, resume: bool = False, choices: Mappi
         summary = {}
         result = session.evaluator(session.final_episodes) if session.final_episodes > 0 else None
     session.env.close()
-    _report(session, summary, result)
+    report(session, summary, result)
     return summary
+
+
+def write_success(session: Session) -> None:
+    """``success.json``: the task's rule, as the run judges it."""
+    (session.run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(session.success), indent=1))
 
 
 def _train(session: Session, run: Run) -> tuple[dict, dict | None]:
     """Trains until ``run`` is done, then judges the trained policy; saves the training state
     and ``model.pt`` however it ends. A stopped run's summary says ``interrupted``."""
-    cfg, learner = session.cfg, session.learner
     result, finished = None, False
     try:
-        with stop_on_signals(run) as stopped:
-            learner.train(session.env, run)
-            if session.final_episodes > 0 and not run.stop_requested:
-                result = _final_evaluation(session, run)
+        with stop_on_signals(run) as signalled:
+            session.learner.train(session.env, run)
+            result = final_evaluation(session, run)
         finished = True
     finally:
-        if finished:  # at a step boundary: the whole state is consistent
-            run.checkpoint(run.last_td)
-        summary = run.close()
-        save_model(session.run_dir / "model.pt", learner, meta={
-            "choices": json.loads((session.run_dir / "run.json").read_text()),
-            "config": OmegaConf.to_container(cfg, resolve=True),
-        })
+        summary = close_run(session, run, finished)
     if run.stop_requested:
         session.env.close()
-        print(f"stopped after episode {run.n_episodes}; the whole training state is in "
-              f"{session.state_path}\nresume with: python train.py resume={session.run_dir}")
-        summary["interrupted"] = True
-        summary["signal"] = stopped["signal"] or signal.SIGINT
-        (session.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+        summary = stopped(session, run, summary, signalled["signal"] or signal.SIGINT)
     return summary, result
 
 
-def _final_evaluation(session: Session, run: Run) -> dict:
+def final_evaluation(session: Session, run: Run) -> dict | None:
     """The trained policy, judged like the evaluations during training (an evaluation of this
-    very policy is reused); at the budget's end it may still solve a greedily judged task."""
+    very policy is reused); at the budget's end it may still solve a greedily judged task.
+    None when the run was stopped or evaluates nothing."""
     n_eval = session.final_episodes
+    if n_eval <= 0 or run.stop_requested:
+        return None
     fresh = run.last_eval is not None and run.evals[-1]["episode"] == run.n_episodes
     if fresh and n_eval == int(session.cfg.eval_episodes):
         return run.last_eval
     return run.evaluate_greedy(partial(session.evaluator, n_eval))
 
 
-def _report(session: Session, summary: dict, result: dict | None) -> None:
+def close_run(session: Session, run: Run, finished: bool) -> dict:
+    """The training state (``finished``: at a step boundary, so consistent), the run's files
+    closed and ``model.pt``; returns the run's summary."""
+    if finished:
+        run.checkpoint(run.last_td)
+    summary = run.close()
+    save_model(session.run_dir / "model.pt", session.learner, meta={
+        "choices": json.loads((session.run_dir / "run.json").read_text()),
+        "config": OmegaConf.to_container(session.cfg, resolve=True),
+    })
+    return summary
+
+
+def stopped(session: Session, run: Run, summary: dict, signum: int) -> dict:
+    """A run stopped by ``signum``: how to resume it, and its summary saying so."""
+    print(f"stopped after episode {run.n_episodes}; the whole training state is in "
+          f"{session.state_path}\nresume with: python train.py resume={session.run_dir}")
+    summary["interrupted"] = True
+    summary["signal"] = signum
+    (session.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def report(session: Session, summary: dict, result: dict | None) -> None:
     """The final evaluation (eval.json), the video on request, the summary and the verdict."""
     cfg, run_dir, success = session.cfg, session.run_dir, session.success
     if result is not None:
@@ -198,19 +217,20 @@ def _report(session: Session, summary: dict, result: dict | None) -> None:
 
 
 @contextmanager
-def stop_on_signals(record: Run) -> Iterator[dict]:
-    """Ctrl-C / SIGTERM ask ``record`` to stop after the current step; a second Ctrl-C aborts.
-    Yields ``{"signal": None}``, where the stopping signal's number is put."""
+def stop_on_signals(*records: Run) -> Iterator[dict]:
+    """Ctrl-C / SIGTERM ask each of ``records`` to stop after the current step; a second
+    Ctrl-C aborts. Yields ``{"signal": None}``, where the stopping signal's number is put."""
     stopped: dict = {"signal": None}
     if threading.current_thread() is not threading.main_thread():
         yield stopped  # signal handlers live in the main thread only (e.g. joblib workers)
         return
 
     def handler(signum, frame):
-        if record.stop_requested and signum == signal.SIGINT:
+        if any(r.stop_requested for r in records) and signum == signal.SIGINT:
             raise KeyboardInterrupt
         stopped["signal"] = signum
-        record.request_stop()
+        for record in records:
+            record.request_stop()
         print(f"\n{signal.Signals(signum).name}: stopping after this step and saving a checkpoint "
               "(Ctrl-C again aborts without saving)", file=sys.stderr)
 

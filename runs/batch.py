@@ -1,0 +1,270 @@
+"""Seeds in one process: runs that differ only in their seed, trained side by side.
+
+    summaries = execute_batch([BatchJob(cfg_0, dir_0, ...), BatchJob(cfg_1, dir_1, ...)])
+
+One env holds every seed's copies as seed blocks (``RobotTaskEnv(seed=[...])``):
+each block starts its episodes as that seed's env alone would, and the physics of
+all of them is one step. Each seed keeps its own learner, its own :class:`Run`
+with its own folder, files, checkpoints and verdict, and its own random streams:
+the global torch, numpy and ``random`` states are swapped in around everything
+a seed does, so a seed draws exactly what it would draw alone. A seed's run is
+therefore the run ``python train.py seed=<s>`` makes, file for file (wall-clock
+numbers aside), and each folder resumes alone (``resume=<folder>``).
+
+A seed that is done (solved, out of budget, stopped) stops learning and booking
+while the others go on (its copies still step with the batch: their results are
+dropped); a seed whose learner fails ends alone, its trace in its ``error.txt``.
+Each seed's console goes to its ``train.log`` and, its lines prefixed with
+``[seed N]``, to the terminal.
+"""
+
+from __future__ import annotations
+
+import random
+import signal
+import sys
+import traceback
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Iterator, Mapping, Sequence
+
+import numpy as np
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+
+from params import ConfigError
+from runs import session as solo
+from runs.banner import banner_lines
+from runs.console import Tee
+from runs.evaluate import GreedyEvaluator
+from runs.folder import run_lock, start_run
+from runs.run import Run
+from runs.seeding import seed_everything
+from tasks.env import RobotTaskEnv, SeedBlock
+from tasks.factory import build_env
+
+# Settings a batched job may not have: each makes a run that is not a fresh training run.
+NOT_BATCHED = ("resume", "checkpoint", "trial")
+
+
+@dataclass
+class BatchJob:
+    """One seed's job: its checked config, folder, choices (for the banner and run.json),
+    command-line overrides and what its tuned file changed."""
+
+    cfg: DictConfig
+    run_dir: Path
+    choices: Mapping[str, str | None]
+    overrides: Sequence[str] = ()
+    changes: Sequence[str] | None = None
+
+
+def batchable(cfg: DictConfig) -> bool:
+    """Whether a job with ``cfg`` can train in a seed batch (a fresh training run)."""
+    return cfg.mode == "train" and not any(cfg.get(key) not in (None, "", False) for key in NOT_BATCHED)
+
+
+def check_batch(jobs: Sequence[BatchJob]) -> None:
+    """One line unless ``jobs`` are fresh training runs whose configs differ only in an
+    integer seed, each seed once."""
+    seeds = [job.cfg.seed for job in jobs]
+    if any(type(s) is not int for s in seeds):
+        raise ConfigError(f"seed must be an integer in a seed batch; got {seeds}")
+    twice = sorted({s for s in seeds if seeds.count(s) > 1})
+    if twice:
+        raise ConfigError(f"seed {twice[0]} appears twice in one sweep; give each seed once")
+    if not all(batchable(job.cfg) for job in jobs):
+        raise ConfigError(f"a seed batch trains fresh runs only (no {', '.join(NOT_BATCHED)})")
+    first = _without_seed(jobs[0].cfg)
+    for job in jobs[1:]:
+        if _without_seed(job.cfg) != first:
+            raise ConfigError(f"jobs {jobs[0].run_dir.name} and {job.run_dir.name} differ in more "
+                              "than their seed: they cannot share a seed batch")
+
+
+def _without_seed(cfg: DictConfig) -> dict:
+    return {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k != "seed"}
+
+
+@dataclass
+class _Slot:
+    """One seed of the batch: its job, parts, run, random streams and console."""
+
+    job: BatchJob
+    index: int
+    terminal: IO[str]
+    session: solo.Session | None = None
+    run: Run | None = None
+    td: TensorDictBase | None = None
+    log: IO[str] | None = None
+    streams: tuple = ()
+    failed: str | None = None
+    result: dict | None = None  # the final greedy evaluation
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def seed(self) -> int:
+        return int(self.job.cfg.seed)
+
+    @property
+    def done(self) -> bool:
+        return self.failed is not None or self.run is None or self.run.done
+
+    @contextmanager
+    def active(self) -> Iterator[None]:
+        """This seed's random streams and console inside; the others' kept outside."""
+        torch.set_rng_state(self.streams[0])
+        np.random.set_state(self.streams[1])
+        random.setstate(self.streams[2])
+        out, err = sys.stdout, sys.stderr
+        prefixed = _Prefixed(self.terminal, f"[seed {self.seed}] ")
+        sys.stdout = sys.stderr = Tee(prefixed, self.log)
+        try:
+            yield
+        finally:
+            sys.stdout, sys.stderr = out, err
+            self.streams = (torch.get_rng_state(), np.random.get_state(), random.getstate())
+
+
+class _Prefixed:
+    """A terminal stream that starts each line with ``prefix`` (never a tty: no progress bar)."""
+
+    def __init__(self, stream: IO[str], prefix: str) -> None:
+        self.stream, self.prefix, self._fresh = stream, prefix, True
+
+    def write(self, text: str) -> int:
+        for piece in text.splitlines(keepends=True):
+            self.stream.write((self.prefix if self._fresh else "") + piece)
+            self._fresh = piece.endswith("\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def isatty(self) -> bool:
+        return False
+
+
+def execute_batch(jobs: Sequence[BatchJob]) -> list[dict]:
+    """Trains every job of ``jobs`` (checked by :func:`check_batch`) in one env; returns each
+    seed's summary, in order (a failed seed's says ``failed``)."""
+    check_batch(jobs)
+    cfg = jobs[0].cfg
+    torch.set_num_threads(int(cfg.torch_threads))
+    slots = [_Slot(job, b, sys.stdout) for b, job in enumerate(jobs)]
+    with ExitStack() as stack:
+        for slot in slots:
+            slot.job.run_dir.mkdir(parents=True, exist_ok=True)
+            stack.enter_context(run_lock(slot.job.run_dir))
+            slot.log = stack.enter_context(open(slot.job.run_dir / "train.log", "a", encoding="utf-8"))
+        env = _build(slots)
+        try:
+            _start(slots, env)
+            _train(slots, env)
+        finally:
+            env.close()
+    return [slot.summary for slot in slots]
+
+
+def _build(slots: list[_Slot]) -> RobotTaskEnv:
+    """Each seed's learner (after seeding as its run alone does) and the one env of all seeds."""
+    learners = []
+    for slot in slots:
+        generator = seed_everything(slot.seed)
+        learners.append((instantiate(slot.job.cfg.learner, _convert_="all"), generator))
+        slot.streams = (torch.get_rng_state(), np.random.get_state(), random.getstate())
+    cfg = slots[0].job.cfg
+    env = build_env(cfg, len(slots) * int(cfg.num_envs), [s.seed for s in slots], learners[0][0].nsteps)
+    for slot, (learner, generator) in zip(slots, learners):
+        with slot.active():
+            learner.build(env.task, generator)
+            view = env.seed_block(slot.index)
+            evaluator = GreedyEvaluator(slot.job.cfg, learner, slot.seed + solo.EVAL_SEED_OFFSET)
+            slot.session = solo.Session(slot.job.cfg, slot.job.run_dir, learner, view, evaluator)
+    return env
+
+
+def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
+    """Each seed's folder, banner and run, from its block of the first reset."""
+    first = env.reset()
+    for slot in slots:
+        job, session = slot.job, slot.session
+        with slot.active():
+            start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
+            for line in banner_lines(job.cfg, dict(job.choices), job.changes, session.success,
+                                          job.run_dir, session.learner.nepisodes):
+                print(line)
+            solo.write_success(session)
+            slot.run = solo.make_run(session, resume=False, progress=None)
+            slot.run.continue_from(first[env.block(slot.index)])
+            session.learner.begin()
+            slot.td = slot.run.start(session.env)
+
+
+def _train(slots: list[_Slot], env: RobotTaskEnv) -> None:
+    """Steps every seed's copies together until each run is done; a seed ends (its final
+    evaluation, checkpoint, model and verdict) at the step its run is done, as alone. A
+    seed's step is one visit to its context: it books its block of the step, then picks
+    its block's next actions."""
+    with solo.stop_on_signals(*(slot.run for slot in slots if slot.run)) as stopped:
+        for slot in slots:
+            _guarded(slot, lambda s=slot: _act(s))
+        live = slots
+        while live:
+            ended = [slot for slot in live if slot.done]
+            for slot in ended:
+                _finish(slot, stopped["signal"])
+            live = [slot for slot in live if slot not in ended]
+            if not live:
+                break
+            td, next_td = env.step_and_maybe_reset(torch.cat([slot.td for slot in slots]))
+            for slot in live:
+                rows = env.block(slot.index)
+                _guarded(slot, lambda s=slot: _book(s, td[rows], next_td[rows]) or _act(s))
+
+
+def _act(slot: _Slot) -> None:
+    """The seed's next actions, unless its run is done."""
+    if not slot.run.done:
+        slot.td = slot.session.learner.act(slot.td)
+
+
+def _book(slot: _Slot, td: TensorDictBase, next_td: TensorDictBase) -> None:
+    """What a seed's learner and run do with its block of the step, as :func:`learners.base.train`."""
+    learner, run = slot.session.learner, slot.run
+    learner.observe(td)
+    for _ in run.record_step(slot.session.env, td, learner.stats):
+        learner.end_episode()
+    slot.td = run.end_step(next_td)
+
+
+def _guarded(slot: _Slot, work) -> None:
+    """Runs ``work`` in the seed's context; an exception ends that seed alone (``error.txt``)."""
+    with slot.active():
+        try:
+            work()
+        except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
+            slot.failed = traceback.format_exc()
+            print(slot.failed, file=sys.stderr)
+            (slot.job.run_dir / "error.txt").write_text(slot.failed)
+
+
+def _finish(slot: _Slot, interrupted: int | None) -> None:
+    """A seed's end, as its run alone ends: final evaluation, checkpoint, model, report."""
+    if slot.run is None:
+        return
+    session, run = slot.session, slot.run
+    if slot.failed is None:
+        _guarded(slot, lambda: setattr(slot, "result", solo.final_evaluation(session, run)))
+    with slot.active():
+        summary = solo.close_run(session, run, finished=slot.failed is None)
+        if slot.failed is not None:
+            slot.summary = {**summary, "failed": slot.failed.strip().splitlines()[-1]}
+        elif run.stop_requested:
+            slot.summary = solo.stopped(session, run, summary, interrupted or signal.SIGINT)
+        else:
+            solo.report(session, summary, slot.result)
+            slot.summary = summary

@@ -1,0 +1,130 @@
+"""The ``seeds`` launcher's work: a sweep's jobs grouped by every override but ``seed``, each
+group of fresh training runs trained as one seed batch (:func:`runs.batch.execute_batch`).
+
+Every job still goes through Hydra's ``run_job`` (its folder, ``.hydra/`` files, logging)
+and ``train.py``'s checks; a batchable job then hands its checked config to the batch
+being collected (:func:`collect`) instead of training alone, and the batch trains once
+all of its group has been handed over. A group of one, and jobs that are not fresh
+training runs (``resume=``, ``mode=eval``, a tuning ``trial``), run alone as with
+``hydra/launcher=basic``.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Sequence
+
+from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
+from hydra.types import HydraContext, TaskFunction
+from omegaconf import DictConfig, open_dict
+
+from params import ConfigError
+from runs.batch import BatchJob, batchable, execute_batch
+
+log = logging.getLogger(__name__)
+_COLLECTING: list[list[BatchJob]] = []  # the batch being collected, innermost last
+
+
+@contextmanager
+def collecting() -> Iterator[list[BatchJob]]:
+    """Within: batchable jobs are collected into the yielded list instead of trained."""
+    jobs: list[BatchJob] = []
+    _COLLECTING.append(jobs)
+    try:
+        yield jobs
+    finally:
+        _COLLECTING.pop()
+
+
+def collect(job: BatchJob) -> bool:
+    """Hands ``job`` to the batch being collected; False (train it now) when no batch is
+    being collected or ``job`` is not a fresh training run."""
+    if not _COLLECTING or not batchable(job.cfg):
+        return False
+    _COLLECTING[-1].append(job)
+    return True
+
+
+def _key(override: str) -> str:
+    return override.split("=", 1)[0].lstrip("+~")
+
+
+def group_jobs(job_overrides: Sequence[Sequence[str]]) -> list[list[int]]:
+    """Job indices grouped by every override except ``seed`` (in first-seen order); a seed
+    given twice in one group is refused with one line."""
+    groups: dict[tuple, list[int]] = {}
+    for i, overrides in enumerate(job_overrides):
+        rest = tuple(sorted(o for o in overrides if _key(o) != "seed"))
+        groups.setdefault(rest, []).append(i)
+    for members in groups.values():
+        seeds = [o for i in members for o in job_overrides[i] if _key(o) == "seed"]
+        twice = sorted({s for s in seeds if seeds.count(s) > 1})
+        if twice:
+            raise ConfigError(f"{twice[0]} is given twice in one sweep; give each seed once")
+    return list(groups.values())
+
+
+class SeedBatchLaunch:
+    """Launches a sweep's jobs, a group of seeds as one batch (``max_seeds`` at most each)."""
+
+    def __init__(self, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig,
+                 max_seeds: int = 64) -> None:
+        if type(max_seeds) is not int or max_seeds < 1:
+            raise ConfigError(f"hydra.launcher.max_seeds must be an integer >= 1; got {max_seeds!r}")
+        self.hydra_context, self.task_function, self.config = hydra_context, task_function, config
+        self.max_seeds = max_seeds
+
+    def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> list[JobReturn]:
+        setup_globals()
+        configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
+        groups = group_jobs(job_overrides)  # refused before any job starts
+        Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
+        log.info(f"Launching {len(job_overrides)} jobs in this process, seeds of the same "
+                 f"settings together ({len(groups)} group{'s' * (len(groups) != 1)})")
+        returns: dict[int, JobReturn] = {}
+        for members in groups:
+            for start in range(0, len(members), self.max_seeds):
+                chunk = [(initial_job_idx + i, job_overrides[i]) for i in members[start:start + self.max_seeds]]
+                returns.update(self._launch_batch(chunk) if len(chunk) > 1 else {chunk[0][0]: self._run(*chunk[0])})
+        return [returns[initial_job_idx + i] for i in range(len(job_overrides))]
+
+    def _run(self, idx: int, overrides: Sequence[str]) -> JobReturn:
+        """One job through Hydra's ``run_job``, as the basic launcher runs it."""
+        log.info(f"\t#{idx} : {' '.join(filter_overrides(overrides))}")
+        sweep_config = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+        with open_dict(sweep_config):
+            sweep_config.hydra.job.id = idx
+            sweep_config.hydra.job.num = idx
+        ret = run_job(hydra_context=self.hydra_context, task_function=self.task_function,
+                      config=sweep_config, job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir")
+        configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
+        return ret
+
+    def _launch_batch(self, chunk: list[tuple[int, Sequence[str]]]) -> dict[int, JobReturn]:
+        """The chunk's jobs checked and handed over, then trained as one batch."""
+        with collecting() as jobs:
+            returns = {idx: self._run(idx, overrides) for idx, overrides in chunk}
+        if jobs:  # (fewer than the chunk where a job failed its checks)
+            log.info(f"Training {len(jobs)} seed{'s' * (len(jobs) != 1)} together: "
+                     f"{', '.join(str(j.cfg.seed) for j in jobs)}")
+        summaries = _batch(jobs) if jobs else []
+        stopped = [s for s in summaries if s.get("interrupted")]
+        if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)
+            raise SystemExit(128 + int(stopped[0].get("signal", 2)))
+        return returns
+
+
+def _batch(jobs: list[BatchJob]) -> list[dict]:
+    """Trains ``jobs`` as one batch; a refusal is one line, kept in each job's ``error.txt``."""
+    try:
+        return execute_batch(jobs)
+    except ConfigError as err:
+        message = f"error: {err}"
+        print(message, file=sys.stderr)
+        for job in jobs:
+            (job.run_dir / "error.txt").write_text(message + "\n")
+        return []
+

@@ -1,0 +1,158 @@
+"""Seeds in one process (runs/batch.py, the ``seeds`` launcher): a seed trained in a batch
+is the run it makes alone, file for file (wall-clock numbers aside), bit for bit for
+qlearn and dqn; a failing seed ends alone; the launcher batches a multirun's seeds."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from learners.qlearn import QLearn
+from runs.batch import BatchJob, check_batch, execute_batch
+from runs.catalog import compose
+from runs.resume import load_run_config, read_run_json
+from runs.run import Run
+from runs.session import execute
+from runs.settings import check_run_config
+from params import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+SEEDS = (4, 9)
+WALL_CLOCK = {"wall_s", "first_step_s"}  # summary.json's clock readings
+SAME_FILES = ("metrics.csv", "evals.csv", "eval.json", "success.json", "config.yaml")
+BUDGETS = {
+    "qlearn": ["learner.nepisodes=60", "eval_every=20", "eval_episodes=4", "checkpoint_every=20"],
+    "dqn": ["max_env_steps=2000", "eval_every=20", "eval_episodes=4", "checkpoint_every=20"],
+}
+
+
+def jobs(learner: str, root: Path, prefix: str, extra=()) -> list[BatchJob]:
+    choices = {"robot": "cartpole", "task": "stay_up", "learner": learner, "tuned": f"cartpole_{learner}"}
+    found = []
+    for seed in SEEDS:
+        cfg = compose("cartpole", learner=learner, overrides=[f"seed={seed}", "quiet=true",
+                                                               *BUDGETS[learner], *extra])
+        check_run_config(cfg)
+        found.append(BatchJob(cfg, root / f"{prefix}{seed}", choices))
+    return found
+
+
+def tensors_equal(a, b) -> bool:
+    if isinstance(a, torch.Tensor):
+        return isinstance(b, torch.Tensor) and torch.equal(a, b)
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(tensors_equal(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(tensors_equal(x, y) for x, y in zip(a, b))
+    return a == b
+
+
+@pytest.mark.parametrize("learner", ["qlearn", "dqn"])
+def test_a_seed_in_a_batch_is_its_run_alone(tmp_path, learner):
+    batch = jobs(learner, tmp_path, "batch")
+    execute_batch(batch)
+    for job in jobs(learner, tmp_path, "alone"):
+        job.run_dir.mkdir()
+        execute(job.cfg, job.run_dir, choices=job.choices)
+    for seed in SEEDS:
+        together, alone = tmp_path / f"batch{seed}", tmp_path / f"alone{seed}"
+        for name in SAME_FILES:
+            assert (together / name).read_bytes() == (alone / name).read_bytes(), (seed, name)
+        summaries = [json.loads((d / "summary.json").read_text()) for d in (together, alone)]
+        assert [{k: v for k, v in s.items() if k not in WALL_CLOCK} for s in summaries][0] == \
+            {k: v for k, v in summaries[1].items() if k not in WALL_CLOCK}
+        for name, keys in (("model.pt", ("meta", "checksum")), ("checkpoint.pt", ("identity", "checksum"))):
+            a, b = (torch.load(d / name, weights_only=True) for d in (together, alone))
+            for state in (a, b):
+                state.get("run", {}).pop("wall_s", None)  # the run's clock
+            assert tensors_equal({k: v for k, v in a.items() if k not in keys},
+                                 {k: v for k, v in b.items() if k not in keys}), (seed, name)
+
+
+def test_a_stopped_batch_seed_resumes_alone_to_its_uninterrupted_run(tmp_path, monkeypatch):
+    """A batch stopped after 20 episodes leaves each seed the checkpoint its run alone writes:
+    ``resume`` continues it alone to the metrics of a run never stopped."""
+    real_end_step = Run.end_step
+
+    def end_step(self, td):
+        td = real_end_step(self, td)
+        if self.n_episodes >= 20:
+            self.request_stop()
+        return td
+
+    monkeypatch.setattr(Run, "end_step", end_step)
+    summaries = execute_batch(jobs("qlearn", tmp_path, "batch"))
+    assert all(s["interrupted"] for s in summaries)
+    monkeypatch.setattr(Run, "end_step", real_end_step)
+    folder = tmp_path / f"batch{SEEDS[1]}"
+    execute(load_run_config(folder), folder, resume=True, choices=read_run_json(folder))
+    alone = jobs("qlearn", tmp_path, "alone")[1]
+    alone.run_dir.mkdir()
+    execute(alone.cfg, alone.run_dir, choices=alone.choices)
+    for name in ("metrics.csv", "evals.csv", "eval.json"):
+        assert (folder / name).read_bytes() == (alone.run_dir / name).read_bytes(), name
+
+
+def test_a_failing_seed_ends_alone(tmp_path, monkeypatch):
+    built = []
+    real_build, real_update = QLearn.build, QLearn.update
+    monkeypatch.setattr(QLearn, "build", lambda self, *a: built.append(self) or real_build(self, *a))
+
+    def update(self, td):
+        if self is built[0] and self.policy.epsilon < 0.5:
+            raise FloatingPointError("the Q-table diverged")
+        real_update(self, td)
+
+    monkeypatch.setattr(QLearn, "update", update)
+    summaries = execute_batch(jobs("qlearn", tmp_path, "batch"))
+    failed, healthy = (tmp_path / f"batch{s}" for s in SEEDS)
+    assert "FloatingPointError: the Q-table diverged" in (failed / "error.txt").read_text()
+    assert summaries[0]["failed"] == "FloatingPointError: the Q-table diverged"
+    assert not (healthy / "error.txt").exists() and summaries[1]["episodes"] == 60
+    assert (failed / "model.pt").is_file() and (healthy / "eval.json").is_file()
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda js: js[1].cfg.__setitem__("seed", js[0].cfg.seed), "appears twice"),
+    (lambda js: js[1].cfg.learner.__setitem__("alpha", 0.5), "differ in more than their seed"),
+    (lambda js: js[1].cfg.__setitem__("mode", "eval"), "fresh runs only"),
+])
+def test_a_batch_of_unlike_jobs_is_refused_before_any_work(tmp_path, change, message):
+    batch = jobs("qlearn", tmp_path, "batch")
+    change(batch)
+    with pytest.raises(ConfigError, match=message):
+        check_batch(batch)
+    with pytest.raises(ConfigError, match=message):
+        execute_batch(batch)
+    assert not any(job.run_dir.exists() for job in batch)
+
+
+def run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_a_multirun_trains_its_seeds_in_one_batch_per_group(tmp_path):
+    """``-m learner=qlearn,dqn seed=0,1`` makes two batches (one per learner), each seed with
+    its own job folder; the comparison reads them as ever."""
+    proc = run_cli(["-m", "learner=qlearn,dqn", "seed=0,1", "learner.nepisodes=20", "max_env_steps=600",
+                    "eval_episodes=2", "quiet=true", f"hydra.sweep.dir={tmp_path / 'sweep'}"], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.count("Training 2 seeds together") == 2, proc.stdout[-2000:]
+    jobs_done = sorted(p.name for p in (tmp_path / "sweep").iterdir() if (p / "summary.json").is_file())
+    assert len(jobs_done) == 4, jobs_done
+    assert "[seed 1] VERDICT" in proc.stdout and (tmp_path / "sweep" / "comparison.csv").is_file()
+
+
+def test_a_seed_given_twice_is_one_line_and_nothing_runs(tmp_path):
+    proc = run_cli(["-m", "seed=3,3", f"hydra.sweep.dir={tmp_path / 'sweep'}"], tmp_path)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2 and lines == ["error: seed=3 is given twice in one sweep; give each seed once"]
+    assert not any((tmp_path / "sweep").glob("*/config.yaml"))
