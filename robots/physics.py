@@ -111,7 +111,15 @@ class BatchedPhysics:
         self._none_diverged = np.zeros(num_envs, dtype=bool)
         self._none_diverged.flags.writeable = False
         self.diverged = self._none_diverged
+        self._held = np.zeros(num_envs, dtype=bool)
+        self._stepping: np.ndarray | None = None  # indices of the copies that step (None: all)
         route_mujoco_warnings()
+
+    def hold(self, mask: np.ndarray) -> None:
+        """From now on the ``mask`` copies no longer step: their state stays as it is (the
+        copies of a finished run in a batch of runs); every other copy steps as before."""
+        self._held |= np.asarray(mask, dtype=bool)
+        self._stepping = np.flatnonzero(~self._held) if self._held.any() else None
 
     @property
     def timestep(self) -> float:
@@ -122,7 +130,10 @@ class BatchedPhysics:
 
         Copies that diverge are flagged in ``diverged`` and keep their state
         and sensor readings from before the step (see the module docstring).
+        Copies put on :meth:`hold` do not step.
         """
+        if self._stepping is not None:
+            return self._step_some(nsubsteps, self._stepping)
         out_state, out_sensor, control = self._buffers(nsubsteps)
         control[:] = self.ctrl[:, None, :]
         # Arguments are already in rollout's final form, so its checks are skipped.
@@ -147,6 +158,31 @@ class BatchedPhysics:
                 self.sensordata[:] = sensor
             return
         self._keep_good((elapsed < lo) | (elapsed > hi), last, sensor)
+
+    def _step_some(self, nsubsteps: int, some: np.ndarray) -> None:
+        """:meth:`step` for the copies ``some`` (indices) only; the others keep their state."""
+        if not len(some):
+            self.diverged = self._none_diverged
+            return
+        control = np.repeat(self.ctrl[some][:, None, :], nsubsteps, axis=1)
+        out_state = np.empty((len(some), nsubsteps, self.nstate))
+        out_sensor = np.empty((len(some), nsubsteps, self._nsensordata))
+        self._pool.rollout(self._models[:len(some)], self._datas, self.state[some], control,
+                           nstep=nsubsteps, initial_warmstart=self._warmstart[some], state=out_state,
+                           sensordata=out_sensor, skip_checks=True)
+        last = self.state.copy()
+        last[some] = out_state[:, -1]
+        sensor = None
+        if self._nsensordata:
+            sensor = self.sensordata.copy()
+            sensor[some] = out_sensor[:, -1]
+        timestep = self._opt.timestep
+        elapsed = np.full(self.num_envs, nsubsteps * timestep)
+        elapsed[some] = last[some, 0] - self.time[some]
+        off = (elapsed < (nsubsteps - 0.5) * timestep) | (elapsed > (nsubsteps + 0.5) * timestep)
+        self._keep_good(off, last, sensor)
+        if not self.diverged.any():
+            self.diverged = self._none_diverged
 
     def _buffers(self, nsubsteps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``mujoco.rollout``'s output (states, sensor readings) and control arrays for

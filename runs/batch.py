@@ -11,9 +11,8 @@ a seed does, so a seed draws exactly what it would draw alone. A seed's run is
 therefore the run ``python train.py seed=<s>`` makes, file for file (wall-clock
 numbers aside), and each folder resumes alone (``resume=<folder>``).
 
-A seed that is done (solved, out of budget, stopped) stops learning and booking
-while the others go on (its copies still step with the batch: their results are
-dropped); a seed whose learner fails ends alone, its trace in its ``error.txt``.
+A seed that is done (solved, out of budget, stopped) ends there, as alone, and its
+copies stop stepping (``BatchedPhysics.hold``) while the others go on; a seed whose learner fails ends alone, its trace in its ``error.txt``.
 Each seed's console goes to its ``train.log`` and, its lines prefixed with
 ``[seed N]``, to the terminal.
 """
@@ -217,6 +216,7 @@ def _train(slots: list[_Slot], env: RobotTaskEnv) -> None:
             ended = [slot for slot in live if slot.done]
             for slot in ended:
                 _finish(slot, stopped["signal"])
+                env.physics.hold(np.arange(env.num_envs) // env.block_size == slot.index)
             live = [slot for slot in live if slot not in ended]
             if not live:
                 break

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from tensordict import TensorDict
 
 from runs.catalog import compose, robot_names
 from tasks.factory import build_env
@@ -45,3 +46,25 @@ def test_each_block_steps_exactly_as_its_seed_alone(robot):
 def test_seed_blocks_must_divide_the_copies():
     with pytest.raises(ValueError, match="multiple of the number of seed blocks"):
         build_env(compose("cartpole"), 5, [0, 1])
+
+
+def test_held_copies_stay_and_the_others_step_as_before():
+    """``BatchedPhysics.hold``: a finished seed's copies keep their state; the rest step as
+    they would with every copy stepping."""
+    cfg = compose("cube")
+    held, free = build_env(cfg, 4, [1, 2]), build_env(cfg, 4, [1, 2])
+    try:
+        for env in (held, free):
+            env.reset()
+        held.physics.hold(np.array([True, True, False, False]))
+        frozen = held.physics.state[:2].copy()
+        action = torch.full((4,), 0)  # the wheel to full speed: everything moves
+        for _ in range(5):
+            for env in (held, free):
+                env.step(TensorDict(action=action, batch_size=[4]))
+        assert np.array_equal(held.physics.state[:2], frozen)
+        assert np.array_equal(held.physics.state[2:], free.physics.state[2:])
+        assert not np.array_equal(free.physics.state[:2], frozen)
+    finally:
+        held.close()
+        free.close()
