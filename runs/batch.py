@@ -40,6 +40,7 @@ from runs.banner import banner_lines
 from runs.console import Tee
 from runs.evaluate import GreedyEvaluator
 from runs.folder import run_lock, start_run
+from runs.resume import save_training_state
 from runs.run import Run
 from runs.seeding import seed_everything
 from tasks.env import RobotTaskEnv, SeedBlock
@@ -113,11 +114,16 @@ class _Slot:
         return self.failed is not None or self.run is None or self.run.done
 
     @contextmanager
-    def active(self) -> Iterator[None]:
-        """This seed's random streams and console inside; the others' kept outside."""
+    def active(self, full: bool = False) -> Iterator[None]:
+        """This seed's console and torch random stream inside (``full``: its numpy and
+        ``random`` streams too); the others' kept outside. Nothing here draws from numpy's
+        or ``random``'s global streams while training (their states, ~0.3 ms to swap, are
+        only seeded and saved), so a step swaps torch's alone and a checkpoint all three
+        (:meth:`save`)."""
         torch.set_rng_state(self.streams[0])
-        np.random.set_state(self.streams[1])
-        random.setstate(self.streams[2])
+        if full:
+            np.random.set_state(self.streams[1])
+            random.setstate(self.streams[2])
         out, err = sys.stdout, sys.stderr
         prefixed = _Prefixed(self.terminal, f"[seed {self.seed}] ")
         sys.stdout = sys.stderr = Tee(prefixed, self.log)
@@ -125,7 +131,20 @@ class _Slot:
             yield
         finally:
             sys.stdout, sys.stderr = out, err
-            self.streams = (torch.get_rng_state(), np.random.get_state(), random.getstate())
+            self.streams = (torch.get_rng_state(),
+                            *((np.random.get_state(), random.getstate()) if full else self.streams[1:]))
+
+    def save(self, *args) -> None:
+        """:func:`runs.resume.save_training_state` with this seed's numpy and ``random``
+        states in place (a checkpoint holds them)."""
+        outside = np.random.get_state(), random.getstate()
+        np.random.set_state(self.streams[1])
+        random.setstate(self.streams[2])
+        try:
+            save_training_state(*args)
+        finally:
+            np.random.set_state(outside[0])
+            random.setstate(outside[1])
 
 
 class _Prefixed:
@@ -178,7 +197,7 @@ def _build(slots: list[_Slot]) -> RobotTaskEnv:
     cfg = slots[0].job.cfg
     env = build_env(cfg, len(slots) * int(cfg.num_envs), [s.seed for s in slots], learners[0][0].nsteps)
     for slot, (learner, generator) in zip(slots, learners):
-        with slot.active():
+        with slot.active(full=True):
             learner.build(env.task, generator)
             view = env.seed_block(slot.index)
             evaluator = GreedyEvaluator(slot.job.cfg, learner, slot.seed + solo.EVAL_SEED_OFFSET)
@@ -191,13 +210,13 @@ def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
     first = env.reset()
     for slot in slots:
         job, session = slot.job, slot.session
-        with slot.active():
+        with slot.active(full=True):
             start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
             for line in banner_lines(job.cfg, dict(job.choices), job.changes, session.success,
                                           job.run_dir, session.learner.nepisodes):
                 print(line)
             solo.write_success(session)
-            slot.run = solo.make_run(session, resume=False, progress=None)
+            slot.run = solo.make_run(session, resume=False, progress=None, save=slot.save)
             slot.run.continue_from(first[env.block(slot.index)])
             session.learner.begin()
             slot.td = slot.run.start(session.env)
@@ -259,7 +278,7 @@ def _finish(slot: _Slot, interrupted: int | None) -> None:
     session, run = slot.session, slot.run
     if slot.failed is None:
         _guarded(slot, lambda: setattr(slot, "result", solo.final_evaluation(session, run)))
-    with slot.active():
+    with slot.active(full=True):
         summary = solo.close_run(session, run, finished=slot.failed is None)
         if slot.failed is not None:
             slot.summary = {**summary, "failed": slot.failed.strip().splitlines()[-1]}

@@ -20,7 +20,7 @@ import threading
 from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
-from typing import Iterator, Mapping, Sequence
+from typing import Callable, Iterator, Mapping, Sequence
 
 import torch
 from hydra.utils import instantiate
@@ -85,13 +85,15 @@ def build(cfg: DictConfig, run_dir: Path, resume: bool = False) -> Session:
     return Session(cfg, run_dir, learner, env, evaluator)
 
 
-def make_run(session: Session, resume: bool, progress: Progress | None) -> Run:
-    """Training's :class:`Run` with its logger and hooks; a resumed run continues from its
-    checkpoint (its metrics files cut back to it)."""
+def make_run(session: Session, resume: bool, progress: Progress | None,
+             save: Callable[..., None] | None = None) -> Run:
+    """Training's :class:`Run` with its logger and hooks (``save``: writes the training
+    state, :func:`runs.resume.save_training_state`'s arguments); a resumed run continues
+    from its checkpoint (its metrics files cut back to it)."""
     cfg, learner, env = session.cfg, session.learner, session.env
     logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name,
                          **{k: v for k, v in cfg.logger.items() if k != "kind"})
-    hooks = Hooks(checkpoint=partial(save_training_state, session.state_path, learner, env),
+    hooks = Hooks(checkpoint=partial(save or save_training_state, session.state_path, learner, env),
                   greedy_eval=partial(session.evaluator, int(cfg.eval_episodes)),
                   train_stats=learner.train_stats, progress=progress)
     run = Run(session.run_dir, env.num_envs, learner.nepisodes, session.success, logger=logger,
