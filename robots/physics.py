@@ -121,6 +121,11 @@ class BatchedPhysics:
         self._held |= np.asarray(mask, dtype=bool)
         self._stepping = np.flatnonzero(~self._held) if self._held.any() else None
 
+    def release(self) -> None:
+        """Every copy steps again (see :meth:`hold`)."""
+        self._held[:] = False
+        self._stepping = None
+
     @property
     def timestep(self) -> float:
         return float(self.model.opt.timestep)

@@ -29,6 +29,8 @@ def _keep_info(info: dict[str, np.ndarray], info_fn, physics, copies: np.ndarray
 
 def evaluate(env, policy, max_steps: int | None = None) -> dict:
     """Runs one episode in each copy of ``env`` with ``policy``; length and return stats.
+    A copy whose episode has ended is held (:meth:`~robots.physics.BatchedPhysics.hold`):
+    the physics steps only the copies still running.
 
     If the task has ``episode_info(physics) -> dict[str, ndarray]`` (one value
     per copy), each copy's values at its episode end are reported too, with
@@ -41,18 +43,23 @@ def evaluate(env, policy, max_steps: int | None = None) -> dict:
     info: dict[str, np.ndarray] = {}
     td = env.reset()
     steps = 0
-    with torch.no_grad():
-        while alive.any() and (max_steps is None or steps < max_steps):
-            td = env.step(policy(td))
-            nxt = td.get("next")
-            ret += nxt.get("reward").reshape(n).numpy() * alive
-            length += alive
-            ended = alive & nxt.get("done").reshape(n).numpy()
-            if info_fn is not None and ended.any():
-                _keep_info(info, info_fn, env.physics, ended)
-            alive &= ~ended
-            td = nxt.exclude("reward", "done", "terminated", "truncated")
-            steps += 1
+    try:
+        with torch.no_grad():
+            while alive.any() and (max_steps is None or steps < max_steps):
+                td = env.step(policy(td))
+                nxt = td.get("next")
+                ret += nxt.get("reward").reshape(n).numpy() * alive
+                length += alive
+                ended = alive & nxt.get("done").reshape(n).numpy()
+                if ended.any():
+                    if info_fn is not None:
+                        _keep_info(info, info_fn, env.physics, ended)
+                    env.physics.hold(ended)  # a finished episode's copy steps no more
+                alive &= ~ended
+                td = nxt.exclude("reward", "done", "terminated", "truncated")
+                steps += 1
+    finally:
+        env.physics.release()
     if info_fn is not None and alive.any():  # cut off by max_steps
         _keep_info(info, info_fn, env.physics, alive)
     return {

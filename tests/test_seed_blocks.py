@@ -68,3 +68,32 @@ def test_held_copies_stay_and_the_others_step_as_before():
     finally:
         held.close()
         free.close()
+
+
+def test_greedy_evaluation_steps_only_the_copies_still_running(monkeypatch):
+    """runs.evaluate.evaluate holds a copy once its episode ends: later physics steps take
+    fewer copies, and the result is the one stepping every copy to the end gives."""
+    from runs.evaluate import evaluate
+    from robots.physics import BatchedPhysics
+
+    def policy(td):  # drives most copies off the rail early, some late
+        action = (torch.arange(td.batch_size[0]) % 3 == 0).long()
+        return td.set("action", action)
+
+    cfg = compose("cartpole")
+    env = build_env(cfg, 12, 5)
+    stepped = []
+    real_rollout = type(env.physics._pool).rollout
+    monkeypatch.setattr(type(env.physics._pool), "rollout",
+                        lambda pool, models, datas, start, *a, **k: stepped.append(len(start))
+                        or real_rollout(pool, models, datas, start, *a, **k))
+    try:
+        env.set_seed(5)
+        held = evaluate(env, policy)
+        monkeypatch.setattr(BatchedPhysics, "hold", lambda self, mask: None)
+        env.set_seed(5)
+        everyone = evaluate(env, policy)
+    finally:
+        env.close()
+    assert held == everyone
+    assert stepped[0] == 12 and min(stepped[: len(stepped) // 2]) < 12, stepped
