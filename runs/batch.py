@@ -199,10 +199,44 @@ def _build(slots: list[_Slot]) -> RobotTaskEnv:
     for slot, (learner, generator) in zip(slots, learners):
         with slot.active(full=True):
             learner.build(env.task, generator)
+            if slot.index == 0:
+                _check_memory(env, learner, len(slots))
             view = env.seed_block(slot.index)
             evaluator = GreedyEvaluator(slot.job.cfg, learner, slot.seed + solo.EVAL_SEED_OFFSET)
             slot.session = solo.Session(slot.job.cfg, slot.job.run_dir, learner, view, evaluator)
     return env
+
+
+def available_bytes() -> int | None:
+    """``MemAvailable`` of ``/proc/meminfo`` (None where there is none)."""
+    try:
+        with open("/proc/meminfo") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        return None
+
+
+def _tensor_bytes(state) -> int:
+    if isinstance(state, torch.Tensor):
+        return state.nbytes
+    if isinstance(state, dict):
+        return sum(_tensor_bytes(v) for v in state.values())
+    if isinstance(state, (list, tuple)):
+        return sum(_tensor_bytes(v) for v in state)
+    return 0
+
+
+def _check_memory(env: RobotTaskEnv, learner, seeds: int) -> None:
+    """One line, before any training, when ``seeds`` learners like ``learner`` (its training
+    state's tensors) and ``env``'s physics buffers would take most of the free memory."""
+    physics = env.physics
+    per_step = physics.nstate + physics.model.nsensordata + physics.model.nu
+    need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + seeds * _tensor_bytes(learner.training_state())
+    free = available_bytes()
+    if free is not None and need > 0.8 * free:
+        raise ConfigError(f"a batch of {seeds} seeds x {env.block_size} copies needs about {need / 2**30:.3g} "
+                          f"GiB, more than 80% of the {free / 2**30:.3g} GiB free: fewer seeds per batch "
+                          "(hydra.launcher.max_seeds=...) or fewer copies (num_envs=...)")
 
 
 def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:

@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from learners.qlearn import QLearn
+from runs import batch as batch_module
 from runs.batch import BatchJob, check_batch, execute_batch
 from runs.catalog import compose
 from runs.resume import load_run_config, read_run_json
@@ -156,3 +157,10 @@ def test_a_seed_given_twice_is_one_line_and_nothing_runs(tmp_path):
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert proc.returncode == 2 and lines == ["error: seed=3 is given twice in one sweep; give each seed once"]
     assert not any((tmp_path / "sweep").glob("*/config.yaml"))
+
+
+def test_a_batch_that_would_not_fit_in_memory_is_one_line_before_training(tmp_path, monkeypatch):
+    monkeypatch.setattr(batch_module, "available_bytes", lambda: 2**20)
+    with pytest.raises(ConfigError, match=r"a batch of 2 seeds x 16 copies needs about .* GiB free"):
+        execute_batch(jobs("dqn", tmp_path, "batch"))
+    assert not any((job.run_dir / "metrics.csv").exists() for job in jobs("dqn", tmp_path, "batch"))
