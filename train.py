@@ -42,7 +42,7 @@ from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_
 from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
-from sweeps.state import SWEEP, end_failed_sweep, end_stopped_sweep, stop_sweep, sweep_stopped
+from sweeps.state import SWEEP, end_failed_sweep, end_stopped_sweep, end_sweep, stop_sweep, sweep_stopped
 from sweeps.tuning import trial_link
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
@@ -50,8 +50,10 @@ from sweeps.tuning import trial_link
 OmegaConf.register_new_resolver("if_run_folder", lambda path, yes, no: yes if is_run_folder(path) else no,
                                 replace=True)
 # Default run and sweep folders end in the process id: two runs started in the same second
-# get two folders.
-OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True)
+# get two folders. Cached, as Hydra's ${now:}: Hydra copies a resolver's cached values from the
+# launching process into each job's config, so every job of a sweep, in any worker process
+# (joblib, submitit), resolves hydra.sweep.dir to the launching process's folder.
+OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True, use_cache=True)
 
 _IN_JOB = False  # from main on, an unexpected exception is a bug: its trace is shown
 _LAUNCHER_PID = None  # the process that runs Hydra's launcher (jobs in a joblib worker differ)
@@ -132,7 +134,8 @@ def cli() -> None:
     """``main`` with Hydra's own errors (an override it cannot parse or apply, an unknown
     config choice, a run folder it cannot create) as one ``error:`` line and exit 2; a
     sweep stopped by Ctrl-C or SIGTERM prints the comparison of the jobs that finished
-    and lists how to resume each unfinished job."""
+    and lists how to resume each unfinished job; a sweep in which a job failed or never
+    started exits 1 after its comparison."""
     global _LAUNCHER_PID
     _LAUNCHER_PID = os.getpid()
     os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
@@ -159,8 +162,7 @@ def cli() -> None:
         sys.exit(1 if sweep and end_failed_sweep() else 2)
     if sweep:
         status = end_stopped_sweep()
-        if status is not None:
-            sys.exit(status)
+        sys.exit(end_sweep() if status is None else status)
 
 
 def _unknown_key(err: Exception) -> str | None:

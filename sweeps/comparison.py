@@ -135,10 +135,10 @@ def table_text(rows: list[dict]) -> str:
     return "\n".join([*lines, LEGEND])
 
 
-def report(sweep_dir: Path, stopped: str | None = None) -> None:
-    """Prints the comparison of the sweep in ``sweep_dir`` and writes its files there;
-    :class:`NotASweep` if the folder is missing or holds no job. ``stopped``: the signal
-    that stopped the sweep (else its ``.stop`` file tells), said first."""
+def report(sweep_dir: Path, stopped: str | None = None) -> list[dict]:
+    """Prints the comparison of the sweep in ``sweep_dir``, writes its files there and
+    returns its rows; :class:`NotASweep` if the folder is missing or holds no job.
+    ``stopped``: the signal that stopped the sweep (else its ``.stop`` file tells), said first."""
     if not sweep_dir.is_dir():
         raise NotASweep(f"{sweep_dir} is not a folder (give a Hydra multirun sweep folder)")
     rows, lines = compare(sweep_dir)
@@ -154,3 +154,4 @@ def report(sweep_dir: Path, stopped: str | None = None) -> None:
         print("\n".join(lines))
     write_outputs(sweep_dir, rows, lines)
     print(f"\nwrote {sweep_dir / 'comparison.csv'}, comparison.md and comparison.png")
+    return rows
