@@ -98,7 +98,8 @@ def test_a_submitit_sweep_keeps_its_jobs_in_one_folder_and_a_failed_job_fails_it
     assert "learner.alpha must be a finite number in (0, 1]" in (sweep / jobs[0] / "error.txt").read_text()
     assert (sweep / jobs[1] / "metrics.csv").is_file()
     rows = list(csv.DictReader(open(sweep / "comparison.csv")))
-    assert [(r["finished"], r["failed"], r["never_started"]) for r in rows] == [("1", "1", "0")]
+    counts = {r["swept"]: (r["finished"], r["failed"], r["never_started"]) for r in rows}
+    assert counts == {"learner.alpha=-1": ("0", "1", "0"), "learner.alpha=0.5": ("1", "0", "0")}
     assert proc.stderr.strip().splitlines()[-1] == ("error: 1 of 2 jobs failed or never started (listed above): "
                                                     "the sweep exits 1")
 
