@@ -42,7 +42,7 @@ from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_
 from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
-from sweeps.state import SWEEP, end_failed_sweep, end_stopped_sweep, end_sweep, stop_sweep, sweep_stopped
+from sweeps.state import SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, stop_sweep, sweep_stopped
 from sweeps.tuning import trial_link
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
@@ -150,6 +150,9 @@ def cli() -> None:
             signal.signal(sig, stop_sweep)
     try:
         main()
+    except SweepRefused as err:  # before any job started: nothing was written
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
     except SystemExit as stop:  # a job in this process was stopped: the sweep stops too
         if sweep and stop.code in (128 + signal.SIGINT, 128 + signal.SIGTERM):
             SWEEP["signal"] = stop.code - 128
@@ -187,6 +190,28 @@ def _unknown_key(err: Exception) -> str | None:
     return f"{key} is not a setting; {hint}allowed{' in ' + parent if parent else ''}: {', '.join(map(str, names))}"
 
 
+def _plugin_or_type_error(text: str) -> str | None:
+    """Hydra's "Could not find 'hydra/launcher/ray'" (a launcher or sweeper not installed) and
+    "Error merging override k=v (Value 'v' of type 'str' could not be converted to Integer ...)"
+    (a launcher setting of the wrong type) as our line, or None."""
+    found = re.search(r"Could not find 'hydra/(launcher|sweeper)/([^']+)' Available options in "
+                      r"'hydra/\1': ([\w ]+?)(?: Config search path|$)", text)
+    if found:
+        group, name, options = found.groups()
+        return (f"hydra/{group}={name} is not installed; installed: {', '.join(options.split())} "
+                f"(a Hydra {group} plugin is a pip package, e.g. hydra-{'submitit-launcher' if group == 'launcher' else 'ax-sweeper'})")
+    found = re.search(r"Error merging override (\S+) \(Value '(.*?)' of type '\w+' could not be "
+                      r"converted to (\w+)", text)
+    if found:
+        override, value, kind = found.groups()
+        return f"{override.split('=', 1)[0]} must be {'an' if kind[0] in 'AEIOU' else 'a'} {kind.lower()}; got {value!r}"
+    found = re.search(r"Error merging override (\S+?)=(.*?) \(Cannot convert '(\w+)' to (\w+)", text)
+    if found:
+        key, value, got, kind = found.groups()
+        return f"{key} must be a {kind}; got a {got}: {value}"
+    return None
+
+
 def _hydra_error(err: Exception) -> str:
     """One line of what Hydra (or the OS, creating the run folder) refused."""
     unknown = _unknown_key(err)
@@ -199,7 +224,7 @@ def _hydra_error(err: Exception) -> str:
     cause = err.__cause__ or err.__context__
     if cause is not None and str(cause).strip() and str(cause).strip() not in text:
         text += f" ({' '.join(str(cause).split())})"
-    return text or type(err).__name__
+    return _plugin_or_type_error(text) or text or type(err).__name__
 
 
 if __name__ == "__main__":

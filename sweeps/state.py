@@ -20,19 +20,30 @@ from typing import Any
 from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 
+from params import ConfigError
 from runs.summary import summarize_run
 from sweeps.comparison import NotASweep, report
+from sweeps.launchers import check_launcher
 
 # The sweep's folder, whether it is compared yet, the signal that stopped it (if any), and its
 # jobs as the comparison counted them: all, and those that failed or never started.
 SWEEP: dict[str, Any] = {"dir": None, "compared": False, "signal": None, "jobs": 0, "unfinished": 0}
 
 
+class SweepRefused(BaseException):
+    """A sweep refused before any job started (Hydra turns a callback's ``Exception`` into
+    a warning and launches anyway; this one reaches ``train.cli``, which prints it)."""
+
+
 class RecordSweep(Callback):
-    """Keeps the sweep folder in :data:`SWEEP` when a multirun starts; compares its jobs
-    when it ends."""
+    """Checks the launcher and keeps the sweep folder in :data:`SWEEP` when a multirun
+    starts; compares its jobs when it ends."""
 
     def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
+        try:
+            check_launcher(config.hydra.get("launcher"))
+        except ConfigError as err:
+            raise SweepRefused(str(err)) from None
         # Resolved here, once, in the launching process: ${now:} and ${pid:} are cached
         # resolvers, and Hydra copies their cached values into every job's config.
         SWEEP["dir"] = Path(str(config.hydra.sweep.dir))
