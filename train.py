@@ -34,7 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError, did_you_mean
 from runs.banner import tuned_changes
-from runs.catalog import GROUPS, compose
+from runs.catalog import compose, run_choices
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
 from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
@@ -80,7 +80,7 @@ def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
 def _job(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> dict:
     """Dispatches one job: resume, evaluate or train (every key checked before anything
     is written); returns the run's summary."""
-    choices = {k: v for k, v in HydraConfig.get().runtime.choices.items() if k in (*GROUPS, "tuned")}
+    choices = run_choices(HydraConfig.get().runtime.choices)  # tuned: None where no file applies
     resume = bool(cfg.get("resume"))
     if resume:
         if not isinstance(cfg.resume, str):

@@ -63,6 +63,21 @@ def test_tee_copies_stdout_and_stderr_into_the_log(tmp_path, capsys):
     assert captured.out == "one\nafter\n" and captured.err == "two\n"
 
 
+def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypatch, capsys):
+    """cartpole x mbalunovic has no conf/tuned file: no "tuned:" line, and run.json says none."""
+    from runs.catalog import conf_dir, run_choices
+
+    assert not (conf_dir() / "tuned" / "cartpole_mbalunovic.yaml").exists()
+    assert run_choices({"robot": "cartpole", "learner": "mbalunovic", "tuned": "cartpole_mbalunovic"})["tuned"] is None
+    assert run_choices({"robot": "cartpole", "learner": "qlearn", "tuned": "cartpole_qlearn"})["tuned"] == "cartpole_qlearn"
+    code = cli(["learner=mbalunovic", "learner.nepisodes=1", "eval_episodes=0", "quiet=true",
+                f"hydra.run.dir={tmp_path}"], monkeypatch)
+    out = capsys.readouterr().out.splitlines()
+    assert code == 0 and out[0].startswith("cartpole / stay_up / mbalunovic")
+    assert out[1].startswith("solved when: ") and not any(line.startswith("tuned:") for line in out)
+    assert json.loads((tmp_path / "run.json").read_text())["tuned"] is None
+
+
 # -- mode=eval from a run folder --------------------------------------------------------
 def cli(args: list[str], monkeypatch) -> int:
     """``python train.py <args>`` in this process; its exit code (0 when it returns)."""
