@@ -3,7 +3,9 @@ lines only when ``verbose``, the console copied into train.log; ``mode=eval`` fr
 
 from __future__ import annotations
 
+import io
 import json
+import re
 import sys
 
 import pytest
@@ -43,6 +45,44 @@ def test_lines_per_run(capsys, quiet, verbose, log_every, lines):
         assert "eps 0.5 | loss 0.25" in out[0]
     # the learner's numbers are asked for only when shown (no bar off a terminal)
     assert len(asked) == (0 if quiet else lines - (400 if verbose else 0))
+
+
+class Terminal(io.StringIO):
+    """What a terminal shows of what is written to it (stdout and stderr alike): ``\\r``
+    returns to the line's start, later characters overwrite earlier ones."""
+
+    def isatty(self) -> bool:
+        return True
+
+    def screen(self) -> list[str]:
+        text = re.sub(r"\x1b\[[0-9;]*[A-Za-z]", "", self.getvalue())  # tqdm's cursor moves (none at position 0)
+        rows = []
+        for physical in text.split("\n"):
+            row: list[str] = []
+            col = 0
+            for char in physical:
+                if char == "\r":
+                    col = 0
+                    continue
+                row[col:col + 1] = [char]
+                col += 1
+            rows.append("".join(row).rstrip())
+        return [r for r in rows if r]
+
+
+def test_on_a_terminal_the_bar_is_cleared_before_each_line_and_at_the_end(monkeypatch):
+    """The bar (stderr) and the summary lines (stdout) share the terminal: each line starts
+    on a clean line, and once the run ends the bar is gone (the verdict follows the lines)."""
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stdout", terminal)
+    console = Console(100, SUCCESS, log_every=25, bar_file=terminal)
+    for n in range(1, 101):
+        console.episode(episode(n))
+    console.close()
+    print("VERDICT", file=terminal)
+    screen = terminal.screen()
+    assert "%|" in terminal.getvalue()  # a bar was drawn
+    assert [row.split(" |")[0] for row in screen] == [f"episode {n}/100" for n in (25, 50, 75, 100)] + ["VERDICT"]
 
 
 def test_summary_line_names_the_measure_the_evaluation_and_the_rate():
