@@ -73,8 +73,8 @@ class Terminal(io.StringIO):
 def test_on_a_terminal_the_bar_is_cleared_before_each_line_and_at_the_end(monkeypatch):
     """The bar (stderr) and the summary lines (stdout) share the terminal: each line starts
     on a clean line, and once the run ends the bar is gone (the verdict follows the lines)."""
-    terminal = Terminal()
-    monkeypatch.setattr(sys, "stdout", terminal)
+    terminal, log = Terminal(), io.StringIO()
+    monkeypatch.setattr(sys, "stdout", Tee(terminal, log))  # as in a run: stdout also goes to train.log
     console = Console(100, SUCCESS, log_every=25, bar_file=terminal)
     for n in range(1, 101):
         console.episode(episode(n))
@@ -83,6 +83,7 @@ def test_on_a_terminal_the_bar_is_cleared_before_each_line_and_at_the_end(monkey
     screen = terminal.screen()
     assert "%|" in terminal.getvalue()  # a bar was drawn
     assert [row.split(" |")[0] for row in screen] == [f"episode {n}/100" for n in (25, 50, 75, 100)] + ["VERDICT"]
+    assert [line.split(" |")[0] for line in log.getvalue().splitlines()] == [f"episode {n}/100" for n in (25, 50, 75, 100)]
 
 
 def test_summary_line_names_the_measure_the_evaluation_and_the_rate():
