@@ -42,7 +42,8 @@ from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_
 from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
-from sweeps.state import SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, stop_sweep, sweep_stopped
+from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, stop_sweep,
+                          sweep_stopped)
 from sweeps.tuning import trial_link
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);

@@ -77,9 +77,16 @@ def test_runs_zoo_registers_the_ids_then_runs_the_zoo_script(tmp_path):
     assert lines["REGISTERED"] == "True"
 
 
-def test_runs_zoo_refuses_an_unknown_script_and_names_a_missing_zoo(tmp_path):
-    proc = zoo_cli("fly", path=fake_zoo(tmp_path))
-    assert proc.returncode == 2 and proc.stderr.startswith("usage: python -m runs.zoo {train,enjoy,record_video")
-    if importlib.util.find_spec("rl_zoo3") is None:
-        proc = zoo_cli("enjoy", path=tmp_path / "empty")
-        assert proc.returncode == 2 and proc.stderr.strip() == "error: runs.zoo needs rl-baselines3-zoo: pip install rl_zoo3"
+def test_runs_zoo_refuses_an_unknown_script_and_names_a_missing_zoo(monkeypatch, capsys):
+    from runs import zoo
+
+    with pytest.raises(SystemExit) as stop:
+        zoo.main(["fly"])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.startswith("usage: python -m runs.zoo {train,enjoy,record_video")
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "rl_zoo3" else real(name, *a))
+    with pytest.raises(SystemExit) as stop:
+        zoo.main(["enjoy", "--algo", "dqn"])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.strip() == "error: runs.zoo needs rl-baselines3-zoo: pip install rl_zoo3"
