@@ -34,7 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError, did_you_mean
 from runs.banner import tuned_changes
-from runs.catalog import GROUPS, compose
+from runs.catalog import compose, run_choices
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
 from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
@@ -44,7 +44,8 @@ from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
 from sweeps.seed_batch import collect
-from sweeps.state import SWEEP, end_failed_sweep, end_stopped_sweep, stop_sweep, sweep_stopped
+from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, stop_sweep,
+                          sweep_stopped)
 from sweeps.tuning import trial_link
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
@@ -52,8 +53,10 @@ from sweeps.tuning import trial_link
 OmegaConf.register_new_resolver("if_run_folder", lambda path, yes, no: yes if is_run_folder(path) else no,
                                 replace=True)
 # Default run and sweep folders end in the process id: two runs started in the same second
-# get two folders.
-OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True)
+# get two folders. Cached, as Hydra's ${now:}: Hydra copies a resolver's cached values from the
+# launching process into each job's config, so every job of a sweep, in any worker process
+# (joblib, submitit), resolves hydra.sweep.dir to the launching process's folder.
+OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True, use_cache=True)
 
 _IN_JOB = False  # from main on, an unexpected exception is a bug: its trace is shown
 _LAUNCHER_PID = None  # the process that runs Hydra's launcher (jobs in a joblib worker differ)
@@ -80,7 +83,7 @@ def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
 def _job(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> dict:
     """Dispatches one job: resume, evaluate or train (every key checked before anything
     is written); returns the run's summary."""
-    choices = {k: v for k, v in HydraConfig.get().runtime.choices.items() if k in (*GROUPS, "tuned")}
+    choices = run_choices(HydraConfig.get().runtime.choices)  # tuned: None where no file applies
     resume = bool(cfg.get("resume"))
     if resume:
         if not isinstance(cfg.resume, str):
@@ -136,7 +139,8 @@ def cli() -> None:
     """``main`` with Hydra's own errors (an override it cannot parse or apply, an unknown
     config choice, a run folder it cannot create) as one ``error:`` line and exit 2; a
     sweep stopped by Ctrl-C or SIGTERM prints the comparison of the jobs that finished
-    and lists how to resume each unfinished job."""
+    and lists how to resume each unfinished job; a sweep in which a job failed or never
+    started exits 1 after its comparison."""
     global _LAUNCHER_PID
     _LAUNCHER_PID = os.getpid()
     os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
@@ -151,6 +155,9 @@ def cli() -> None:
             signal.signal(sig, stop_sweep)
     try:
         main()
+    except SweepRefused as err:  # before any job started: nothing was written
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
     except SystemExit as stop:  # a job in this process was stopped: the sweep stops too
         if sweep and stop.code in (128 + signal.SIGINT, 128 + signal.SIGTERM):
             SWEEP["signal"] = stop.code - 128
@@ -166,8 +173,7 @@ def cli() -> None:
         sys.exit(1 if sweep and end_failed_sweep() else 2)
     if sweep:
         status = end_stopped_sweep()
-        if status is not None:
-            sys.exit(status)
+        sys.exit(end_sweep() if status is None else status)
 
 
 def _unknown_key(err: Exception) -> str | None:
@@ -192,6 +198,28 @@ def _unknown_key(err: Exception) -> str | None:
     return f"{key} is not a setting; {hint}allowed{' in ' + parent if parent else ''}: {', '.join(map(str, names))}"
 
 
+def _plugin_or_type_error(text: str) -> str | None:
+    """Hydra's "Could not find 'hydra/launcher/ray'" (a launcher or sweeper not installed) and
+    "Error merging override k=v (Value 'v' of type 'str' could not be converted to Integer ...)"
+    (a launcher setting of the wrong type) as our line, or None."""
+    found = re.search(r"Could not find 'hydra/(launcher|sweeper)/([^']+)' Available options in "
+                      r"'hydra/\1': ([\w ]+?)(?: Config search path|$)", text)
+    if found:
+        group, name, options = found.groups()
+        return (f"hydra/{group}={name} is not installed; installed: {', '.join(options.split())} "
+                f"(a Hydra {group} plugin is a pip package, e.g. hydra-{'submitit-launcher' if group == 'launcher' else 'ax-sweeper'})")
+    found = re.search(r"Error merging override (\S+) \(Value '(.*?)' of type '\w+' could not be "
+                      r"converted to (\w+)", text)
+    if found:
+        override, value, kind = found.groups()
+        return f"{override.split('=', 1)[0]} must be {'an' if kind[0] in 'AEIOU' else 'a'} {kind.lower()}; got {value!r}"
+    found = re.search(r"Error merging override (\S+?)=(.*?) \(Cannot convert '(\w+)' to (\w+)", text)
+    if found:
+        key, value, got, kind = found.groups()
+        return f"{key} must be a {kind}; got a {got}: {value}"
+    return None
+
+
 def _hydra_error(err: Exception) -> str:
     """One line of what Hydra (or the OS, creating the run folder) refused."""
     unknown = _unknown_key(err)
@@ -204,7 +232,7 @@ def _hydra_error(err: Exception) -> str:
     cause = err.__cause__ or err.__context__
     if cause is not None and str(cause).strip() and str(cause).strip() not in text:
         text += f" ({' '.join(str(cause).split())})"
-    return text or type(err).__name__
+    return _plugin_or_type_error(text) or text or type(err).__name__
 
 
 if __name__ == "__main__":

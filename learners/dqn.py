@@ -47,6 +47,7 @@ from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 from torchrl.modules import MLP, QValueActor
 
 from learners.base import Loop, StateMismatch, train
+from learners.device import DEVICE_NOTE, check_device, resolve_device
 from params import require
 from params.declare import REQUIRED, check_fields, param
 
@@ -334,7 +335,7 @@ class DQN:
     run_episodes: int = param(0, "greedy episodes after training (ruippeixotog's run phase)", ge=0,
                               le=4096)
     device: str = param("cpu", "where the networks, updates and replay buffer live",
-                        choices=("cpu", "cuda"))
+                        note=DEVICE_NOTE, check=check_device)
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -353,9 +354,7 @@ class DQN:
         require(all(hasattr(self.epsilon, k) for k in ("value", "step", "episode_end")),
                 "learner.epsilon must be a schedule node (_target_: learners.schedules."
                 "LinearEpsilon, MultiplicativeEpsilon or LogEpisodeEpsilon)", self.epsilon)
-        require(self.device == "cpu" or torch.cuda.is_available(),
-                "learner.device=cuda needs a GPU that torch can use; this torch sees none",
-                self.device)
+        self.device = str(resolve_device(self.device))  # auto -> cuda or cpu
         self.schedule = self.epsilon
         self.hidden = [int(h) for h in self.hidden]
         self.loss_function = LOSSES[self.loss]

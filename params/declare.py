@@ -72,13 +72,15 @@ def _num(value: float) -> str:
 
 def param(default: Any, doc: str, *, gt: float | None = None, ge: float | None = None,
           lt: float | None = None, le: float | None = None, choices: tuple | None = None,
-          note: str = "") -> Any:
+          note: str = "", check: typing.Callable[[Any], None] | None = None) -> Any:
     """A dataclass field declaring one parameter; ``default=REQUIRED`` for none.
 
     ``doc`` is its one-line meaning; ``note`` words the allowed range where
-    that says more (``"0 = unlimited"``) and is shown after it.
+    that says more (``"0 = unlimited"``) and is shown after it. ``check(value)``, where
+    a range cannot say what is allowed (a device that must exist here), raises
+    :class:`ConfigError` after the type and range checks pass.
     """
-    meta = {_META: (doc, Range(gt, ge, lt, le, tuple(choices) if choices else None), note)}
+    meta = {_META: (doc, Range(gt, ge, lt, le, tuple(choices) if choices else None), note, check)}
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=partial(copy.deepcopy, default), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -94,6 +96,7 @@ class Spec:
     doc: str
     range: Range
     note: str = ""
+    extra: typing.Callable[[Any], None] | None = None
 
     @property
     def required(self) -> bool:
@@ -118,6 +121,8 @@ class Spec:
                 raise ConfigError(f"{key} must be {describe(hint)}; got {got!r}")
         if bad is not None or not self.range.holds(value):
             raise ConfigError(f"{full} must be {self.allowed()}; got {value!r}")
+        if self.extra is not None:
+            self.extra(value)
         if self.hint is float or (self.hint == (float | None) and value is not None):
             return float(value)
         if self.hint is int:
@@ -136,9 +141,9 @@ def specs(cls: type) -> tuple[Spec, ...]:
     out = []
     for f in dataclasses.fields(cls):
         if _META in f.metadata:
-            doc, rng, note = f.metadata[_META]
+            doc, rng, note, extra = f.metadata[_META]
             default = f.default if f.default_factory is REQUIRED else f.default_factory()
-            out.append(Spec(f.name, hints.get(f.name, Any), default, doc, rng, note))
+            out.append(Spec(f.name, hints.get(f.name, Any), default, doc, rng, note, extra))
     return tuple(out)
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 from hydra import compose as hydra_compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
@@ -48,6 +48,16 @@ def robot_names() -> list[str]:
 def tuned_file(robot: str, learner: str) -> Path:
     """Where the tuned parameters of ``robot`` x ``learner`` live (the file may not exist)."""
     return conf_dir() / "tuned" / f"{robot}_{learner}.yaml"
+
+
+def run_choices(choices: Mapping[str, str | None]) -> dict[str, str | None]:
+    """A run's picks of the config groups (robot, task, learner, tuned) from Hydra's
+    ``runtime.choices``; ``tuned`` is None where no file answers the pick (the ``optional``
+    default names ``<robot>_<learner>`` whether or not there is one)."""
+    picks = {k: choices.get(k) for k in (*GROUPS, "tuned")}
+    if picks["tuned"] and not (conf_dir() / "tuned" / f"{picks['tuned']}.yaml").is_file():
+        picks["tuned"] = None
+    return picks
 
 
 def compose(robot: str | None = None, task: str | None = None, learner: str | None = None,

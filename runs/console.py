@@ -87,7 +87,7 @@ class Console:
         if self.quiet:
             return
         if self.verbose:
-            self._bar.write(episode_line(ep, self.success))
+            self.write(episode_line(ep, self.success))
         due = ep.episode % self.log_every == 0
         numbers = live() if live is not None and (due or not self._bar.disable) else None
         if not self._bar.disable:
@@ -96,13 +96,25 @@ class Console:
                 [f"{self.success.measure} {ep.rolling:.3g}", *_live(ep, numbers), f"{rate:.0f} steps/s"]),
                 refresh=False)
         if due:
-            self._bar.write(summary_line(ep, self.total, self.success, self.best, last_eval, numbers))
+            self.write(summary_line(ep, self.total, self.success, self.best, last_eval, numbers))
 
     def evaluation(self, row: dict) -> None:
         if self.verbose:
-            self._bar.write(evaluation_line(row, self.success))
+            self.write(evaluation_line(row, self.success))
+
+    def write(self, line: str) -> None:
+        """``line`` on stdout (and so in the log), on a line of its own above the bar: the
+        bar (on the terminal's stderr) is cleared first and drawn again below it."""
+        if not self._bar.disable:
+            self._bar.clear()
+        print(line, flush=True)
+        if not self._bar.disable:
+            self._bar.refresh()
 
     def close(self) -> None:
+        """Removes the bar: the lines after it start on a clean line."""
+        if not self._bar.disable:
+            self._bar.clear()
         self._bar.close()
 
 

@@ -78,7 +78,10 @@ def _override(node: DictConfig, params: Mapping[str, Any], what: str) -> DictCon
     known = sorted(k for k in node.keys() if k != "_target_")
     unknown = sorted(set(params) - set(known))
     if unknown:
-        raise TypeError(f"unknown parameter(s) {unknown} for {what}; known: {known}")
+        # Python's own wording: TorchRL's GymEnv passes frameskip= and, told this, repeats
+        # actions itself (its frame_skip).
+        more = f" (and {', '.join(map(repr, unknown[1:]))})" if len(unknown) > 1 else ""
+        raise TypeError(f"{what} got an unexpected keyword argument {unknown[0]!r}{more}; known: {known}")
     return OmegaConf.merge(node, dict(params))
 
 

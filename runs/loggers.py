@@ -128,10 +128,14 @@ def flat_config(cfg: DictConfig | Mapping) -> dict[str, int | float | str | bool
     return flat
 
 
+RUN_METRICS = tuple(f"run/{key}" for key in (*RUN_SCALARS, "episodes", "solved"))
+
+
 def log_hparams(logger, cfg: DictConfig | Mapping) -> None:
     """The resolved run config (:func:`flat_config`), once, at the start: TensorBoard's
-    HParams tab (its plugin data in the run's own event file, with the ``run/*`` scalars
-    as the metrics), W&B's config, MLflow's params, the CSV logger's ``texts/hparams0.txt``."""
+    HParams tab (the run's session in its own event file; the ``run/*`` scalars at the end
+    are its final measures), W&B's config, MLflow's params, the CSV logger's
+    ``texts/hparams0.txt``."""
     if logger is None:
         return
     flat = flat_config(cfg)
@@ -141,10 +145,34 @@ def log_hparams(logger, cfg: DictConfig | Mapping) -> None:
         logger.log_hparams(flat)
         return
     # TorchRL's (SummaryWriter.add_hparams) writes them to a new run in a subfolder, away
-    # from this run's scalars; these summaries are the same, in this run's event file.
+    # from this run's scalars; these summaries are the same, in this run's event file. No
+    # experiment summary: TensorBoard would show every run of a folder with the settings of
+    # the first run that has one; without, it shows the settings of all (a sweep writes one
+    # of its own, :func:`write_sweep_hparams`).
     from torch.utils.tensorboard.summary import hparams
 
-    metrics = {f"run/{key}": 0.0 for key in (*RUN_SCALARS, "episodes", "solved")}
+    _, session_start, session_end = hparams(flat, dict.fromkeys(RUN_METRICS, 0.0))
     writer = logger.experiment._get_file_writer()
-    for summary in hparams(flat, metrics):
+    for summary in (session_start, session_end):
         writer.add_summary(summary)
+
+
+def write_sweep_hparams(folder: Path, configs: list[Mapping]) -> Path:
+    """TensorBoard's experiment for a sweep's runs, in ``folder/hparams``: every setting any
+    of ``configs`` (the runs' resolved configs) has, and the ``run/*`` final measures as the
+    metrics, so ``tensorboard --logdir <sweep>`` compares the runs in its HParams tab."""
+    from torch.utils.tensorboard import SummaryWriter
+    from torch.utils.tensorboard.summary import hparams
+
+    examples: dict = {}
+    for cfg in configs:
+        for key, value in flat_config(cfg).items():
+            examples.setdefault(key, value)
+    experiment, _, _ = hparams(dict(sorted(examples.items())), dict.fromkeys(RUN_METRICS, 0.0))
+    out = Path(folder) / "hparams"
+    for old in out.glob("events.out.tfevents.*"):
+        old.unlink()  # compare.py again: one experiment
+    writer = SummaryWriter(str(out))
+    writer._get_file_writer().add_summary(experiment)
+    writer.close()
+    return out

@@ -23,7 +23,9 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
+from omegaconf import OmegaConf
 
+from runs.loggers import write_sweep_hparams
 from sweeps.comparison_plot import plot
 from sweeps.stats import format_iqm_ci, iqm_ci
 from sweeps.folder import sweep_jobs, swept_keys, swept_label
@@ -135,10 +137,10 @@ def table_text(rows: list[dict]) -> str:
     return "\n".join([*lines, LEGEND])
 
 
-def report(sweep_dir: Path, stopped: str | None = None) -> None:
-    """Prints the comparison of the sweep in ``sweep_dir`` and writes its files there;
-    :class:`NotASweep` if the folder is missing or holds no job. ``stopped``: the signal
-    that stopped the sweep (else its ``.stop`` file tells), said first."""
+def report(sweep_dir: Path, stopped: str | None = None) -> list[dict]:
+    """Prints the comparison of the sweep in ``sweep_dir``, writes its files there and
+    returns its rows; :class:`NotASweep` if the folder is missing or holds no job.
+    ``stopped``: the signal that stopped the sweep (else its ``.stop`` file tells), said first."""
     if not sweep_dir.is_dir():
         raise NotASweep(f"{sweep_dir} is not a folder (give a Hydra multirun sweep folder)")
     rows, lines = compare(sweep_dir)
@@ -154,3 +156,16 @@ def report(sweep_dir: Path, stopped: str | None = None) -> None:
         print("\n".join(lines))
     write_outputs(sweep_dir, rows, lines)
     print(f"\nwrote {sweep_dir / 'comparison.csv'}, comparison.md and comparison.png")
+    hparams_for_tensorboard(sweep_dir)
+    return rows
+
+
+def hparams_for_tensorboard(sweep_dir: Path) -> None:
+    """Where the sweep's jobs logged to TensorBoard, its experiment (every job's settings, the
+    final measures as metrics) in ``<sweep>/hparams`` for the HParams tab."""
+    logged = sorted({p.parents[2] for p in sweep_dir.glob("*/logs/*/events.out.tfevents.*")})
+    configs = [OmegaConf.to_container(OmegaConf.load(job / "config.yaml")) for job in logged
+               if (job / "config.yaml").is_file()]
+    if configs:
+        write_sweep_hparams(sweep_dir, configs)
+        print(f"TensorBoard: tensorboard --logdir {sweep_dir} compares the jobs in its HParams tab")

@@ -19,7 +19,7 @@ from runs.settings import check_run_config
 from runs.summary import summarize_run
 from sweeps.comparison import score
 from sweeps.tuning import (Plan, check_space, current_trial, load_space, make_pruner, now_utc, open_storage,
-                           override_value, tuned_text)
+                           override_value, shown_url, tuned_text)
 
 # Settings the sweeper itself gives every job: the command line may not.
 OWN = ("seed", "trial", "max_env_steps", "stop_when_solved")
@@ -126,13 +126,14 @@ class TuningSweep:
         sweep_dir = Path(str(self.config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
         OmegaConf.save(self.config, sweep_dir / "multirun.yaml")
-        print(f"tuning {plan.learner} on {plan.robot}/{plan.task}: study {self.study_name} in {self.storage_url}\n"
+        print(f"tuning {plan.learner} on {plan.robot}/{plan.task}: study {self.study_name} in {shown_url(self.storage_url)}\n"
               f"  {self.n_trials} trials x seeds {self.seeds}, {self.budget_steps} env steps each, objective: "
               f"{plan.measure} (the task's score), pruning: {self.pruner or 'off'}, space: {plan.space_file}",
               flush=True)
         if self.start_from_current and not study.trials:
             if plan.current is not None:  # the study's first trial: what a plain run does now
-                study.enqueue_trial(plan.current)
+                # skip_if_exists: a sweep started beside this one on the same new study may have queued it
+                study.enqueue_trial(plan.current, skip_if_exists=True)
                 print("  trial 0 is the current configuration (start_from_current)", flush=True)
             else:
                 print("  the current configuration lies outside the space: every trial is sampled", flush=True)
@@ -168,7 +169,7 @@ class TuningSweep:
         if known is None:
             study.set_user_attr("measure", measure)
         elif known != measure:
-            raise ConfigError(f"study {self.study_name} in {self.storage_url} scores {known}, this run's task "
+            raise ConfigError(f"study {self.study_name} in {shown_url(self.storage_url)} scores {known}, this run's task "
                               f"{measure}: name another study (hydra.sweeper.study=...)")
         return study
 
@@ -212,12 +213,12 @@ class TuningSweep:
         best = study.best_trial
         values = {k: p.value(best.params[k]) for k, p in params.items() if k in best.params}
         header = [
-            f"Tuned by Optuna ({now_utc()}): study {self.study_name} in {self.storage_url}",
+            f"Tuned by Optuna ({now_utc()}): study {self.study_name} in {shown_url(self.storage_url)}",
             f"best trial {best.number}: {plan.measure} {best.value:.4g} (mean over seeds {self.seeds}), of "
             f"{len(states)} trials ({complete} complete, {pruned} pruned, {failed} failed)",
             f"budget per trial and seed: {self.budget_steps} env steps, training past 'solved'; "
             f"pruner: {self.pruner or 'none'}; search space: {plan.space_file.name}",
-            f"command: python train.py -m {' '.join(self._hydra_overrides() + plan.given)}",
+            f"command: python train.py -m {' '.join(map(shown_url, self._hydra_overrides() + plan.given))}",
         ]
         tuned_name = f"{robot}_{learner}.yaml"
         base_file = conf_dir() / "tuned" / tuned_name

@@ -20,20 +20,34 @@ from typing import Any
 from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 
+from params import ConfigError
 from runs.summary import summarize_run
 from sweeps.comparison import NotASweep, report
+from sweeps.launchers import check_launcher
 
-# The sweep's folder, whether it is compared yet, and the signal that stopped it (if any).
-SWEEP: dict[str, Any] = {"dir": None, "compared": False, "signal": None}
+# The sweep's folder, whether it is compared yet, the signal that stopped it (if any), and its
+# jobs as the comparison counted them: all, and those that failed or never started.
+SWEEP: dict[str, Any] = {"dir": None, "compared": False, "signal": None, "jobs": 0, "unfinished": 0}
+
+
+class SweepRefused(BaseException):
+    """A sweep refused before any job started (Hydra turns a callback's ``Exception`` into
+    a warning and launches anyway; this one reaches ``train.cli``, which prints it)."""
 
 
 class RecordSweep(Callback):
-    """Keeps the sweep folder in :data:`SWEEP` when a multirun starts; compares its jobs
-    when it ends."""
+    """Checks the launcher and keeps the sweep folder in :data:`SWEEP` when a multirun
+    starts; compares its jobs when it ends."""
 
     def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
+        try:
+            check_launcher(config.hydra.get("launcher"))
+        except ConfigError as err:
+            raise SweepRefused(str(err)) from None
+        # Resolved here, once, in the launching process: ${now:} and ${pid:} are cached
+        # resolvers, and Hydra copies their cached values into every job's config.
         SWEEP["dir"] = Path(str(config.hydra.sweep.dir))
-        SWEEP["compared"] = False
+        SWEEP.update(compared=False, jobs=0, unfinished=0)
 
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
         # The folder as resolved at the start (its name holds the time: ${now:...}).
@@ -50,7 +64,9 @@ def compare_sweep(folder: Path | None, stopped: str | None = None) -> None:
     SWEEP["compared"] = True
     print(flush=True)
     try:
-        report(folder, stopped)
+        rows = report(folder, stopped)
+        SWEEP["jobs"] = sum(int(r["seeds"]) for r in rows)
+        SWEEP["unfinished"] = sum(int(r["failed"]) + int(r["never_started"]) for r in rows)
     except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - the sweep itself is done
         text = " ".join(str(err).split())
         reason = text if isinstance(err, NotASweep) else f"{type(err).__name__}: {text}".rstrip(": ")
@@ -117,3 +133,13 @@ def end_failed_sweep() -> bool:
     compare_sweep(folder)  # Hydra skips on_multirun_end when the launcher raises
     report_stopped_sweep(folder)
     return True
+
+
+def end_sweep() -> int:
+    """After a sweep that was not stopped: 0, or 1 (and one line) when a job failed or
+    never started, as its comparison counted them."""
+    if not SWEEP["unfinished"]:
+        return 0
+    print(f"error: {SWEEP['unfinished']} of {SWEEP['jobs']} jobs failed or never started "
+          "(listed above): the sweep exits 1", file=sys.stderr, flush=True)
+    return 1

@@ -21,7 +21,9 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import os
+import re
 import socket
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
@@ -202,23 +204,59 @@ def make_pruner(settings: Mapping[str, Any] | None):
     return optuna.pruners.MedianPruner(**dict(settings))
 
 
-def open_storage(url: str):
-    """Optuna's storage at ``url`` (``sqlite:///file.db``, any SQLAlchemy URL), refused
-    in one line when it cannot be opened."""
+JOURNAL = "journal://"  # journal:///shared/fs/studies.log: Optuna's journal file storage
+
+
+def shown_url(url: str) -> str:
+    """``url`` with its password replaced by ``***`` (for the console and the tuned file)."""
+    return re.sub(r"(://[^:/@]+:)[^@/]*@", r"\1***@", str(url))
+
+
+def open_storage(url: str, attempts: int = 3):
+    """Optuna's storage at ``url``: any SQLAlchemy URL (``sqlite:///file.db``,
+    ``postgresql://user:pw@host/db``) or ``journal:///path/studies.log`` (a journal file, for a
+    shared file system); refused in one line when it cannot be opened (unreachable, login
+    refused, no driver). Several sweeps opening one new database at once may race creating
+    its tables: the loser tries again."""
     import optuna
 
-    try:
-        if url.startswith("sqlite:///"):
-            Path(url[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
-        return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
-    except Exception as err:  # noqa: BLE001 - SQLAlchemy and drivers raise many types
-        reason = " ".join(str(err).split()) or type(err).__name__
-        raise ConfigError(f"hydra.sweeper.storage={url} cannot be opened: {reason[:200]}") from None
+    for attempt in range(attempts):
+        try:
+            return _storage(url)
+        except ImportError as err:
+            raise ConfigError(f"hydra.sweeper.storage={shown_url(url)} needs its database driver "
+                              f"({err}); for PostgreSQL: pip install -e '.[postgresql]'") from None
+        except Exception as err:  # noqa: BLE001 - SQLAlchemy and drivers raise many types
+            reason = shown_url(" ".join(str(err).split()) or type(err).__name__)
+            if attempt + 1 < attempts and re.search(r"already exists|duplicate key", reason):
+                time.sleep(0.5 * (attempt + 1))
+                continue
+            raise ConfigError(f"hydra.sweeper.storage={shown_url(url)} cannot be opened: {reason[:200]}") from None
+    raise AssertionError("unreachable")
+
+
+def _storage(url: str):
+    import optuna
+
+    if url.startswith(JOURNAL):
+        from optuna.storages.journal import JournalFileBackend
+
+        path = Path(url[len(JOURNAL):])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return optuna.storages.JournalStorage(JournalFileBackend(str(path)))
+    if url.startswith("sqlite:///"):
+        Path(url[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
+    return optuna.storages.RDBStorage(url, engine_kwargs=_engine_kwargs(url))
 
 
 def _engine_kwargs(url: str) -> dict:
     # Several processes write one SQLite file: wait for its lock instead of failing.
-    return {"connect_args": {"timeout": 60}} if url.startswith("sqlite") else {}
+    if url.startswith("sqlite"):
+        return {"connect_args": {"timeout": 60}}
+    # A server that cannot be reached is refused in seconds, not after the OS's TCP timeout.
+    if url.startswith("postgresql"):
+        return {"connect_args": {"connect_timeout": 10}, "pool_pre_ping": True}
+    return {}
 
 
 class TrialLink:
@@ -291,5 +329,5 @@ def trial_link(cfg: Any, run_dir: Path, sweeper: Any) -> TrialLink | None:
         raise
     except Exception as err:  # noqa: BLE001 - a missing study or trial, a database error
         first = (str(err).strip().splitlines() or [""])[0]
-        raise ConfigError(f"trial={cfg.trial}: study {sweeper.study} in {sweeper.storage} has no such "
+        raise ConfigError(f"trial={cfg.trial}: study {sweeper.study} in {shown_url(sweeper.storage)} has no such "
                           f"trial to report to ({type(err).__name__}: {first})") from None

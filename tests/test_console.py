@@ -3,7 +3,9 @@ lines only when ``verbose``, the console copied into train.log; ``mode=eval`` fr
 
 from __future__ import annotations
 
+import io
 import json
+import re
 import sys
 
 import pytest
@@ -45,6 +47,45 @@ def test_lines_per_run(capsys, quiet, verbose, log_every, lines):
     assert len(asked) == (0 if quiet else lines - (400 if verbose else 0))
 
 
+class Terminal(io.StringIO):
+    """What a terminal shows of what is written to it (stdout and stderr alike): ``\\r``
+    returns to the line's start, later characters overwrite earlier ones."""
+
+    def isatty(self) -> bool:
+        return True
+
+    def screen(self) -> list[str]:
+        text = re.sub(r"\x1b\[[0-9;]*[A-Za-z]", "", self.getvalue())  # tqdm's cursor moves (none at position 0)
+        rows = []
+        for physical in text.split("\n"):
+            row: list[str] = []
+            col = 0
+            for char in physical:
+                if char == "\r":
+                    col = 0
+                    continue
+                row[col:col + 1] = [char]
+                col += 1
+            rows.append("".join(row).rstrip())
+        return [r for r in rows if r]
+
+
+def test_on_a_terminal_the_bar_is_cleared_before_each_line_and_at_the_end(monkeypatch):
+    """The bar (stderr) and the summary lines (stdout) share the terminal: each line starts
+    on a clean line, and once the run ends the bar is gone (the verdict follows the lines)."""
+    terminal, log = Terminal(), io.StringIO()
+    monkeypatch.setattr(sys, "stdout", Tee(terminal, log))  # as in a run: stdout also goes to train.log
+    console = Console(100, SUCCESS, log_every=25, bar_file=terminal)
+    for n in range(1, 101):
+        console.episode(episode(n))
+    console.close()
+    print("VERDICT", file=terminal)
+    screen = terminal.screen()
+    assert "%|" in terminal.getvalue()  # a bar was drawn
+    assert [row.split(" |")[0] for row in screen] == [f"episode {n}/100" for n in (25, 50, 75, 100)] + ["VERDICT"]
+    assert [line.split(" |")[0] for line in log.getvalue().splitlines()] == [f"episode {n}/100" for n in (25, 50, 75, 100)]
+
+
 def test_summary_line_names_the_measure_the_evaluation_and_the_rate():
     line = summary_line(episode(200), 4000, SUCCESS, best=210.0,
                         last_eval={"episode": 100, "value": 80.2}, live={"loss": 0.012})
@@ -61,6 +102,21 @@ def test_tee_copies_stdout_and_stderr_into_the_log(tmp_path, capsys):
     assert (tmp_path / "train.log").read_text() == "one\ntwo\n"
     captured = capsys.readouterr()
     assert captured.out == "one\nafter\n" and captured.err == "two\n"
+
+
+def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypatch, capsys):
+    """cartpole x mbalunovic has no conf/tuned file: no "tuned:" line, and run.json says none."""
+    from runs.catalog import conf_dir, run_choices
+
+    assert not (conf_dir() / "tuned" / "cartpole_mbalunovic.yaml").exists()
+    assert run_choices({"robot": "cartpole", "learner": "mbalunovic", "tuned": "cartpole_mbalunovic"})["tuned"] is None
+    assert run_choices({"robot": "cartpole", "learner": "qlearn", "tuned": "cartpole_qlearn"})["tuned"] == "cartpole_qlearn"
+    code = cli(["learner=mbalunovic", "learner.nepisodes=1", "eval_episodes=0", "quiet=true",
+                f"hydra.run.dir={tmp_path}"], monkeypatch)
+    out = capsys.readouterr().out.splitlines()
+    assert code == 0 and out[0].startswith("cartpole / stay_up / mbalunovic")
+    assert out[1].startswith("solved when: ") and not any(line.startswith("tuned:") for line in out)
+    assert json.loads((tmp_path / "run.json").read_text())["tuned"] is None
 
 
 # -- mode=eval from a run folder --------------------------------------------------------

@@ -242,6 +242,32 @@ def test_device_cuda_without_a_gpu_is_a_one_line_error():
         DQN(epsilon=LinearEpsilon(), device="cuda")
 
 
+@pytest.mark.parametrize("learner", ["dqn", "mbalunovic", "n1try", "ruippeixotog"])
+def test_device_is_a_declared_setting_of_every_dqn_checked_before_anything_is_built(learner):
+    from params import ConfigError
+    from runs.catalog import compose
+    from runs.settings import check_run_config
+
+    assert compose(overrides=[f"learner={learner}"]).learner.device == "cpu"  # a setting, no '+' needed
+    check_run_config(compose(overrides=[f"learner={learner}", "learner.device=auto"]))
+    with pytest.raises(ConfigError) as err:
+        check_run_config(compose(overrides=[f"learner={learner}", "learner.device=tpu"]))
+    assert str(err.value) == ("learner.device must be cpu, cuda, cuda:N (GPU N) or auto (cuda where torch sees "
+                              "a GPU, else cpu); got 'tpu'")
+    if not torch.cuda.is_available():
+        for device in ("cuda", "cuda:1"):
+            with pytest.raises(ConfigError, match=f"^learner.device={device} needs a GPU that torch can use; "
+                                                  "this torch sees none"):
+                check_run_config(compose(overrides=[f"learner={learner}", f"learner.device={device}"]))
+
+
+def test_device_auto_is_the_gpu_where_torch_sees_one_else_the_cpu():
+    learner = variant("dqn", device="auto", batch_size=16)
+    assert learner.device == ("cuda" if torch.cuda.is_available() else "cpu")
+    learner.build(StayUp(CartPole()))
+    assert all(p.device.type == learner.device for p in learner.net.parameters())
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
 def test_device_cuda_keeps_networks_and_buffer_on_the_gpu():
     learner = variant("dqn", device="cuda", batch_size=16)

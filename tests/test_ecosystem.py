@@ -54,13 +54,21 @@ def test_missing_logger_backend_is_a_one_line_error(tmp_path, monkeypatch):
         make_logger("papyrus", tmp_path, "x")
 
 
+def only_sweep_folder(parent: Path) -> Path:
+    """The one folder ``sweep_<pid>`` under ``parent`` (every job must write under it)."""
+    folders = sorted(p for p in parent.iterdir() if p.name.startswith("sweep_"))
+    assert len(folders) == 1, f"the sweep's jobs scattered over {[p.name for p in folders]}"
+    return folders[0]
+
+
 @pytest.mark.parametrize("launcher", ["joblib", pytest.param("submitit_local", marks=pytest.mark.slow)])
 def test_two_job_sweep_through_a_launcher_compares_itself_and_compare_reruns(tmp_path, launcher):
-    sweep = tmp_path / "sweep"
-    proc = run(["train.py", "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={sweep}",
+    # ${pid:} as in the default sweep folder: it must resolve to the launching process's id in every job.
+    proc = run(["train.py", "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}/sweep_${{pid:}}",
                 "learner=qlearn", "seed=0,1", "learner.nepisodes=8", "eval_episodes=0",
                 "quiet=true"], timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    sweep = only_sweep_folder(tmp_path)
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and (p / "metrics.csv").exists())
     assert len(jobs) == 2
     # The launching process compares the jobs when the launcher returns (Hydra's on_multirun_end).
@@ -76,11 +84,32 @@ def test_two_job_sweep_through_a_launcher_compares_itself_and_compare_reruns(tmp
     assert "| cartpole/stay_up | qlearn |" in (sweep / "comparison.md").read_text()
 
 
-def test_a_failing_job_does_not_cost_the_sweep_and_compare_reports_it(tmp_path):
+def test_a_submitit_sweep_keeps_its_jobs_in_one_folder_and_a_failed_job_fails_it(tmp_path):
+    """A real submitit_local sweep (each job a process of its own) of two tiny jobs, one of
+    them refused: both jobs write under the launching process's ${pid:} folder, the
+    comparison counts one finished and one failed job, and the sweep exits 1."""
+    proc = run(["train.py", "-m", "hydra/launcher=submitit_local", f"hydra.sweep.dir={tmp_path}/sweep_${{pid:}}",
+                "learner=qlearn", "learner.alpha=-1,0.5", "learner.nepisodes=4", "eval_episodes=0",
+                "quiet=true"], timeout=900)
+    assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
+    sweep = only_sweep_folder(tmp_path)
+    jobs = sorted(p.name for p in sweep.iterdir() if p.is_dir() and not p.name.startswith("."))
+    assert jobs == ["0_cartpole_qlearn_seed0", "1_cartpole_qlearn_seed0"]
+    assert "learner.alpha must be a finite number in (0, 1]" in (sweep / jobs[0] / "error.txt").read_text()
+    assert (sweep / jobs[1] / "metrics.csv").is_file()
+    rows = list(csv.DictReader(open(sweep / "comparison.csv")))
+    counts = {r["swept"]: (r["finished"], r["failed"], r["never_started"]) for r in rows}
+    assert counts == {"learner.alpha=-1": ("0", "1", "0"), "learner.alpha=0.5": ("1", "0", "0")}
+    assert proc.stderr.strip().splitlines()[-1] == ("error: 1 of 2 jobs failed or never started (listed above): "
+                                                    "the sweep exits 1")
+
+
+def test_a_failing_job_does_not_cost_the_sweep_its_other_jobs_but_fails_it(tmp_path):
     sweep = tmp_path / "sweep"
     proc = run(["train.py", "-m", f"hydra.sweep.dir={sweep}", "learner=qlearn",
                 "learner.alpha=-1,0.5", "learner.nepisodes=5", "eval_episodes=0", "quiet=true"])
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert "error: 1 of 2 jobs failed or never started" in proc.stderr
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir())
     assert len(jobs) == 2
     assert "learner.alpha must be a finite number in (0, 1]" in (jobs[0] / "error.txt").read_text()

@@ -312,3 +312,35 @@ def test_bounds_are_the_tasks_true_ones_and_only_those():
     assert np.array_equal(cube.low, -cube.high)
     cartpole = gym.make("MujocoRL/CartPoleStayUp-v0").observation_space  # soft joint limits
     assert np.array_equal(cartpole.high, np.full(4, BIG)) and np.array_equal(cartpole.low, -cartpole.high)
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_torchrls_own_gym_env_opens_every_id_and_passes_check_env_specs(name):
+    """``torchrl.envs.GymEnv("MujocoRL/...")`` (TorchRL passes ``frameskip=`` to the maker and,
+    told it is an unexpected keyword, repeats actions itself), beside the native EnvBase."""
+    from torchrl.envs import GymEnv
+    from torchrl.envs.utils import check_env_specs
+
+    robot, n_obs, n_actions, _ = EXPECTED[name]
+    env = GymEnv(name)
+    try:
+        check_env_specs(env)
+        assert env.observation_spec["observation"].shape == (n_obs,)
+        assert env.action_spec.shape == (n_actions,)  # one-hot, TorchRL's default for Discrete
+        assert env.rollout(4)["next", "reward"].shape == (4, 1)
+    finally:
+        env.close()
+
+
+def test_torchrls_gym_env_takes_task_parameters_and_its_own_frame_skip():
+    from torchrl.envs import GymEnv
+
+    env = GymEnv("MujocoRL/CartPoleStayUp-v0", frame_skip=2, pos_step=0.5)
+    try:
+        assert env._env.unwrapped.task.pos_step == 0.5
+        rewards = env.rollout(3)["next", "reward"].flatten().tolist()
+        assert rewards == [2.0, 2.0, 2.0]  # two task steps of +1 per action
+    finally:
+        env.close()
+    with pytest.raises(TypeError, match="unexpected keyword argument 'pos_stepp'"):
+        GymEnv("MujocoRL/CartPoleStayUp-v0", pos_stepp=0.5)

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 from hydra.utils import instantiate
+from omegaconf import OmegaConf
 
 from learners.dqn import UpdateStats
 from runs.evaluate import greedy_evaluation
@@ -79,15 +80,69 @@ def test_dqn_logs_train_scalars_and_hparams_to_tensorboard_against_env_steps(tmp
     from tensorboard.plugins.hparams import plugin_data_pb2
 
     content = acc.PluginTagToContent("hparams")
-    assert {"_hparams_/experiment", "_hparams_/session_start_info"} <= set(content)
+    # The run's session only: an experiment per run would make TensorBoard show every run of
+    # a folder with the first one's settings (a sweep writes its own, next test).
+    assert "_hparams_/session_start_info" in content and "_hparams_/experiment" not in content
     start = plugin_data_pb2.HParamsPluginData.FromString(
         content["_hparams_/session_start_info"]).session_start_info
     assert start.hparams["learner.lr"].number_value == pytest.approx(0.001)
     assert start.hparams["learner._target_"].string_value == "learners.dqn.DQN"
     assert start.hparams["learner.hidden"].string_value == "[64, 64]"
-    experiment = plugin_data_pb2.HParamsPluginData.FromString(
-        content["_hparams_/experiment"]).experiment
-    assert "run/score" in {m.name.tag for m in experiment.metric_infos}
+
+
+def hparams_tab(logdir: Path) -> tuple[set, dict]:
+    """What TensorBoard's HParams tab shows for ``logdir`` (its own backend): the settings'
+    names, and per run (session) its ``learner._target_`` and final ``run/score``."""
+    from tensorboard import context
+    from tensorboard.backend.event_processing.data_provider import MultiplexerDataProvider
+    from tensorboard.backend.event_processing.plugin_event_multiplexer import EventMultiplexer
+    from tensorboard.plugins import base_plugin
+    from tensorboard.plugins.hparams import api_pb2, backend_context, list_session_groups
+
+    mux = EventMultiplexer()
+    mux.AddRunsFromDirectory(str(logdir))
+    mux.Reload()
+    tb = base_plugin.TBContext(logdir=str(logdir), multiplexer=mux,
+                               data_provider=MultiplexerDataProvider(mux, str(logdir)))
+    backend, rc = backend_context.Context(tb), context.RequestContext()
+    experiment = backend.experiment_from_metadata(rc, "", True, backend.hparams_metadata(rc, ""),
+                                                  backend.hparams_from_data_provider(rc, "", 0))
+    statuses = [api_pb2.STATUS_UNKNOWN, api_pb2.STATUS_SUCCESS, api_pb2.STATUS_RUNNING, api_pb2.STATUS_FAILURE]
+    request = api_pb2.ListSessionGroupsRequest(
+        start_index=0, slice_size=100, allowed_statuses=statuses,
+        col_params=[api_pb2.ColParams(hparam="learner._target_"),
+                    api_pb2.ColParams(metric=api_pb2.MetricName(tag="run/score"))])
+    groups = list_session_groups.Handler(rc, backend, "", request).run().session_groups
+    runs = {g.name.split("/")[0]: (g.hparams["learner._target_"].string_value,
+                                   {m.name.tag: m.value for m in g.metric_values}.get("run/score"))
+            for g in groups}
+    return {h.name for h in experiment.hparam_infos}, runs
+
+
+def test_a_sweeps_hparams_tab_shows_every_jobs_settings_and_final_measures(tmp_path):
+    """Two jobs of different learners logged to TensorBoard, then the sweep's comparison: the
+    HParams tab of the sweep folder lists the settings of both (qlearn's alpha, dqn's lr) and
+    each job's final score."""
+    pytest.importorskip("tensorboard")
+    from runs.loggers import RUN_SCALARS, finish_log
+    from sweeps.comparison import hparams_for_tensorboard
+
+    scores = {"0_qlearn": ("qlearn", 7.5), "1_dqn": ("dqn", 12.25)}
+    for job, (learner, score) in scores.items():
+        cfg = compose(learner=learner, overrides=["logger=tensorboard"])
+        (tmp_path / job).mkdir()
+        OmegaConf.save(cfg, tmp_path / job / "config.yaml", resolve=True)
+        logger = make_logger("tensorboard", tmp_path / job, exp_name=job)
+        log_hparams(logger, cfg)
+        finish_log(logger, {**dict.fromkeys(RUN_SCALARS, 1.0), "score": score, "env_steps": 100,
+                            "episodes": 5, "solved": False})
+    names, runs = hparams_tab(tmp_path)
+    assert "learner.alpha" in names and "learner.lr" in names  # without the sweep's own: still both
+    hparams_for_tensorboard(tmp_path)
+    assert (tmp_path / "hparams").is_dir()
+    names, runs = hparams_tab(tmp_path)
+    assert {"learner.alpha", "learner.lr", "learner.epsilon.steps", "seed"} <= names
+    assert runs == {"0_qlearn": ("learners.qlearn.QLearn", 7.5), "1_dqn": ("learners.dqn.DQN", 12.25)}
 
 
 def test_logging_changes_no_training_result(tmp_path):

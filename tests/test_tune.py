@@ -89,7 +89,8 @@ def test_every_search_space_fits_its_learner(name):
     check_space(space, compose(overrides=base), name, _check(base))
 
 
-@pytest.mark.parametrize("url", ["postgresql://nobody@127.0.0.1:1/none", "not a url", "sqlite:////proc/x/y.db"])
+@pytest.mark.parametrize("url", ["postgresql://nobody@127.0.0.1:1/none", "not a url", "sqlite:////proc/x/y.db",
+                                 "journal:///proc/x/y.log"])
 def test_a_storage_that_cannot_be_opened_is_one_line(url):
     with pytest.raises(ConfigError, match=r"hydra\.sweeper\.storage=.* cannot be opened: ") as err:
         open_storage(url)
@@ -200,6 +201,7 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], proc.stderr
+    assert not (tmp_path / "sweep").exists()  # refused before any job: nothing written
 
 
 @pytest.mark.parametrize("settings, args, words", [
@@ -264,3 +266,78 @@ def test_a_trial_that_loses_its_study_warns_once_and_trains_on(tmp_path, capsys)
     warned = [line for line in capsys.readouterr().out.splitlines() if "cannot reach the study" in line]
     assert len(warned) == 1 and "database is gone" in warned[0]
     assert run.pruned_at is None and not run.done
+
+
+# -- a study shared by sweeps running at once: a database server, a journal file ------------
+POSTGRES = os.environ.get("RL_TEST_POSTGRES_URL")  # .ci/run starts a throwaway server and sets it
+NO_SERVER = "no PostgreSQL server: RL_TEST_POSTGRES_URL=postgresql://user:pw@127.0.0.1:port/db (.ci/postgres start)"
+
+
+def need_postgres() -> str:
+    """The server's URL; a skip on a machine without one, a failure where CI promised one."""
+    if not POSTGRES:
+        if os.environ.get("RL_TEST_REQUIRE_POSTGRES"):
+            pytest.fail(f"RL_TEST_REQUIRE_POSTGRES is set but {NO_SERVER}")
+        pytest.skip(NO_SERVER)
+    return POSTGRES
+
+
+def storage_url(kind: str, tmp_path: Path) -> str:
+    if kind == "postgresql":
+        return need_postgres()
+    return f"journal://{tmp_path / 'shared' / 'studies.log'}"
+
+
+def start_sweep(url: str, study: str, sweep: Path) -> subprocess.Popen:
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    args = ["-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=qlearn", "num_envs=4", "eval_episodes=2",
+            "hydra.sweeper.n_trials=2", "hydra.sweeper.seeds=[0]", "hydra.sweeper.budget_steps=200",
+            "hydra.sweeper.pruner=null", f"hydra.sweeper.storage={url}", f"hydra.sweeper.study={study}",
+            f"hydra.sweep.dir={sweep}"]
+    return subprocess.Popen([sys.executable, "train.py", *args], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+
+
+@pytest.mark.parametrize("kind", ["postgresql", "journal"])
+def test_two_sweeps_at_once_share_one_study_each_trial_once_and_find_its_best(tmp_path, kind):
+    """Two tuning sweeps (two processes, as on two machines) on one study in a PostgreSQL
+    server or a journal file: four trials, each run by one job of one sweep and told once,
+    both sweeps contributing; the sweep that ends last names the study's best trial."""
+    import re
+    import uuid
+
+    url, study_name = storage_url(kind, tmp_path), f"shared-{uuid.uuid4().hex[:8]}"
+    procs = [start_sweep(url, study_name, tmp_path / f"sweep{i}") for i in (0, 1)]
+    outs = [p.communicate(timeout=900) for p in procs]
+    for proc, (out, err) in zip(procs, outs):
+        assert proc.returncode == 0, out[-2000:] + err[-3000:]
+    study = optuna.load_study(study_name=study_name, storage=open_storage(url))
+    trials = study.trials
+    assert sorted(t.number for t in trials) == list(range(4))
+    assert all(t.state == optuna.trial.TrialState.COMPLETE for t in trials)
+    jobs = {str(p) for i in (0, 1) for p in (tmp_path / f"sweep{i}").iterdir() if (p / "summary.json").is_file()}
+    assert sorted(t.user_attrs["run_dir"] for t in trials) == sorted(jobs)  # one job per trial, no job twice
+    for t in trials:
+        job = OmegaConf.load(Path(t.user_attrs["run_dir"]) / "config.yaml")
+        assert job.trial == t.number and job.seed == 0
+    told = [re.findall(r"^trial (\d+): ", out, re.M) for out, _ in outs]
+    assert sorted(int(n) for n in told[0] + told[1]) == list(range(4)) and all(told)  # each told once, by both
+    best = max(t.value for t in trials)
+    assert study.best_value == best
+    named = [re.search(r"^best trial (\d+): ", out, re.M) for out, _ in outs]
+    assert all(named) and best in [study.trials[int(m.group(1))].value for m in named]
+    assert all("***@" in out or kind == "journal" for out, _ in outs)  # the password is never printed
+    if kind == "postgresql":
+        assert url.split("@")[0].rsplit(":", 1)[1] not in "".join(o + e for o, e in outs)
+
+
+def test_a_database_that_refuses_the_login_is_one_line_and_writes_nothing(tmp_path):
+    head, _, tail = need_postgres().partition("@")
+    wrong = f"{head.rsplit(':', 1)[0]}:not-the-password@{tail}"
+    proc = cli("-m", "hydra/sweeper=optuna", "learner=qlearn", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+               f"hydra.sweeper.storage={wrong}")
+    assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "cannot be opened" in lines[0] and "password authentication failed" in lines[0]
+    assert "not-the-password" not in proc.stderr + proc.stdout and ":***@" in lines[0]
+    assert not (tmp_path / "sweep").exists()
