@@ -48,7 +48,7 @@ def test_a_slurm_launcher_passes_where_slurm_is_and_is_refused_where_it_is_not(m
 
 
 @pytest.mark.parametrize("args, line", [
-    (["hydra/launcher=ray"], "error: hydra/launcher=ray is not installed; installed: basic, joblib, slurm, "
+    (["hydra/launcher=ray"], "error: hydra/launcher=ray is not installed; installed: basic, joblib, seeds, slurm, "
                              "submitit_local, submitit_slurm (a Hydra launcher plugin is a pip package"),
     (["hydra/launcher=slurm", "hydra.launcher.timeout_min=abc"],
      "error: hydra.launcher.timeout_min must be an integer; got 'abc'"),
