@@ -47,14 +47,16 @@ SOURCES = {"joint_pos": "joint", "joint_vel": "joint", "sensor": "sensor",
 _KINDS = {"actuator": "actuator", "joint": "joint", "sensor": "sensor", "body": "body",
           "site": "site"}
 _ONE_DOF = ("hinge", "slide")
+_PROBE = "probe:"  # names of the frame sensors the robot adds for its readers
 
 
 def missing_name(kind: str, name: str, names: list[str], where: str) -> ConfigError:
     """``"<where>: the model has no <kind> '<name>'; close: ...; its <kind>s: ..."``."""
     close = difflib.get_close_matches(name, names, n=3, cutoff=0.5)
     hint = f"close matches: {', '.join(close)}; " if close else ""
+    plural = "bodies" if kind == "body" else f"{kind}s"
     return ConfigError(f"{where}: the model has no {kind} {name!r}; {hint}"
-                       f"its {kind}s: {', '.join(names) or 'none'}")
+                       f"its {plural}: {', '.join(names) or 'none'}")
 
 
 def load_model(path: str) -> mjcf.RootElement:
@@ -114,7 +116,8 @@ class MjcfRobot(Robot):
     # -- names ---------------------------------------------------------------------
     def names(self, kind: str) -> list[str]:
         """The names the model gives its ``kind`` elements (actuator, joint, sensor, body, site)."""
-        return [e.name for e in self.mjcf_model.find_all(_KINDS[kind]) if e.name]
+        return [e.name for e in self.mjcf_model.find_all(_KINDS[kind])
+                if e.name and not e.name.startswith(_PROBE)]
 
     def element(self, kind: str, name: str, where: str):
         """The model's ``kind`` element called ``name``; else one line naming ``where`` it was
@@ -170,8 +173,8 @@ class MjcfRobot(Robot):
 
     def _frame_reader(self, source: str, kind: str, element) -> Reader:
         sensor_type, size = FRAME_SENSORS[source.split("_", 1)[1]]
-        sensor = self.mjcf_model.sensor.add(sensor_type, name=f"{source}:{element.name}:"
-                                            f"{len(self._readers)}", objtype=kind,
+        sensor = self.mjcf_model.sensor.add(sensor_type, name=f"{_PROBE}{source}:"
+                                            f"{element.name}:{len(self._readers)}", objtype=kind,
                                             objname=element)
         return Reader(source, str(element.name), size, sensor)
 
