@@ -57,6 +57,8 @@ class DeclaredTask(Task):
                                      "(uniform, on every hinge and slide)")
     measures: dict | None = param(None, "episode measures for win, name: {term, reduce: max, "
                                         "min, last, sum or mean, unit, description, above}")
+    cameras: dict | None = param(None, "cameras to add to the world, name: {pos: [x, y, z], xyaxes: "
+                                       "[6 numbers]} (videos use the first camera of the model)")
     running_step: float = common.running_step(0.05)
     physics_timestep: float | None = param(None, "physics step, s (null: the model's timestep; "
                                                  "running_step must be a whole multiple)", gt=0)
@@ -120,10 +122,14 @@ class DeclaredTask(Task):
 
     # -- the contract --------------------------------------------------------------
     def build_arena(self):
-        """The robot's own model is the world: the task sets its timestep and an offscreen
-        buffer for full-HD frames."""
+        """The robot's own model is the world: the task sets its timestep, adds its cameras and
+        an offscreen buffer for full-HD frames."""
         model = self.robot.mjcf_model
         model.option.timestep = self.physics_timestep
+        for name, spec in (self.cameras or {}).items():
+            require(isinstance(spec, dict) and set(spec) == {"pos", "xyaxes"},
+                    f"task.cameras.{name} must be {{pos: [x, y, z], xyaxes: [6 numbers]}}", spec)
+            model.worldbody.add("camera", name=str(name), pos=spec["pos"], xyaxes=spec["xyaxes"])
         offscreen = getattr(model.visual, "global")
         offscreen.offwidth, offscreen.offheight = 1920, 1080
         return model
