@@ -98,13 +98,13 @@ def test_a_position_servo_on_the_elbow_holds_the_commanded_angle():
 
 
 def test_rewards_are_the_declared_weighted_sum():
-    """The double pendulum's rewards (Gymnasium's): 10 alive, -(tip height - 2)^2, ...; at rest
-    upright the tip is at 1.2 m, so the first reward is 10 - 0.64 less tiny terms."""
+    """The double pendulum's rewards: 1 alive, -0.1 (tip height - 2)^2, ...; at rest
+    upright the tip is at 1.2 m, so the first reward is 1 - 0.064 less tiny terms (Gymnasium's / 10)."""
     env = env_of("double_pendulum", "task.reset.position_noise=0.0",
                  "task.reset.velocity_noise=0.0")
     middle = list(env.task._commands[:, 0]).index(0.0)
     td = hold(env, middle, 1)[0]
-    assert td["reward"].item() == pytest.approx(10 - 0.8**2, abs=1e-3)
+    assert td["reward"].item() == pytest.approx(1 - 0.1 * 0.8**2, abs=1e-3)
     env.close()
 
 
