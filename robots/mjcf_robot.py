@@ -24,6 +24,7 @@ an env step (one ``timestep`` old, see :mod:`robots.physics`).
 from __future__ import annotations
 
 import difflib
+from importlib import resources
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,10 +60,24 @@ def missing_name(kind: str, name: str, names: list[str], where: str) -> ConfigEr
                        f"its {plural}: {', '.join(names) or 'none'}")
 
 
+#: Config folders a relative ``model`` path is looked up in, after the working folder; the
+#: shipped ``conf/`` first (``runs.catalog`` adds a user's config folders). A run's config
+#: holds the absolute path (``runs.catalog.locate_model``): this serves other compositions.
+MODEL_FOLDERS: list[Path] = [Path(str(resources.files("conf")))]
+
+
+def find_model(path: str) -> Path:
+    """``path`` as given if it names a file, else the first of :data:`MODEL_FOLDERS` holding it."""
+    file = Path(path).expanduser()
+    if file.is_absolute() or file.is_file():
+        return file
+    return next((d / file for d in MODEL_FOLDERS if (d / file).is_file()), file)
+
+
 def load_model(path: str) -> mjcf.RootElement:
     """The MJCF model at ``path``, checked to compile; a missing file or one MuJoCo refuses is
     one line (MuJoCo's own message and the file)."""
-    file = Path(path).expanduser()
+    file = find_model(path)
     require(file.is_file(), "robot.model must be an MJCF file that exists", str(file))
     try:
         mujoco.MjModel.from_xml_path(str(file))

@@ -26,6 +26,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
+from robots.mjcf_robot import MODEL_FOLDERS
 from tasks import factory
 from tasks.base import Task
 from tasks.env import RobotTaskEnv
@@ -49,6 +50,7 @@ def use_config_dirs(dirs: Sequence[str | Path]) -> None:
         if not folder.is_dir():
             raise ConfigError(f"config folder {folder} does not exist")
     _EXTRA_DIRS[:] = [f for f in folders if f != conf_dir().resolve()]
+    MODEL_FOLDERS[:] = config_dirs()
 
 
 def config_dirs() -> list[Path]:

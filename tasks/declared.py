@@ -68,8 +68,8 @@ class DeclaredTask(Task):
 
     def __post_init__(self) -> None:
         check_fields(self, "task")
-        require(isinstance(self.robot, MjcfRobot), "a declared task needs a robot made from a "
-                "model (robots.mjcf_robot.MjcfRobot)", type(self.robot).__name__)
+        require(isinstance(self.robot, MjcfRobot), "a declared task needs robot=<a robot made "
+                "from a model: robots.mjcf_robot.MjcfRobot>", type(self.robot).__name__)
         self.physics_timestep = self.physics_timestep or self.robot.timestep
         self.n_substeps = substeps_for(self.running_step, self.physics_timestep)
         self._obs_terms = T.named_terms(self.robot, self.observations, "task.observations")
