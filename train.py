@@ -34,7 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError, did_you_mean
 from runs.banner import tuned_changes
-from runs.catalog import compose, run_choices
+from runs.catalog import compose, locate_model, run_choices, use_config_dirs
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
 from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
@@ -84,6 +84,9 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> dict:
     """Dispatches one job: resume, evaluate or train (every key checked before anything
     is written); returns the run's summary."""
     choices = run_choices(HydraConfig.get().runtime.choices)  # tuned: None where no file applies
+    sources = HydraConfig.get().runtime.config_sources  # conf/, then any --config-dir
+    use_config_dirs([s.path for s in sources if s.schema == "file" and s.provider != "main"])
+    cfg = locate_model(cfg, choices.get("robot"), sources)
     resume = bool(cfg.get("resume"))
     if resume:
         if not isinstance(cfg.resume, str):
@@ -146,6 +149,7 @@ def cli() -> None:
     os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
     sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
     try:
+        use_config_dirs(_config_dir_args(sys.argv[1:]))
         sys.argv[1:] = with_run_choices(sys.argv[1:])
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -174,6 +178,17 @@ def cli() -> None:
     if sweep:
         status = end_stopped_sweep()
         sys.exit(end_sweep() if status is None else status)
+
+
+def _config_dir_args(args: list[str]) -> list[str]:
+    """The folders of Hydra's ``--config-dir`` / ``-cd`` options in ``args``."""
+    found = []
+    for i, arg in enumerate(args):
+        if arg in ("--config-dir", "-cd") and i + 1 < len(args):
+            found.append(args[i + 1])
+        elif arg.startswith("--config-dir="):
+            found.append(arg.split("=", 1)[1])
+    return found
 
 
 def _unknown_key(err: Exception) -> str | None:

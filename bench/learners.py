@@ -1,6 +1,6 @@
 """Every learner on every robot's task over 3 seeds, judged by each task's own measure (run by hand).
 
-    python bench/learners.py [--robots cartpole cube turtlebot] [--learners qlearn dqn ...]
+    python bench/learners.py [--robots <names in conf/robot/>] [--learners qlearn dqn ...]
                              [--seeds 0 1 2] [-- extra overrides]
     python bench/learners.py --read multirun/bench_learners_*     # tabulate finished sweeps
 
@@ -26,9 +26,10 @@ from pathlib import Path
 from sweep import fmt, job_summaries, run_sweep
 
 from runs.evaluate import evaluate, measure_of
+from runs import catalog
 from runs.catalog import make_env
 
-ROBOTS = ["cartpole", "cube", "turtlebot"]
+ROBOTS = catalog.robot_names()  # every robot in conf/robot/
 LEARNERS = ["qlearn", "n1try", "mbalunovic", "ruippeixotog", "dqn"]
 
 

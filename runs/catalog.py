@@ -6,7 +6,11 @@ tuned files, and the run config Hydra composes from them.
     default_task("cube"), names("learner"), tuned_pairs()
 
 The configs are found through the installed ``conf`` package, so this works from any
-working directory and without an editable install. A task fits a robot when it
+working directory and without an editable install. More config folders (a user's
+``--config-dir ~/my_robots``, with ``robot/``, ``task/`` and models) join with
+:func:`use_config_dirs`; ``conf/`` comes first, as in Hydra's search path. A robot's
+relative ``model`` path is resolved against the folder its ``robot/<name>.yaml`` is
+in (:func:`locate_model`), so a copied folder works anywhere. A task fits a robot when it
 builds with it: each task's ``setup`` refuses a robot of another class (:func:`built`).
 A description is the first sentence of the config file's header comment (:func:`summary`).
 """
@@ -22,6 +26,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
+from robots.mjcf_robot import MODEL_FOLDERS
 from tasks import factory
 from tasks.base import Task
 from tasks.env import RobotTaskEnv
@@ -30,14 +35,56 @@ from tasks.env import RobotTaskEnv
 GROUPS = ("robot", "task", "learner")
 
 
+_EXTRA_DIRS: list[Path] = []  # config folders after conf/ (use_config_dirs)
+
+
 def conf_dir() -> Path:
     """The folder of the Hydra configs (``config.yaml``, ``robot/``, ``task/``, ...)."""
     return Path(str(resources.files("conf")))
 
 
+def use_config_dirs(dirs: Sequence[str | Path]) -> None:
+    """Config folders searched after ``conf/`` (Hydra's ``--config-dir``), from now on."""
+    folders = [Path(d).expanduser().resolve() for d in dirs]
+    for folder in folders:
+        if not folder.is_dir():
+            raise ConfigError(f"config folder {folder} does not exist")
+    _EXTRA_DIRS[:] = [f for f in folders if f != conf_dir().resolve()]
+    MODEL_FOLDERS[:] = config_dirs()
+
+
+def config_dirs() -> list[Path]:
+    """Every config folder, in Hydra's search order: ``conf/`` first."""
+    return [conf_dir(), *_EXTRA_DIRS]
+
+
+def config_file(group: str, name: str) -> Path | None:
+    """``<folder>/<group>/<name>.yaml`` of the first config folder that has it."""
+    for folder in config_dirs():
+        if (folder / group / f"{name}.yaml").is_file():
+            return folder / group / f"{name}.yaml"
+    return None
+
+
 def names(group: str) -> list[str]:
-    """The configs of ``conf/<group>/``, by name."""
-    return sorted(p.stem for p in (conf_dir() / group).glob("*.yaml"))
+    """The configs of ``<group>/`` in every config folder, by name."""
+    return sorted({p.stem for d in config_dirs() for p in (d / group).glob("*.yaml")})
+
+
+def locate_model(cfg: DictConfig, robot: str | None, sources: Sequence | None = None) -> DictConfig:
+    """``cfg`` with a relative ``robot.model`` made absolute: relative to the config folder
+    that holds ``robot/<robot>.yaml`` (the first of ``sources``, Hydra's config sources,
+    or else of :func:`config_dirs`). Anything else is left as it is."""
+    model = cfg.get("robot", {}).get("model") if isinstance(cfg.get("robot"), DictConfig) else None
+    if not isinstance(model, str) or Path(model).expanduser().is_absolute() or not robot:
+        return cfg
+    folders = [Path(s["path"]) for s in sources or () if s.get("schema") == "file"] or config_dirs()
+    for folder in folders:
+        if (folder / "robot" / f"{robot}.yaml").is_file():
+            with open_dict(cfg):
+                cfg.robot.model = str((folder / model).resolve())
+            break
+    return cfg
 
 
 def robot_names() -> list[str]:
@@ -47,7 +94,7 @@ def robot_names() -> list[str]:
 
 def tuned_file(robot: str, learner: str) -> Path:
     """Where the tuned parameters of ``robot`` x ``learner`` live (the file may not exist)."""
-    return conf_dir() / "tuned" / f"{robot}_{learner}.yaml"
+    return config_file("tuned", f"{robot}_{learner}") or conf_dir() / "tuned" / f"{robot}_{learner}.yaml"
 
 
 def run_choices(choices: Mapping[str, str | None]) -> dict[str, str | None]:
@@ -55,7 +102,7 @@ def run_choices(choices: Mapping[str, str | None]) -> dict[str, str | None]:
     ``runtime.choices``; ``tuned`` is None where no file answers the pick (the ``optional``
     default names ``<robot>_<learner>`` whether or not there is one)."""
     picks = {k: choices.get(k) for k in (*GROUPS, "tuned")}
-    if picks["tuned"] and not (conf_dir() / "tuned" / f"{picks['tuned']}.yaml").is_file():
+    if picks["tuned"] and config_file("tuned", picks["tuned"]) is None:
         picks["tuned"] = None
     return picks
 
@@ -84,6 +131,8 @@ def robot_default(robot: str) -> tuple[str, DictConfig]:
 
 
 def _resolved(cfg: DictConfig) -> DictConfig:
+    runtime = cfg.hydra.runtime
+    locate_model(cfg, runtime.choices.get("robot"), runtime.config_sources)
     with open_dict(cfg):
         del cfg["hydra"]
     OmegaConf.resolve(cfg)
@@ -96,7 +145,10 @@ def _compose(overrides: list[str]) -> DictConfig:
     gh.clear()
     try:
         with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
-            return hydra_compose(config_name="config", overrides=overrides, return_hydra_config=True)
+            extra = [f"hydra.searchpath=[{','.join(f'file://{d}' for d in _EXTRA_DIRS)}]"]
+            return hydra_compose(config_name="config", overrides=[*extra[:len(_EXTRA_DIRS) > 0],
+                                                                  *overrides],
+                                 return_hydra_config=True)
     finally:
         if app is not None:
             GlobalHydra.instance().clear()

@@ -4,9 +4,9 @@
 per robot in ``conf/robot/`` (with the task that robot's config picks), in the
 ``MujocoRL`` namespace, each with the string entry point ``runs.gym_env:MujocoRLEnv``:
 
-- ``MujocoRL/CartPoleStayUp-v0`` (cartpole / stay_up)
-- ``MujocoRL/MovingCubeOneDiskWalk-v0`` (cube / one_disk_walk)
-- ``MujocoRL/TurtleBot2Maze-v0`` (turtlebot / maze)
+``MujocoRL/<Robot><Task>-v0``, such as ``MujocoRL/CartPoleStayUp-v0`` (cartpole /
+stay_up); the README's "What there is" lists them. ``register_envs(config_dirs=[...])``
+adds the robots of a user's config folders.
 
 ::
 
@@ -39,7 +39,7 @@ from __future__ import annotations
 import copy
 import re
 import reprlib
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -121,17 +121,21 @@ class MujocoRLEnv(gym.Env):
         height: int = 360,
         camera: str | int | None = None,
         robot_params: Mapping[str, Any] | None = None,
+        config_dirs: Sequence[str] = (),
         **task_params: Any,
     ) -> None:
         """``task_params`` override ``task.*`` and ``robot_params`` ``robot.*`` of the config;
         ``camera`` (a name or an index) defaults to the task's first camera (else MuJoCo's
-        free camera)."""
+        free camera); ``config_dirs``: config folders besides ``conf/`` (a user's robots)."""
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None; "
                              f"got {render_mode!r}")
         self._made_with = copy.deepcopy(dict(robot=robot, render_mode=render_mode, width=width,
                                              height=height, camera=camera,
-                                             robot_params=robot_params, **task_params))
+                                             robot_params=robot_params,
+                                             config_dirs=list(config_dirs), **task_params))
+        if config_dirs:
+            catalog.use_config_dirs(config_dirs)
         self.config = self._config(robot, robot_params or {}, task_params)
         task = factory.build_task(self.config)
         if "max_episode_steps" not in task_params:
@@ -209,20 +213,22 @@ def _plain_default(robot: str) -> tuple[str, int] | None:
     them, read from conf/robot/<robot>.yaml's ``defaults`` and conf/task/<task>.yaml; None
     where the files do not say it plainly (no plain ``/task`` default, no integer limit, a
     tuned file of the robot naming the limit): then only a composition knows."""
-    conf = catalog.conf_dir()
-    entries = OmegaConf.load(conf / "robot" / f"{robot}.yaml").get("defaults") or []
+    entries = OmegaConf.load(catalog.config_file("robot", robot)).get("defaults") or []
     tasks = [v for e in entries if isinstance(e, DictConfig) for k, v in e.items()
              if str(k).lstrip("/") == "task"]
-    path = conf / "task" / f"{tasks[0]}.yaml" if len(tasks) == 1 else None
-    if path is None or not path.is_file() or any(
-            "max_episode_steps" in p.read_text() for p in (conf / "tuned").glob(f"{robot}_*.yaml")):
+    path = catalog.config_file("task", str(tasks[0])) if len(tasks) == 1 else None
+    tuned = [p for d in catalog.config_dirs() for p in (d / "tuned").glob(f"{robot}_*.yaml")]
+    if path is None or any("max_episode_steps" in p.read_text() for p in tuned):
         return None
     steps = OmegaConf.load(path).get("max_episode_steps")
     return (str(tasks[0]), steps) if type(steps) is int else None
 
 
-def register_envs() -> list[str]:
+def register_envs(config_dirs: Sequence[str] = ()) -> list[str]:
     """Registers (idempotently) one id per robot with its default task; returns the ids.
+
+    ``config_dirs``: config folders besides ``conf/`` whose robots get ids too (a user's
+    ``~/my_robots``, as ``train.py --config-dir`` reads it); their envs are made with them.
 
     Each id's entry point is the string ``runs.gym_env:MujocoRLEnv`` (a process that
     makes it imports this module) and its ``max_episode_steps`` (Gymnasium's
@@ -231,6 +237,9 @@ def register_envs() -> list[str]:
     shipped robot's do (three Hydra compositions cost ~0.3 s).
     """
     ids = []
+    if config_dirs:
+        catalog.use_config_dirs(config_dirs)
+    dirs = [str(d) for d in catalog.config_dirs()[1:]]
     for robot in catalog.robot_names():
         plain = _plain_default(robot)
         if plain is None:
@@ -239,7 +248,8 @@ def register_envs() -> list[str]:
         task, steps = plain
         name = env_id(robot, task)
         if name not in gym.registry:
-            gym.register(id=name, entry_point=f"{__name__}:MujocoRLEnv", kwargs={"robot": robot},
+            kwargs = {"robot": robot, **({"config_dirs": dirs} if dirs else {})}
+            gym.register(id=name, entry_point=f"{__name__}:MujocoRLEnv", kwargs=kwargs,
                          max_episode_steps=steps)
         ids.append(name)
     return ids

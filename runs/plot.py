@@ -23,7 +23,8 @@ def _column(rows: list[dict], key: str) -> np.ndarray:
 def _panels(rows: list[dict], success: Success) -> list[tuple[str, str]]:
     """(column, y label) per panel: the measure, the length unless it is the measure,
     the return unless it is the length (+1 a step: the same curve)."""
-    panels = [(success.measure, f"{success.description} ({success.unit})")]
+    unit = f" ({success.unit})" if success.unit else ""  # a share or a count has none
+    panels = [(success.measure, f"{success.description}{unit}")]
     if success.measure != "length":
         panels.append(("length", "episode length (steps)"))
     if not rows or not np.array_equal(_column(rows, "reward"), _column(rows, "length")):

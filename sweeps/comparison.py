@@ -76,7 +76,8 @@ def table_row(key: tuple[str, str, str], jobs: list[dict]) -> dict:
     ok = [j for j in jobs if j["status"] == "ok"]
     won = [j for j in ok if j["solved"]]
     count = Counter(j["status"] for j in jobs)
-    measures = sorted({f"{j['measure']} ({j['unit']}, {j['judge']} >= {j['threshold']:g})" for j in ok})
+    measures = sorted({f"{j['measure']} ({j['unit'] + ', ' if j['unit'] else ''}{j['judge']} >= "
+                       f"{j['threshold']:g})" for j in ok})
     return {
         "robot/task": pair, "learner": learner, "swept": swept, "measure": "; ".join(measures) or "-",
         **_headline(ok), "seeds": len(jobs), "finished": len(ok),

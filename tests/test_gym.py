@@ -15,6 +15,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
+from omegaconf import OmegaConf
 
 import runs.register_gym  # noqa: F401  (registers the MujocoRL ids)
 from runs import catalog
@@ -22,11 +23,23 @@ from runs.gym_env import MujocoRLEnv, default_tasks, env_id, register_envs
 
 ROOT = Path(__file__).resolve().parents[1]
 BIG = np.finfo(np.float32).max  # the bound of an entry the task knows no bound for
-EXPECTED = {  # id: robot, observation size, actions, time limit
-    "MujocoRL/CartPoleStayUp-v0": ("cartpole", 4, 2, 1000),
-    "MujocoRL/MovingCubeOneDiskWalk-v0": ("cube", 6, 5, 1000),
-    "MujocoRL/TurtleBot2Maze-v0": ("turtlebot", 6, 3, 500),
-}
+
+
+def _expected() -> dict[str, tuple[str, int, int, int]]:
+    """id -> (robot, observation size, actions, time limit), found in the config tree: every
+    conf/robot/*.yaml with the task its ``defaults`` name, that task built for its sizes and
+    its YAML's ``max_episode_steps`` (no list of robots to keep up to date)."""
+    out = {}
+    for path in sorted((ROOT / "conf" / "robot").glob("*.yaml")):
+        robot = path.stem
+        task = next(e["/task"] for e in OmegaConf.load(path).defaults if "/task" in e)
+        steps = OmegaConf.load(ROOT / "conf" / "task" / f"{task}.yaml").max_episode_steps
+        built = catalog.built(robot, task)
+        out[env_id(robot, task)] = (robot, len(built.observation_names), built.n_actions, steps)
+    return out
+
+
+EXPECTED = _expected()
 
 
 @pytest.fixture
@@ -53,6 +66,8 @@ def test_every_robot_is_registered_with_its_default_task():
         assert name in gym.registry and gym.spec(name).namespace == "MujocoRL"
         assert gym.spec(name).max_episode_steps == EXPECTED[name][3]
     assert env_id("cartpole", "stay_up") == "MujocoRL/CartPoleStayUp-v0"
+    assert {"MujocoRL/CartPoleStayUp-v0", "MujocoRL/AcrobotSwingup-v0",
+            "MujocoRL/DoublePendulumBalance-v0"} <= set(ids)
 
 
 def test_importing_the_packages_registers_nothing():
@@ -79,7 +94,7 @@ def test_registration_reads_what_a_composition_gives():
 def test_make_and_check_env(make, name):
     robot, n_obs, n_actions, _ = EXPECTED[name]
     env = make(name, render_mode="rgb_array", width=64, height=48)
-    assert env.unwrapped.config.robot._target_.startswith(f"robots.{robot}")
+    assert env.unwrapped.config.robot._target_ == catalog.compose(robot).robot._target_
     assert env.observation_space.shape == (n_obs,) and env.observation_space.dtype == np.float32
     assert env.action_space == gym.spaces.Discrete(n_actions)
     with warnings.catch_warnings():

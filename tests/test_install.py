@@ -34,6 +34,8 @@ CLIENT = """
     env.reset(seed=0)
     obs, reward, *_ = env.step(1)
     print(env.spec.id, obs.shape, reward)
+    acro = gym.make("runs.register_gym:MujocoRL/AcrobotSwingup-v0")  # its model ships in conf/models
+    print(acro.spec.id, acro.reset(seed=0)[0].shape, Path(acro.unwrapped.config.robot.model).is_relative_to(site))
     cfg = catalog.compose("cartpole", learner="dqn")  # a run folder: its config and model
     learner = instantiate(cfg.learner, _convert_="all")
     learner.build(factory.build_task(cfg))
@@ -61,7 +63,8 @@ def test_a_plain_install_makes_gym_ids_and_full_hd_videos(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     lines = proc.stdout.strip().splitlines()
-    assert lines[-2:] == ["MujocoRL/CartPoleStayUp-v0 (4,) 1.0", "video in run/policy.mp4"]
+    assert lines[-3:] == ["MujocoRL/CartPoleStayUp-v0 (4,) 1.0", "MujocoRL/AcrobotSwingup-v0 (6,) True",
+                          "video in run/policy.mp4"]
     reader = imageio.get_reader(work / "run" / "policy.mp4", format="FFMPEG")
     try:
         frames = [frame.shape for frame in reader.iter_data()]

@@ -1,0 +1,226 @@
+"""Any MuJoCo model as a robot: its actuators, joints, sensors, bodies and sites by name.
+
+``MjcfRobot(model="acrobot.xml")`` loads the file with dm_control's ``mjcf`` parser,
+which follows ``<include>`` files and the ``<compiler>`` asset folders (meshes,
+textures), and keeps the model's ``<option>`` (timestep, integrator, gravity): the
+model is its own world, no arena around it. A file MuJoCo cannot compile is refused
+with MuJoCo's own message and the file; a name the model lacks, with the close
+matches and the names it has.
+
+``control`` changes how actuators are driven (``elbow: {mode: position, gain: 20}``):
+``motor`` (the command is the force or torque, times ``gain``), ``position`` (a
+servo to the commanded joint position, stiffness ``gain``) or ``velocity`` (a
+servo to the commanded joint velocity, damping ``gain``); actuators it leaves out
+stay as the model says.
+
+A task reads the robot through :class:`Reader` objects it asks for by source and
+name (``reader("joint_pos", "shoulder")``, ``reader("site_pos", "tip")``); the
+robot resolves them in the compiled model when it is bound. Joint positions and
+velocities are exact; body and site quantities come from frame sensors the robot
+adds to its model, which MuJoCo computes at the start of the last physics step of
+an env step (one ``timestep`` old, see :mod:`robots.physics`).
+"""
+
+from __future__ import annotations
+
+import difflib
+from importlib import resources
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from dm_control import mjcf
+
+from params import ConfigError, require
+from params.declare import REQUIRED, check_fields, param
+from robots.base import Robot
+from robots.binding import JointHandle, actuator_id, sensor_slice
+from robots.physics import BatchedPhysics
+
+CONTROL_MODES = ("motor", "position", "velocity")
+#: A body or site quantity -> (MuJoCo frame sensor, entries).
+FRAME_SENSORS = {"pos": ("framepos", 3), "quat": ("framequat", 4), "vel": ("framelinvel", 3),
+                 "angvel": ("frameangvel", 3), "zaxis": ("framezaxis", 3)}
+#: Every source a task can read, with what it names.
+SOURCES = {"joint_pos": "joint", "joint_vel": "joint", "sensor": "sensor",
+           **{f"{obj}_{q}": obj for obj in ("body", "site") for q in FRAME_SENSORS}}
+_KINDS = {"actuator": "actuator", "joint": "joint", "sensor": "sensor", "body": "body",
+          "site": "site"}
+_ONE_DOF = ("hinge", "slide")
+_PROBE = "probe:"  # names of the frame sensors the robot adds for its readers
+
+
+def missing_name(kind: str, name: str, names: list[str], where: str) -> ConfigError:
+    """``"<where>: the model has no <kind> '<name>'; close: ...; its <kind>s: ..."``."""
+    close = difflib.get_close_matches(name, names, n=3, cutoff=0.5)
+    hint = f"close matches: {', '.join(close)}; " if close else ""
+    plural = "bodies" if kind == "body" else f"{kind}s"
+    return ConfigError(f"{where}: the model has no {kind} {name!r}; {hint}"
+                       f"its {plural}: {', '.join(names) or 'none'}")
+
+
+#: Config folders a relative ``model`` path is looked up in, after the working folder; the
+#: shipped ``conf/`` first (``runs.catalog`` adds a user's config folders). A run's config
+#: holds the absolute path (``runs.catalog.locate_model``): this serves other compositions.
+MODEL_FOLDERS: list[Path] = [Path(str(resources.files("conf")))]
+
+
+def find_model(path: str) -> Path:
+    """``path`` as given if it names a file, else the first of :data:`MODEL_FOLDERS` holding it."""
+    file = Path(path).expanduser()
+    if file.is_absolute() or file.is_file():
+        return file
+    return next((d / file for d in MODEL_FOLDERS if (d / file).is_file()), file)
+
+
+def load_model(path: str) -> mjcf.RootElement:
+    """The MJCF model at ``path``, checked to compile; a missing file or one MuJoCo refuses is
+    one line (MuJoCo's own message and the file)."""
+    file = find_model(path)
+    require(file.is_file(), "robot.model must be an MJCF file that exists", str(file))
+    try:
+        mujoco.MjModel.from_xml_path(str(file))
+    except ValueError as err:
+        message = " ".join(str(err).split())
+        raise ConfigError(f"robot.model {file}: MuJoCo cannot compile it: {message}") from None
+    try:
+        return mjcf.from_path(str(file))
+    except Exception as err:  # noqa: BLE001 - dm_control's parser: any refusal is one line
+        message = " ".join(str(err).split())
+        raise ConfigError(f"robot.model {file}: dm_control cannot read it: {message}") from None
+
+
+@dataclass
+class Reader:
+    """One named quantity of the robot, ``size`` numbers per copy; usable once bound."""
+
+    source: str
+    name: str
+    size: int
+    element: object
+    read_slice: slice | None = None
+    joint: JointHandle | None = None
+
+    def read(self, physics: BatchedPhysics) -> np.ndarray:
+        """``(num_envs, size)``."""
+        if self.source == "joint_pos":
+            return self.joint.pos(physics)[:, None]
+        if self.source == "joint_vel":
+            return self.joint.vel(physics)[:, None]
+        return physics.sensordata[:, self.read_slice]
+
+
+@dataclass(eq=False)
+class MjcfRobot(Robot):
+    """A robot made from any MJCF file; tasks read and command it by name."""
+
+    model: str = param(REQUIRED, "the MJCF file (a relative path: from the config folder)")
+    control: dict | None = param(None, "actuator name: {mode: motor, position or velocity, gain: "
+                                       "number} (null: every actuator as the model says)")
+    _readers: list = field(default_factory=list, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "robot")
+        self.mjcf_model = load_model(self.model)
+        self.timestep = float(self.mjcf_model.option.timestep or 0.002)  # MuJoCo's default
+        for name, spec in (self.control or {}).items():
+            self._set_control(name, spec)
+        self._actuator_ids: np.ndarray | None = None
+
+    # -- names ---------------------------------------------------------------------
+    def names(self, kind: str) -> list[str]:
+        """The names the model gives its ``kind`` elements (actuator, joint, sensor, body, site)."""
+        return [e.name for e in self.mjcf_model.find_all(_KINDS[kind])
+                if e.name and not e.name.startswith(_PROBE)]
+
+    def element(self, kind: str, name: str, where: str):
+        """The model's ``kind`` element called ``name``; else one line naming ``where`` it was
+        asked for, the close matches and the names the model has."""
+        found = self.mjcf_model.find(_KINDS[kind], str(name))
+        if found is None:
+            raise missing_name(kind, str(name), self.names(kind), where)
+        return found
+
+    def actuators(self) -> list[str]:
+        """Every actuator's name, in the model's order."""
+        return self.names("actuator")
+
+    # -- control modes -------------------------------------------------------------
+    def _set_control(self, name: str, spec) -> None:
+        """Replaces actuator ``name`` with one of ``spec``'s mode and gain, on the same joint and
+        with the same control and force ranges."""
+        where = f"robot.control.{name}"
+        old = self.element("actuator", name, where)
+        require(isinstance(spec, dict) and set(spec) <= {"mode", "gain"} and spec.get("mode")
+                in CONTROL_MODES, f"{where} must be {{mode: {' | '.join(CONTROL_MODES)}, gain: "
+                f"number}}", spec)
+        gain = float(spec.get("gain", 1.0))
+        require(gain > 0, f"{where}.gain must be a finite number > 0", gain)
+        require(old.joint is not None, f"{where}: only an actuator on a joint can change mode",
+                name)
+        keep = {k: getattr(old, k) for k in ("ctrlrange", "forcerange", "ctrllimited",
+                                             "forcelimited") if getattr(old, k) is not None}
+        joint = old.joint
+        old.remove()
+        gains = {"motor": {"gear": [gain]}, "position": {"kp": gain}, "velocity": {"kv": gain}}
+        self.mjcf_model.actuator.add(spec["mode"], name=name, joint=joint,
+                                     **gains[spec["mode"]], **keep)
+
+    # -- readers and commands ------------------------------------------------------
+    def reader(self, source: str, name: str, where: str) -> Reader:
+        """A :class:`Reader` of ``source`` (a key of :data:`SOURCES`) for the element ``name``;
+        a frame sensor is added to the model for a body or site quantity (before compiling)."""
+        require(source in SOURCES, f"{where} must read one of {', '.join(SOURCES)}", source)
+        kind = SOURCES[source]
+        element = self.element(kind, name, where)
+        if kind == "joint":
+            require(element.type in (None, *_ONE_DOF), f"{where}: joint {name!r} is a "
+                    f"{element.type} joint; joint_pos and joint_vel read hinge and slide joints "
+                    f"(read its body with body_pos, body_quat, ...)", name)
+            reader = Reader(source, str(name), 1, element)
+        elif kind == "sensor":
+            reader = Reader(source, str(name), self.sensor_size(str(name)), element)
+        else:
+            reader = self._frame_reader(source, kind, element)
+        self._readers.append(reader)
+        return reader
+
+    def _frame_reader(self, source: str, kind: str, element) -> Reader:
+        sensor_type, size = FRAME_SENSORS[source.split("_", 1)[1]]
+        sensor = self.mjcf_model.sensor.add(sensor_type, name=f"{_PROBE}{source}:"
+                                            f"{element.name}:{len(self._readers)}", objtype=kind,
+                                            objname=element)
+        return Reader(source, str(element.name), size, sensor)
+
+    def sensor_size(self, name: str) -> int:
+        """How many numbers the model's sensor ``name`` gives (compiled on its own)."""
+        model = mujoco.MjModel.from_xml_string(self.mjcf_model.to_xml_string(),
+                                               assets=self.mjcf_model.get_assets())
+        return int(model.sensor_dim[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)])
+
+    def bind(self, physics: BatchedPhysics) -> None:
+        """Resolves every reader and the actuators in the compiled model."""
+        model = physics.model
+        for reader in self._readers:
+            if reader.source in ("joint_pos", "joint_vel"):
+                reader.joint = JointHandle.of(model, reader.element)
+            else:
+                reader.read_slice = sensor_slice(model, reader.element)
+                reader.size = reader.read_slice.stop - reader.read_slice.start
+        self._actuator_ids = np.asarray([actuator_id(model, a) for a in
+                                         self.mjcf_model.find_all("actuator")], dtype=np.int64)
+
+    def command(self, physics: BatchedPhysics, columns: np.ndarray, values: np.ndarray) -> None:
+        """Sets the actuators at ``columns`` (indices into :meth:`actuators`) of every copy to
+        ``values`` (``(num_envs, len(columns))``)."""
+        physics.ctrl[:, self._actuator_ids[columns]] = values
+
+    def set_joint(self, physics: BatchedPhysics, joint: Reader, mask: np.ndarray, pos, vel) -> None:
+        """Places the ``mask`` copies' joint (a ``joint_pos`` reader) at ``pos`` moving at ``vel``."""
+        joint.joint.set(physics, mask, pos, vel)
+
+    def hinges_and_slides(self) -> list[str]:
+        """The names of the model's 1-dof joints (hinge and slide), in its order."""
+        return [j.name for j in self.mjcf_model.find_all("joint")
+                if j.name and j.type in (None, *_ONE_DOF)]
