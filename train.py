@@ -135,7 +135,9 @@ def cli() -> None:
     and lists how to resume each unfinished job."""
     global _LAUNCHER_PID
     _LAUNCHER_PID = os.getpid()
-    os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
+    # Hydra raises instead of printing a page; set whatever the environment says (HYDRA_FULL_ERROR=0
+    # would send a mistyped key to Hydra's own six lines and exit 1).
+    os.environ["HYDRA_FULL_ERROR"] = "1"
     sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
     try:
         sys.argv[1:] = with_run_choices(sys.argv[1:])

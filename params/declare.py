@@ -44,6 +44,11 @@ class Range:
     choices: tuple | None = None
 
     def holds(self, value: Any) -> bool:
+        """Whether ``value`` (each entry of a list, each value of a mapping) lies in range."""
+        if isinstance(value, (list, tuple)):
+            return all(self.holds(v) for v in value)
+        if isinstance(value, dict):
+            return all(self.holds(v) for v in value.values())
         if self.choices is not None:
             return not isinstance(value, bool) and value in self.choices
         if not isinstance(value, (int, float)) or isinstance(value, bool):

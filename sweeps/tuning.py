@@ -29,6 +29,7 @@ from typing import Any, Callable, Iterable, Mapping
 from omegaconf import OmegaConf
 
 from params import ConfigError, did_you_mean, dotted
+from params.declare import is_integer
 
 @dataclass
 class Plan:
@@ -44,6 +45,64 @@ class Plan:
     params: dict
     measure: str
     current: dict | None = None  # the run's own values as a trial, where the space holds them
+
+
+# The sweeper's whole numbers: (least, most). Bounds keep a typo (1e308) from running for ever.
+SWEEPER_INTS = {"n_trials": (1, 10**6), "trials_per_batch": (1, 10**4), "budget_steps": (1, 10**12),
+                "report_every": (1, 10**8), "startup_trials": (0, 10**6)}
+SEED_LIMIT = 2**32  # numpy's (and so Optuna's samplers') seeds; a run's own seeds are checked by the run
+PRUNER_KEYS = ("n_startup_trials", "n_warmup_steps", "interval_steps", "n_min_trials")
+
+
+def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """``hydra.sweeper``'s settings checked and in their types; :class:`ConfigError`
+    ``hydra.sweeper.<name> must be <allowed>; got <value>`` for the first bad one."""
+    out = dict(settings)
+
+    def refuse(name: str, allowed: str) -> ConfigError:
+        return ConfigError(f"hydra.sweeper.{name} must be {allowed}; got {_plain(settings[name])!r}")
+
+    for name, (low, high) in SWEEPER_INTS.items():
+        if not (is_integer(settings[name]) and low <= settings[name] <= high):
+            raise refuse(name, f"an integer >= {low} and <= {high:.0e}" if high >= 10**6 else
+                         f"an integer >= {low} and <= {high}")
+        out[name] = int(settings[name])
+    for name in ("write_tuned", "start_from_current"):
+        if not isinstance(settings[name], bool):
+            raise refuse(name, "true or false")
+    for name in ("study", "storage"):
+        if not isinstance(settings[name], str) or not settings[name].strip():
+            raise refuse(name, "a non-empty name" if name == "study" else "a non-empty database URL (sqlite:///file.db)")
+    if settings["search"] is not None and not (isinstance(settings["search"], str) and settings["search"].strip()):
+        raise refuse("search", "null (conf/search/) or the path of a search space file")
+    seeds = _plain(settings["seeds"])
+    seeds = list(seeds) if isinstance(seeds, tuple) else seeds
+    if not (isinstance(seeds, list) and seeds and all(is_integer(s) and 0 <= s < 2**63 for s in seeds)
+            and len(set(seeds)) == len(seeds)):
+        raise refuse("seeds", "distinct seeds, at least one, each an integer from 0 to 2^63-1 (a list: [0,1])")
+    out["seeds"] = [int(s) for s in seeds]
+    sampler_seed = settings["sampler_seed"]
+    if sampler_seed is not None and not (is_integer(sampler_seed) and 0 <= sampler_seed < SEED_LIMIT):
+        raise refuse("sampler_seed", "null or an integer from 0 to 2^32-1")
+    out["sampler_seed"] = None if sampler_seed is None else int(sampler_seed)
+    out["pruner"] = _checked_pruner(_plain(settings["pruner"]), refuse)
+    return out
+
+
+def _checked_pruner(pruner: Any, refuse: Callable[[str, str], ConfigError]) -> dict | None:
+    """The median pruner's settings (null or {} for none), each a whole number >= 0."""
+    allowed = f"null, or a mapping of {', '.join(PRUNER_KEYS)} to integers >= 0"
+    if pruner is None or pruner == {}:
+        return None
+    if not isinstance(pruner, dict) or not all(k in PRUNER_KEYS and is_integer(v) and 0 <= v <= 10**9
+                                               for k, v in pruner.items()):
+        raise refuse("pruner", allowed)
+    return {k: int(v) for k, v in pruner.items()}
+
+
+def _plain(value: Any) -> Any:
+    """A setting as plain Python (Hydra hands lists and mappings over as OmegaConf nodes)."""
+    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
 
 
 SAMPLED = "choice(...), interval(...), int(interval(...)), tag(log, interval(...)) or range(...)"
