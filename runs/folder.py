@@ -32,6 +32,16 @@ def is_run_folder(path) -> bool:
     return bool(path) and (Path(str(path)) / "config.yaml").is_file()
 
 
+def is_finished(run_dir: Path) -> bool:
+    """Whether the run in ``run_dir`` ended (its summary.json, written last, does not say
+    ``interrupted``); a missing or unreadable summary.json is a run still to finish."""
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return isinstance(summary, dict) and not summary.get("interrupted")
+
+
 def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, Path]:
     """The config of the run folder ``cfg.resume``, with the few overrides a resume accepts."""
     run_dir = Path(cfg.resume)
@@ -40,6 +50,10 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
     if not (run_dir / "checkpoint.pt").is_file():
         raise CheckpointError(f"resume={run_dir} has no checkpoint.pt to continue from "
                               "(it was run with checkpoint_every=0, or stopped before its first one)")
+    if is_finished(run_dir):
+        raise CheckpointError(f"resume={run_dir}: it is finished (its summary.json says so), so there is "
+                              f"nothing to continue; allowed: a stopped or killed run (evaluate this one with "
+                              f"mode=eval checkpoint={run_dir})")
     others = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in RESUME_OVERRIDES]
     if others:
         raise ConfigError(f"resume= continues a run with its own config; drop {' '.join(others)} "

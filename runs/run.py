@@ -40,7 +40,7 @@ from tensordict import TensorDictBase
 from runs.console import Console
 from runs.episode import Episode
 from runs.evaluate import measure_of
-from runs.loggers import finish_log, log_episode, log_evaluation, log_train
+from runs.loggers import csv_rows, cut_csv_rows, finish_log, log_episode, log_evaluation, log_train
 from runs.metrics_files import MetricsFiles
 from runs.plot import plot_reward_curve
 from runs.verdict import run_summary
@@ -125,6 +125,7 @@ class Run:
         self.values: list[float] = []  # the task's measure, per episode
         self.evals: list[dict] = []  # one row per greedy evaluation (evals.csv's, "value" the measure)
         self.last_eval: dict | None = None  # the newest evaluation's full result
+        self._log_rows: dict[str, int] | None = None  # a resumed run's CSV logger lines to keep
         self.env_steps = 0
         self.solved_at: int | None = None
         self.decided_by: str | None = None  # "training" or "greedy", once solved
@@ -303,7 +304,8 @@ class Run:
                 "values": list(self.values), "evals": [dict(r) for r in self.evals],
                 "env_steps": self.env_steps, "solved_at": self.solved_at,
                 "decided_by": self.decided_by, "solved_value": self.solved_value,
-                "wall_s": self.wall_s,
+                "wall_s": self.wall_s, "last_eval": self.last_eval, "log_rows": csv_rows(self.run_dir),
+                "train_logged": self._train_logged, "train_due": self._train_due,
                 "ret": torch.from_numpy(self._ret.copy()), "len": torch.from_numpy(self._len.copy())}
 
     def load_state_dict(self, state: Mapping, reopen: bool = True) -> None:
@@ -319,6 +321,9 @@ class Run:
         self.solved_at = state["solved_at"]
         self.decided_by = state["decided_by"]
         self.solved_value = state["solved_value"]
+        self.last_eval = state.get("last_eval")  # the final evaluation's, once it ran
+        self._log_rows = state.get("log_rows")
+        self._train_logged, self._train_due = state.get("train_logged"), bool(state.get("train_due", False))
         self._ret[:] = state["ret"].numpy()
         self._len[:] = state["len"].numpy()
         self._t0 = time.perf_counter() - float(state["wall_s"])
@@ -328,8 +333,11 @@ class Run:
     def reopen(self) -> None:
         """Continues a resumed run's outputs after its loaded episodes: metrics.csv and
         timing.csv cut back to them (rows of episodes after the checkpoint dropped),
-        evals.csv rewritten, the progress bar moved past them."""
+        evals.csv rewritten, the CSV logger's files cut back to the checkpoint's rows, the
+        progress bar moved past them."""
         self.files.open(self.n_episodes, self.evals)
+        if self._log_rows is not None:
+            cut_csv_rows(self.run_dir, self._log_rows)
         self.console.skip(self.n_episodes)
 
     def summary(self) -> dict:

@@ -168,9 +168,10 @@ def _final_evaluation(session: Session, run: Run) -> dict:
     """The trained policy, judged like the evaluations during training (an evaluation of this
     very policy is reused); at the budget's end it may still solve a greedily judged task."""
     n_eval = session.final_episodes
-    fresh = run.last_eval is not None and run.evals[-1]["episode"] == run.n_episodes
-    if fresh and n_eval == int(session.cfg.eval_episodes):
-        return run.last_eval
+    last = run.last_eval
+    # Also a resumed run killed after its final evaluation was saved: never a second row.
+    if last is not None and run.evals[-1]["episode"] == run.n_episodes and last["episodes"] == n_eval:
+        return last
     return run.evaluate_greedy(partial(session.evaluator, n_eval))
 
 
