@@ -18,7 +18,7 @@ from runs.catalog import GROUPS, conf_dir
 from runs.settings import check_run_config
 from runs.summary import summarize_run
 from sweeps.comparison import score
-from sweeps.tuning import (Plan, check_space, check_sweeper_settings, current_trial, load_space, make_pruner, now_utc, open_storage,
+from sweeps.tuning import (Plan, check_space, check_sweeper_settings, replace_tuned, current_trial, load_space, make_pruner, now_utc, open_storage,
                            override_value, tuned_text)
 
 # Settings the sweeper itself gives every job: the command line may not.
@@ -233,8 +233,8 @@ class TuningSweep:
             f"{k}={override_value(v)}" for k, v in values.items()))
         print(f"tuned file: {out}")
         if self.write_tuned:
-            base_file.write_text(text)
-            print(f"wrote {base_file}: the next `python train.py robot={robot} learner={learner}` uses it")
+            print(replace_tuned(base_file, text, sweep_dir))
+            print(f"the next `python train.py robot={robot} learner={learner}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
 

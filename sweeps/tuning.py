@@ -330,6 +330,34 @@ def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header
     return "\n".join(lines) + "\n" + OmegaConf.to_yaml(conf)
 
 
+def replace_tuned(path: Path, text: str, keep_in: Path) -> str:
+    """Writes the tuned file ``text`` to ``path`` (``hydra.sweeper.write_tuned=true``), the
+    previous file first copied to ``keep_in/previous_<name>``; returns one line saying what
+    changed (``key old -> new``, keys only one of them has with ``(none)``)."""
+    old_text = path.read_text(errors="replace") if path.is_file() else None
+    kept = ""
+    if old_text is not None:
+        backup = keep_in / f"previous_{path.name}"
+        backup.write_text(old_text)
+        kept = f" (the previous one kept as {backup})"
+    path.write_text(text)
+    before, after = (_settings_of(t) for t in (old_text, text))
+    changes = [f"{k} {before.get(k, '(none)')} -> {after.get(k, '(none)')}"
+               for k in sorted(set(before) | set(after)) if before.get(k, "(none)") != after.get(k, "(none)")]
+    return f"wrote {path}{kept}: " + ("; ".join(changes) if changes else "no setting changed")
+
+
+def _settings_of(text: str | None) -> dict[str, Any]:
+    """A tuned file's settings by dotted key (none for no file, or one that does not parse)."""
+    if text is None:
+        return {}
+    try:
+        conf = OmegaConf.to_container(OmegaConf.create(text), resolve=False)
+    except Exception:  # noqa: BLE001 - a damaged old file: everything counts as changed
+        return {}
+    return {k: override_value(v) for k, v in dotted(conf).items()} if isinstance(conf, dict) else {}
+
+
 def now_utc() -> str:
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
 

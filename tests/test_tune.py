@@ -292,3 +292,18 @@ def test_a_trial_that_loses_its_study_warns_once_and_trains_on(tmp_path, capsys)
     warned = [line for line in capsys.readouterr().out.splitlines() if "cannot reach the study" in line]
     assert len(warned) == 1 and "database is gone" in warned[0]
     assert run.pruned_at is None and not run.done
+
+
+def test_a_tuned_file_replaced_keeps_the_old_one_and_says_what_changed(tmp_path):
+    from sweeps.tuning import replace_tuned
+
+    path, study = tmp_path / "cartpole_qlearn.yaml", tmp_path / "sweep"
+    study.mkdir()
+    old = "# @package _global_\n# hand-tuned\nlearner:\n  alpha: 0.2\n  gamma: 0.995\nnum_envs: 8\n"
+    path.write_text(old)
+    new = tuned_text({"learner.alpha": 0.78}, {"learner": {"alpha": 0.2, "gamma": 0.995}, "num_envs": 8}, ["h"])
+    line = replace_tuned(path, new, study)
+    assert "\n" not in line
+    assert line == (f"wrote {path} (the previous one kept as {study / 'previous_cartpole_qlearn.yaml'}): "
+                    "learner.alpha 0.2 -> 0.78")
+    assert (study / "previous_cartpole_qlearn.yaml").read_text() == old and path.read_text() == new
