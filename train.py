@@ -34,10 +34,10 @@ from omegaconf import DictConfig, OmegaConf
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError, did_you_mean
 from runs.banner import tuned_changes
-from runs.catalog import GROUPS, compose
+from runs.catalog import GROUPS, compose, unreadable_conf_file
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
-from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
+from runs.folder import (check_output_folder, eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
                          with_run_choices)
 from runs.resume import read_run_json
 from runs.session import execute
@@ -141,6 +141,10 @@ def cli() -> None:
     sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
     try:
         sys.argv[1:] = with_run_choices(sys.argv[1:])
+        for arg in sys.argv[1:]:  # before Hydra writes its record (.hydra/, train.log) there
+            key, _, value = arg.partition("=")
+            if key in ("hydra.run.dir", "hydra.sweep.dir") and value:
+                check_output_folder(key, value)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
@@ -187,11 +191,28 @@ def _unknown_key(err: Exception) -> str | None:
     return f"{key} is not a setting; {hint}allowed{' in ' + parent if parent else ''}: {', '.join(map(str, names))}"
 
 
+def _caused_by(err: BaseException, kind: type) -> bool:
+    """Whether ``err`` or an exception in its chain (cause or context) is a ``kind``."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, kind):
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
+
+
 def _hydra_error(err: Exception) -> str:
     """One line of what Hydra (or the OS, creating the run folder) refused."""
     unknown = _unknown_key(err)
     if unknown is not None:
         return unknown
+    if _caused_by(err, UnicodeDecodeError):  # Hydra does not say which file
+        searched = [Path(a.split("=", 1)[1].strip("[]").removeprefix("file://"))
+                    for a in sys.argv[1:] if a.startswith("hydra.searchpath=")]
+        bad = unreadable_conf_file([p for p in searched if p.is_dir()])
+        if bad is not None:
+            return f"{bad}; allowed: a YAML file in UTF-8"
     text = " ".join(line.strip() for line in str(err).splitlines() if line.strip())
     text = text.split(" Config search path:")[0]
     if isinstance(err, OSError) and err.filename:

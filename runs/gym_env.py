@@ -212,7 +212,7 @@ def _plain_default(robot: str) -> tuple[str, int] | None:
              if str(k).lstrip("/") == "task"]
     path = conf / "task" / f"{tasks[0]}.yaml" if len(tasks) == 1 else None
     if path is None or not path.is_file() or any(
-            "max_episode_steps" in p.read_text() for p in (conf / "tuned").glob(f"{robot}_*.yaml")):
+            "max_episode_steps" in catalog.read_conf_text(p) for p in (conf / "tuned").glob(f"{robot}_*.yaml")):
         return None
     steps = OmegaConf.load(path).get("max_episode_steps")
     return (str(tasks[0]), steps) if type(steps) is int else None

@@ -91,12 +91,17 @@ def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
 
 def _checked_pruner(pruner: Any, refuse: Callable[[str, str], ConfigError]) -> dict | None:
     """The median pruner's settings (null or {} for none), each a whole number >= 0."""
-    allowed = f"null, or a mapping of {', '.join(PRUNER_KEYS)} to integers >= 0"
     if pruner is None or pruner == {}:
         return None
-    if not isinstance(pruner, dict) or not all(k in PRUNER_KEYS and is_integer(v) and 0 <= v <= 10**9
-                                               for k, v in pruner.items()):
-        raise refuse("pruner", allowed)
+    if not isinstance(pruner, dict):
+        raise refuse("pruner", f"null, or a mapping of {', '.join(PRUNER_KEYS)} to integers >= 0")
+    for key, value in pruner.items():
+        if key not in PRUNER_KEYS:
+            hint = did_you_mean(str(key), PRUNER_KEYS, "hydra.sweeper.pruner.")
+            raise ConfigError(f"hydra.sweeper.pruner.{key} is not a setting of the median pruner; {hint}"
+                              f"allowed: {', '.join(PRUNER_KEYS)}")
+        if not (is_integer(value) and 0 <= value <= 10**9):
+            raise ConfigError(f"hydra.sweeper.pruner.{key} must be an integer >= 0 and <= 1e+09; got {value!r}")
     return {k: int(v) for k, v in pruner.items()}
 
 
