@@ -42,7 +42,8 @@ from runs.folder import (check_output_folder, eval_config, is_run_folder, resume
 from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
-from sweeps.state import SWEEP, end_failed_sweep, end_stopped_sweep, stop_sweep, sweep_stopped
+from sweeps.state import (SWEEP, end_failed_sweep, end_stopped_sweep, stop_sweep, sweep_dir, sweep_failures,
+                          sweep_stopped)
 from sweeps.tuning import trial_link
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
@@ -65,10 +66,12 @@ def _one_line(err: BaseException) -> str:
 
 
 def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
-    """Prints ``message``; a sweep job keeps it in ``error.txt`` and lets the sweep go on."""
-    print(message, file=sys.stderr)
+    """Prints ``message``; a sweep job keeps it in ``error.txt`` and lets the sweep go on (the
+    sweep's end says on stderr how many jobs failed, so the job's own line goes to stdout)."""
     if not in_sweep:
+        print(message, file=sys.stderr)
         sys.exit(2)
+    print(message, flush=True)
     try:
         (run_dir / "error.txt").write_text(message + "\n")
     except OSError:
@@ -167,6 +170,11 @@ def cli() -> None:
         status = end_stopped_sweep()
         if status is not None:
             sys.exit(status)
+        failures = sweep_failures(sweep_dir())
+        if failures is not None:  # every job failed: the sweep failed; some: say how many
+            print(failures[1], file=sys.stderr)
+            if failures[0]:
+                sys.exit(failures[0])
 
 
 def _unknown_key(err: Exception) -> str | None:

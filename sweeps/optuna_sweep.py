@@ -18,6 +18,7 @@ from runs.catalog import GROUPS, conf_dir
 from runs.settings import check_run_config
 from runs.summary import summarize_run
 from sweeps.comparison import score
+from tasks.factory import build_task
 from sweeps.tuning import (Plan, check_space, check_sweeper_settings, replace_tuned, current_trial, load_space, make_pruner, now_utc, open_storage,
                            override_value, tuned_text)
 
@@ -111,6 +112,7 @@ class TuningSweep:
         params = load_space(space_file)
         base = self._compose(fixed)
         check_run_config(base)
+        _check_builds(base)
         check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
         return Plan(robot, task, learner, given, fixed, space_file, params, _measure_of(base),
                     current_trial(params, base))
@@ -237,6 +239,18 @@ class TuningSweep:
             print(f"the next `python train.py robot={robot} learner={learner}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
+
+
+def _check_builds(cfg: DictConfig) -> None:
+    """The robot and its task build (a task that does not fit the robot is refused here, in
+    one line, not in every trial's jobs)."""
+    from hydra.errors import InstantiationException
+
+    try:
+        build_task(cfg)
+    except InstantiationException as err:
+        cause = err.__cause__ or err
+        raise ConfigError((str(cause).strip().splitlines() or [type(cause).__name__])[0]) from None
 
 
 def search_file(robot: str, learner: str) -> Path:

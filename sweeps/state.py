@@ -117,3 +117,29 @@ def end_failed_sweep() -> bool:
     compare_sweep(folder)  # Hydra skips on_multirun_end when the launcher raises
     report_stopped_sweep(folder)
     return True
+
+
+def sweep_failures(folder: Path | None) -> tuple[int, str] | None:
+    """After a sweep: None if no job failed; else the exit status and one line. Every job
+    failed: ``error: every job of the sweep failed (N); the first, <job>: <its reason>``, status
+    2 where that reason is a one-line input error (``error: ...``), else 1. Some failed:
+    ``warning: K of N jobs failed; the first, ...``, status 0."""
+    if folder is None or not folder.is_dir():
+        return None
+    jobs = sorted((p for p in folder.iterdir()
+                   if p.is_dir() and ((p / "run.json").exists() or (p / "error.txt").exists())), key=_job_number)
+    failed = [(job, summarize_run(job)) for job in jobs]
+    failed = [(job, state) for job, state in failed if state["status"] == "failed"]
+    if not failed:
+        return None
+    job, state = failed[0]
+    reason = str(state.get("error") or "failed")
+    first = f"the first, {job.name}: {reason.removeprefix('error: ')}"
+    if len(failed) < len(jobs):
+        return 0, f"warning: {len(failed)} of {len(jobs)} jobs failed; {first}"
+    return (2 if reason.startswith("error: ") else 1), f"error: every job of the sweep failed ({len(jobs)}); {first}"
+
+
+def _job_number(job: Path) -> tuple[int, str]:
+    number = job.name.split("_", 1)[0]
+    return (int(number) if number.isdigit() else 1 << 62, job.name)

@@ -140,6 +140,9 @@ MADE = [  # (arguments, what the one line must say); {name} is made[name]
     (["-m", "hydra.sweep.dir={foreign}"], "hydra.sweep.dir={foreign} is a folder that holds other files"),
     (["hydra.searchpath=[file://{base}/conf]", "tuned=latin1"],
      "conf/tuned/latin1.yaml is not valid UTF-8 (byte 0xe9 at position 40)"),
+    (["-m", "seed=-1,-2"], "every job of the sweep failed (2); the first, 0_cartpole_qlearn_seed-1: seed must be "
+                           "an integer in [0, 9223372036854775808); got -1"),
+    (["-m", "hydra/sweeper=optuna", "robot=cartpole", "task=maze"], "task maze needs robot=turtlebot"),
     *((["-m", "hydra/sweeper=optuna", f"hydra.sweeper.{key}={value}"], f"hydra.sweeper.{key} must be {allowed}")
       for key, value, allowed in (
           ("write_tuned", "maybe", "true or false; got 'maybe'"), ("start_from_current", "1", "true or false"),
@@ -153,7 +156,9 @@ MADE = [  # (arguments, what the one line must say); {name} is made[name]
 def test_a_bad_input_that_needs_files_is_one_line_and_writes_nowhere(args, words, made, tmp_path, monkeypatch,
                                                                     capsys):
     args = [a.format(**made) for a in args]
-    sweep = ["hydra.sweep.dir=" + str(tmp_path / "run"), f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}"]
+    sweep = ["hydra.sweep.dir=" + str(tmp_path / "run")]
+    if "hydra/sweeper=optuna" in args:
+        sweep.append(f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}")
     if "-m" in args:
         args += [a for a in sweep if a.split("=", 1)[0] not in {x.split("=", 1)[0] for x in args}]
         args += [] if "hydra/sweeper=optuna" in args else ["learner.nepisodes=1"]
@@ -177,3 +182,15 @@ def test_a_typo_is_one_line_whatever_hydra_full_error_says(tmp_path, monkeypatch
     assert cli(["learner.alpah=0.1"], tmp_path, monkeypatch) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and "did you mean learner.alpha?" in err[0], err
+
+
+def test_a_sweep_where_some_jobs_failed_says_how_many(tmp_path, monkeypatch, capsys):
+    GlobalHydra.instance().clear()
+    monkeypatch.setattr(train, "_IN_JOB", False)
+    monkeypatch.setattr(sys, "argv", ["train.py", "-m", "seed=-1,3", "learner.nepisodes=2", "eval_episodes=0",
+                                      "quiet=true", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+                                      "hydra/job_logging=none", "hydra/hydra_logging=none"])
+    train.cli()  # returns: the sweep itself ran
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert err == ["warning: 1 of 2 jobs failed; the first, 0_cartpole_qlearn_seed-1: seed must be an integer "
+                   "in [0, 9223372036854775808); got -1"], err
