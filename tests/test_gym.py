@@ -312,3 +312,16 @@ def test_bounds_are_the_tasks_true_ones_and_only_those():
     assert np.array_equal(cube.low, -cube.high)
     cartpole = gym.make("MujocoRL/CartPoleStayUp-v0").observation_space  # soft joint limits
     assert np.array_equal(cartpole.high, np.full(4, BIG)) and np.array_equal(cartpole.low, -cartpole.high)
+
+
+def test_make_without_a_time_limit_is_refused():
+    """``max_episode_steps=-1`` drops Gymnasium's TimeLimit; the task's own limit is lifted
+    under ``gymnasium.make``, so its episodes could run for ever: refused in one line."""
+    register_envs()
+    with pytest.raises(ValueError) as err:
+        gym.make("MujocoRL/CartPoleStayUp-v0", max_episode_steps=-1)
+    assert str(err.value).startswith("max_episode_steps=-1 is refused") and "allowed: a positive integer" in str(err.value)
+    env = gym.make("MujocoRL/CartPoleStayUp-v0", max_episode_steps=3)
+    env.reset(seed=0)
+    assert env.spec.max_episode_steps == 3
+    env.close()
