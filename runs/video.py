@@ -25,6 +25,7 @@ from tensordict import TensorDictBase
 from torchrl.envs.utils import step_mdp
 
 from runs.checkpoint import load_model
+from runs.console import OneLineParser
 from runs.resume import check_targets, load_run_config
 from runs.settings import check_run_config
 from tasks.factory import build_env
@@ -112,14 +113,6 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
     return out
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse whose mistakes are one ``error:`` line (no usage block) and exit 2."""
-
-    def error(self, message: str):
-        print(f"error: {message}; see python -m runs.video --help", file=sys.stderr)
-        sys.exit(2)
-
-
 def check_arguments(args: argparse.Namespace) -> None:
     """The numbers and the output path, before anything is built (``ValueError``, one line)."""
     if not 0 <= args.steps <= 100_000:
@@ -140,7 +133,7 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = _Parser(description="Write <run_dir>/policy.mp4 of a trained run's greedy policy.")
+    parser = OneLineParser(prog="python -m runs.video", description="Write <run_dir>/policy.mp4 of a trained run's greedy policy.")
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("--steps", type=int, default=500, help="env steps to record (default 500)")
     parser.add_argument("--out", type=Path, default=None, help="default <run_dir>/policy.mp4")

@@ -194,3 +194,14 @@ def test_a_sweep_where_some_jobs_failed_says_how_many(tmp_path, monkeypatch, cap
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert err == ["warning: 1 of 2 jobs failed; the first, 0_cartpole_qlearn_seed-1: seed must be an integer "
                    "in [0, 9223372036854775808); got -1"], err
+
+
+@pytest.mark.parametrize("argv", [[], ["a", "b"], ["--bogus", "x"]])
+def test_compare_usage_mistakes_are_one_line(argv, capsys):
+    import compare
+
+    with pytest.raises(SystemExit) as stop:
+        compare.main(argv)
+    err = capsys.readouterr().err.splitlines()
+    assert stop.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    assert err[0].endswith("; see python compare.py --help")
