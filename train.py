@@ -42,8 +42,8 @@ from runs.folder import (check_output_folder, eval_config, is_run_folder, resume
 from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
-from sweeps.state import (SWEEP, end_failed_sweep, end_stopped_sweep, stop_sweep, sweep_dir, sweep_failures,
-                          sweep_stopped)
+from sweeps.state import (SWEEP, end_failed_sweep, end_stopped_sweep, let_siblings_save, sibling_should_exit,
+                          stop_sweep, sweep_dir, sweep_failures, sweep_stopped)
 from sweeps.tuning import trial_link
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
@@ -125,6 +125,11 @@ def main(cfg: DictConfig) -> None:
         print(trace, file=sys.stderr)
         (run_dir / "error.txt").write_text(trace)
         return
+    if summary.get("interrupted") and in_sweep and os.getpid() != _LAUNCHER_PID and sibling_should_exit():
+        # A sibling of a worker that died: saved, it ends its worker (the launcher waits for it).
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(128 + int(summary.get("signal", signal.SIGTERM)))
     if summary.get("interrupted") and os.getpid() == _LAUNCHER_PID:
         # In a sweep too: Ctrl-C stops the sweep, not just this job (cli reports the jobs). A job
         # in a worker process (joblib) just returns: its launcher has the signal as well.
@@ -154,6 +159,7 @@ def cli() -> None:
     if sweep:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, stop_sweep)
+        let_siblings_save()
     try:
         main()
     except SystemExit as stop:  # a job in this process was stopped: the sweep stops too

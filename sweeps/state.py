@@ -12,8 +12,10 @@ prints the comparison of the sweep's learners and writes its files into the fold
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -143,3 +145,47 @@ def sweep_failures(folder: Path | None) -> tuple[int, str] | None:
 def _job_number(job: Path) -> tuple[int, str]:
     number = job.name.split("_", 1)[0]
     return (int(number) if number.isdigit() else 1 << 62, job.name)
+
+
+BROKEN = ".broken"  # in the sweep folder: the launcher is ending its workers (one of them died)
+GRACE_S = 60.0  # how long the siblings of a dead worker get to save before they are killed
+
+
+def let_siblings_save(grace_s: float = GRACE_S) -> None:
+    """In the launching process of a joblib sweep: when one worker dies, loky kills the others
+    at once (SIGKILL), losing what they trained since their last checkpoint. Patched here to
+    ask them first (SIGTERM: each stops after its step and saves, see :func:`sibling_should_exit`)
+    and to wait up to ``grace_s`` seconds before loky's SIGKILL. Idempotent; a no-op without loky."""
+    try:
+        from joblib.externals.loky.process_executor import _ExecutorManagerThread
+    except ImportError:
+        return
+    kill = _ExecutorManagerThread.kill_workers
+    if getattr(kill, "lets_siblings_save", False):
+        return
+
+    def gentle(self, reason: str = "") -> None:
+        if reason == "broken executor":
+            folder = sweep_dir()
+            workers = list(self.processes.values())
+            if folder is not None and folder.is_dir():
+                (folder / BROKEN).write_text("a worker died\n")
+                for worker in workers:
+                    try:
+                        os.kill(worker.pid, signal.SIGTERM)
+                    except (ProcessLookupError, TypeError):
+                        pass
+                deadline = time.monotonic() + grace_s
+                for worker in workers:
+                    worker.join(max(0.0, deadline - time.monotonic()))
+        kill(self, reason)
+
+    gentle.lets_siblings_save = True
+    _ExecutorManagerThread.kill_workers = gentle
+
+
+def sibling_should_exit() -> bool:
+    """Inside a job: whether its launcher is ending the workers (:func:`let_siblings_save`), so a
+    job stopped by its SIGTERM, saved, ends its worker process (else the launcher would wait)."""
+    folder = sweep_dir()
+    return folder is not None and (folder / BROKEN).exists()

@@ -108,3 +108,24 @@ def test_ctrl_c_on_a_joblib_sweep_leaves_every_started_job_resumable(tmp_path):
     resumed.terminate()
     out, err = resumed.communicate(timeout=120)
     assert resumed.returncode == 143 and f"resuming {started[0]}" in out, err[-1500:]
+
+
+def test_a_killed_joblib_worker_lets_its_healthy_sibling_save(tmp_path):
+    """One worker killed from outside: loky ends the others, but first asks them (SIGTERM), so
+    the sibling saves its whole state on the way out (checkpoint_every=0: only then)."""
+    sweep = tmp_path / "sweep"
+    proc = train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1",
+                 "learner.nepisodes=100000", "eval_episodes=0", "quiet=true", "checkpoint_every=0",
+                 f"hydra.sweep.dir={sweep}", start_new_session=True)
+    deadline = time.time() + 180
+    while len(list(sweep.glob("*/metrics.csv"))) < 2 or any(
+            p.stat().st_size < 200 for p in sweep.glob("*/metrics.csv")):
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.2)
+    victim, sibling = sorted(p.parent for p in sweep.glob("*/run.json"))
+    os.kill(int((victim / ".lock").read_text()), signal.SIGKILL)
+    out, err = proc.communicate(timeout=240)
+    assert proc.returncode == 1, err[-2000:]
+    assert not (victim / "checkpoint.pt").exists()
+    assert (sibling / "checkpoint.pt").is_file() and (sibling / "model.pt").is_file(), out[-2000:] + err[-2000:]
+    assert f"resume with: python train.py resume={sibling}" in out.splitlines()
