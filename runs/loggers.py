@@ -17,7 +17,7 @@ which holds these env steps.
 
 The CSV logger keeps no scalar in memory (TorchRL's keeps every one it writes:
 about 1 KB per episode, for ever); a resumed run cuts its files back to the
-checkpoint's rows (:func:`csv_rows`, :func:`cut_csv_rows`), as it does metrics.csv.
+checkpoint's rows (:func:`csv_sizes`, :func:`cut_csv_files`), as it does metrics.csv.
 """
 
 from __future__ import annotations
@@ -87,29 +87,23 @@ class _Count:
         return self.n
 
 
-def csv_rows(run_dir: Path) -> dict[str, int]:
-    """The CSV logger's scalar files below ``run_dir/logs`` and their line counts (empty
-    without that logger): what a checkpoint records, so a resume can cut them back."""
-    rows = {}
-    for path in sorted((Path(run_dir) / "logs").glob("*/scalars/**/*.csv")):
-        with open(path, "rb") as f:
-            rows[path.relative_to(run_dir).as_posix()] = sum(1 for _ in f)
-    return rows
+def csv_sizes(run_dir: Path) -> dict[str, int]:
+    """The CSV logger's scalar files below ``run_dir/logs`` and their sizes in bytes (each
+    value is flushed as it is logged; empty without that logger): what a checkpoint records,
+    so a resume can cut them back (a stat per file, however long the run)."""
+    return {path.relative_to(run_dir).as_posix(): path.stat().st_size
+            for path in sorted((Path(run_dir) / "logs").glob("*/scalars/**/*.csv"))}
 
 
-def cut_csv_rows(run_dir: Path, rows: Mapping[str, int]) -> None:
-    """Cuts each CSV logger scalar file back to its first ``rows[file]`` lines and removes
-    the files ``rows`` does not name (written after the checkpoint)."""
-    for name, path in ((p.relative_to(run_dir).as_posix(), p)
-                       for p in (Path(run_dir) / "logs").glob("*/scalars/**/*.csv")):
-        if name not in rows:
+def cut_csv_files(run_dir: Path, sizes: Mapping[str, int]) -> None:
+    """Cuts each CSV logger scalar file back to ``sizes[file]`` bytes and removes the files
+    ``sizes`` does not name (written after the checkpoint)."""
+    for path in (Path(run_dir) / "logs").glob("*/scalars/**/*.csv"):
+        size = sizes.get(path.relative_to(run_dir).as_posix())
+        if size is None:
             path.unlink()
-            continue
-        with open(path, "rb") as f:
-            kept = b"".join(line for _, line in zip(range(rows[name]), f))
-        tmp = path.with_suffix(".csv.tmp")
-        tmp.write_bytes(kept)
-        tmp.replace(path)
+        elif path.stat().st_size > size:
+            os.truncate(path, size)
 
 
 def log_episode(logger, ep: Episode, success: Success) -> None:
