@@ -29,7 +29,7 @@ PICKS = GROUPS  # the config groups a run folder fixes
 
 def check_output_folder(key: str, path: str) -> None:
     """``hydra.run.dir`` / ``hydra.sweep.dir`` (``key``) may be a new or empty folder, or one
-    this project made (a run's: run.json or Hydra's .hydra record; a sweep's: multirun.yaml):
+    this project made (a run's: run.json, its .lock or Hydra's .hydra record; a sweep's: multirun.yaml):
     anything else (``/``, a home folder, a source tree) is refused before a file is written."""
     if "${" in path:  # resolved by Hydra later: a time-stamped name, a new folder
         return
@@ -44,7 +44,7 @@ def check_output_folder(key: str, path: str) -> None:
     except OSError as err:
         raise ConfigError(f"{key}={path} cannot be read ({err.strerror}); allowed: a new or empty "
                           "folder, or a run or sweep folder of this project") from None
-    ours = ("run.json", ".hydra", ".hydra-resume") if key == "hydra.run.dir" else ("multirun.yaml",)
+    ours = ("run.json", ".hydra", ".hydra-resume", ".lock") if key == "hydra.run.dir" else ("multirun.yaml",)
     if names and not any(name in names for name in ours):
         shown = ", ".join(names[:4]) + (", ..." if len(names) > 4 else "")
         raise ConfigError(f"{key}={path} is a folder that holds other files ({shown}); allowed: a new or "
@@ -75,14 +75,14 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
     if not (run_dir / "checkpoint.pt").is_file():
         raise CheckpointError(f"resume={run_dir} has no checkpoint.pt to continue from "
                               "(it was run with checkpoint_every=0, or stopped before its first one)")
-    if is_finished(run_dir):
-        raise CheckpointError(f"resume={run_dir}: it is finished (its summary.json says so), so there is "
-                              f"nothing to continue; allowed: a stopped or killed run (evaluate this one with "
-                              f"mode=eval checkpoint={run_dir})")
     others = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in RESUME_OVERRIDES]
     if others:
         raise ConfigError(f"resume= continues a run with its own config; drop {' '.join(others)} "
                           f"(allowed with resume: {', '.join(RESUME_OVERRIDES[1:])})")
+    if is_finished(run_dir):
+        raise CheckpointError(f"resume={run_dir}: it is finished (its summary.json says so), so there is "
+                              f"nothing to continue; allowed: a stopped or killed run (evaluate this one with "
+                              f"mode=eval checkpoint={run_dir})")
     read_run_json(run_dir)  # a damaged run.json is refused now, not when model.pt is written
     saved = load_run_config(run_dir)
     for key in RESUME_OVERRIDES[1:]:

@@ -60,8 +60,9 @@ def test_an_existing_run_is_neither_overwritten_nor_damaged_by_a_rejected_one(tm
         assert err.strip().splitlines()[-1].startswith("error: "), err[-1500:]
     after = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file() and p.name not in ("train.log", ".lock")}
     assert after == before
-    resumed = train(f"resume={run_dir}", "quiet=true")  # still a resumable run
-    assert resumed.wait(timeout=300) == 0
+    resumed = train(f"resume={run_dir}", "quiet=true")  # finished, and still so: nothing to resume
+    _, err = resumed.communicate(timeout=300)
+    assert resumed.returncode == 2 and f"resume={run_dir}: it is finished" in err, err[-1500:]
 
 
 def test_sigterm_stops_with_143_and_the_run_resumes(tmp_path):
