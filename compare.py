@@ -12,15 +12,15 @@ exit 2.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
+from runs.console import OneLineParser
 from sweeps.comparison import NotASweep, report
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python compare.py", description=__doc__.splitlines()[0])
     parser.add_argument("sweep_dir", type=Path)
     args = parser.parse_args(argv)
     try:

@@ -34,18 +34,18 @@ from omegaconf import DictConfig, OmegaConf
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError, did_you_mean
 from runs.banner import tuned_changes
-from runs.catalog import compose, locate_model, run_choices, use_config_dirs
+from runs.catalog import GROUPS, compose, locate_model, run_choices, unreadable_conf_file, use_config_dirs
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
-from runs.folder import (eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
+from runs.folder import (check_output_folder, eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
                          with_run_choices)
 from runs.batch import BatchJob
 from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
 from sweeps.seed_batch import collect
-from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, stop_sweep,
-                          sweep_stopped)
+from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
+                          sibling_should_exit, stop_sweep, sweep_dir, sweep_stopped)
 from sweeps.tuning import trial_link
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
@@ -70,10 +70,12 @@ def _one_line(err: BaseException) -> str:
 
 
 def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
-    """Prints ``message``; a sweep job keeps it in ``error.txt`` and lets the sweep go on."""
-    print(message, file=sys.stderr)
+    """Prints ``message``; a sweep job keeps it in ``error.txt`` and lets the sweep go on (the
+    sweep's end says on stderr how many jobs failed, so the job's own line goes to stdout)."""
     if not in_sweep:
+        print(message, file=sys.stderr)
         sys.exit(2)
+    print(message, flush=True)
     try:
         (run_dir / "error.txt").write_text(message + "\n")
     except OSError:
@@ -132,6 +134,11 @@ def main(cfg: DictConfig) -> None:
         print(trace, file=sys.stderr)
         (run_dir / "error.txt").write_text(trace)
         return
+    if summary.get("interrupted") and in_sweep and os.getpid() != _LAUNCHER_PID and sibling_should_exit():
+        # A sibling of a worker that died: saved, it ends its worker (the launcher waits for it).
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(128 + int(summary.get("signal", signal.SIGTERM)))
     if summary.get("interrupted") and os.getpid() == _LAUNCHER_PID:
         # In a sweep too: Ctrl-C stops the sweep, not just this job (cli reports the jobs). A job
         # in a worker process (joblib) just returns: its launcher has the signal as well.
@@ -146,17 +153,24 @@ def cli() -> None:
     started exits 1 after its comparison."""
     global _LAUNCHER_PID
     _LAUNCHER_PID = os.getpid()
-    os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra raises instead of printing a page
+    # Hydra raises instead of printing a page; set whatever the environment says (HYDRA_FULL_ERROR=0
+    # would send a mistyped key to Hydra's own six lines and exit 1).
+    os.environ["HYDRA_FULL_ERROR"] = "1"
     sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
     try:
         use_config_dirs(_config_dir_args(sys.argv[1:]))
         sys.argv[1:] = with_run_choices(sys.argv[1:])
+        for arg in sys.argv[1:]:  # before Hydra writes its record (.hydra/, train.log) there
+            key, _, value = arg.partition("=")
+            if key in ("hydra.run.dir", "hydra.sweep.dir") and value:
+                check_output_folder(key, value)
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
     if sweep:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, stop_sweep)
+        let_siblings_save()
     try:
         main()
     except SweepRefused as err:  # before any job started: nothing was written
@@ -235,11 +249,28 @@ def _plugin_or_type_error(text: str) -> str | None:
     return None
 
 
+def _caused_by(err: BaseException, kind: type) -> bool:
+    """Whether ``err`` or an exception in its chain (cause or context) is a ``kind``."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, kind):
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
+
+
 def _hydra_error(err: Exception) -> str:
     """One line of what Hydra (or the OS, creating the run folder) refused."""
     unknown = _unknown_key(err)
     if unknown is not None:
         return unknown
+    if _caused_by(err, UnicodeDecodeError):  # Hydra does not say which file
+        searched = [Path(a.split("=", 1)[1].strip("[]").removeprefix("file://"))
+                    for a in sys.argv[1:] if a.startswith("hydra.searchpath=")]
+        bad = unreadable_conf_file([p for p in searched if p.is_dir()])
+        if bad is not None:
+            return f"{bad}; allowed: a YAML file in UTF-8"
     text = " ".join(line.strip() for line in str(err).splitlines() if line.strip())
     text = text.split(" Config search path:")[0]
     if isinstance(err, OSError) and err.filename:

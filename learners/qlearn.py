@@ -50,6 +50,7 @@ from tasks.base import Bounds
 
 
 TABLE_BYTES = 2 * 2**30  # the largest Q-table a run may allocate
+MAX_SPLITS = 2**31 - 1  # bins of one entry (torch's int32 indices); the table's size limits them further
 
 
 class Discretizer:
@@ -69,7 +70,8 @@ class Discretizer:
                 f"learner.number_splits must be one int or one per tabular_state entry {list(bounds.names)}",
                 splits)
         for name, s in zip(bounds.names, splits):
-            require(s >= 1, f"learner.number_splits.{name} must be an integer >= 1 (1 = ignored)", s)
+            require(1 <= s <= MAX_SPLITS, f"learner.number_splits.{name} must be an integer in "
+                    f"[1, {MAX_SPLITS}] (1 = ignored)", s)
         self.bounds = bounds
         self.splits = splits
         self.n_states = math.prod(splits)  # Python ints: no overflow before the size check
@@ -157,7 +159,8 @@ class QLearn:
     nepisodes: int = param(500, "training episodes (the budget)", ge=1, le=10**8)
     nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1, le=10**7)
     number_splits: int | Sequence[int] | Mapping[str, int] = param(
-        10, "bins per tabular_state entry: one int, a list, or name: bins (1 = ignored)")
+        10, "bins per tabular_state entry: one int, a list, or name: bins (1 = ignored)", ge=1,
+        le=MAX_SPLITS)
     first_visit_reward: bool = param(False, "original quirk: a pair's first update sets Q <- r")
     bootstrap_terminal: bool = param(False, "original quirk: bootstrap through terminal states")
     noise_exploration: bool = param(False, "original quirk: explore by noisy Q-values")
@@ -168,7 +171,9 @@ class QLearn:
         self.epsilon_start = self.epsilon
         if isinstance(self.number_splits, Mapping):
             self.number_splits = {str(k): int(v) for k, v in self.number_splits.items()}
-        elif not isinstance(self.number_splits, (int, np.integer)):
+        elif isinstance(self.number_splits, (int, float, np.integer)):  # 1e3 on the command line
+            self.number_splits = int(self.number_splits)
+        else:
             self.number_splits = [int(v) for v in self.number_splits]
         self.policy: QTablePolicy | None = None
 

@@ -44,6 +44,11 @@ class Range:
     choices: tuple | None = None
 
     def holds(self, value: Any) -> bool:
+        """Whether ``value`` (each entry of a list, each value of a mapping) lies in range."""
+        if isinstance(value, (list, tuple)):
+            return all(self.holds(v) for v in value)
+        if isinstance(value, dict):
+            return all(self.holds(v) for v in value.values())
         if self.choices is not None:
             return not isinstance(value, bool) and value in self.choices
         if not isinstance(value, (int, float)) or isinstance(value, bool):
@@ -119,6 +124,10 @@ class Spec:
             key, hint, got = bad
             if key != full:  # an entry of a mapping
                 raise ConfigError(f"{key} must be {describe(hint)}; got {got!r}")
+        if bad is None and isinstance(value, (list, tuple, dict)) and not self.range.holds(value):
+            key, entry = self._first_out_of_range(value, full)  # an entry of a list or mapping
+            raise ConfigError(f"{key} must be {describe(_entry_hint(self.hint))} {self.range.describe()}; "
+                              f"got {entry!r}".replace("  ", " "))
         if bad is not None or not self.range.holds(value):
             raise ConfigError(f"{full} must be {self.allowed()}; got {value!r}")
         if self.extra is not None:
@@ -128,6 +137,24 @@ class Spec:
         if self.hint is int:
             return int(value)
         return value
+
+
+    def _first_out_of_range(self, value: Any, full: str) -> tuple[str, Any]:
+        """The key (``task.x.name``, ``task.x[2]``) and value of the first entry out of range."""
+        items = value.items() if isinstance(value, dict) else enumerate(value)
+        for key, entry in items:
+            if not self.range.holds(entry):
+                return (f"{full}.{key}" if isinstance(value, dict) else f"{full}[{key}]"), entry
+        return full, value
+
+
+def _entry_hint(hint: Any) -> Any:
+    """The type of one entry of a list or mapping type (``int`` for ``int | list[int]``)."""
+    for member in _union_args(hint) or (hint,):
+        args = typing.get_args(member)
+        if args:
+            return args[-1]
+    return hint
 
 
 def key_of(prefix: str, name: str) -> str:

@@ -66,6 +66,29 @@ def config_file(group: str, name: str) -> Path | None:
     return None
 
 
+def unreadable_conf_file(folders: Sequence[Path] = ()) -> str | None:
+    """The first YAML file under ``conf/`` (and ``folders``) that is not valid UTF-8, as
+    ``"<path> is not valid UTF-8 (<reason>)"``; None if every one reads."""
+    for folder in (conf_dir(), *folders):
+        for path in sorted(Path(folder).rglob("*.yaml")):
+            try:
+                path.read_bytes().decode("utf-8")
+            except UnicodeDecodeError as err:
+                return f"{path} is not valid UTF-8 (byte {err.object[err.start]:#x} at position {err.start})"
+            except OSError:
+                continue
+    return None
+
+
+def read_conf_text(path: Path) -> str:
+    """A file of ``conf/``, or :class:`ConfigError` naming it if it is not valid UTF-8."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path} is not valid UTF-8 (byte {err.object[err.start]:#x} at position "
+                          f"{err.start}); allowed: a YAML file in UTF-8") from None
+
+
 def names(group: str) -> list[str]:
     """The configs of ``<group>/`` in every config folder, by name."""
     return sorted({p.stem for d in config_dirs() for p in (d / group).glob("*.yaml")})

@@ -6,8 +6,9 @@ Every checkpoint is a dict of tensors and plain values (so it loads with
 bytes of each tensor, every value, every key). Loading recomputes it, so a
 damaged file is refused even where torch would read it (torch's zip reader
 does not check its records' CRCs, and a flipped byte in a tensor's data reads
-back as a different number). Checkpoints written before checksums existed
-(no ``"checksum"`` entry) still load; :mod:`runs.resume` requires one.
+back as a different number). A checkpoint without its checksum is refused (it
+cannot be told from a damaged or hand-made one), and so is a model whose
+numbers are not all finite (NaN or infinite weights or Q-values).
 """
 
 from __future__ import annotations
@@ -108,7 +109,7 @@ def save_checkpoint(path: Path | str, payload: dict) -> None:
 
 def load_checkpoint(path: Path | str, kind: str) -> dict:
     """Reads a checkpoint written by :func:`save_checkpoint` for learner ``kind``, checking its
-    checksum (when it has one: older checkpoints have none). Reads only; touches no file."""
+    checksum. Reads only; touches no file."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"checkpoint {path} does not exist")
@@ -118,7 +119,10 @@ def load_checkpoint(path: Path | str, kind: str) -> dict:
         raise CheckpointError(f"checkpoint {path} is not a readable checkpoint ({type(err).__name__})") from None
     if not isinstance(payload, dict) or "kind" not in payload:
         raise CheckpointError(f"checkpoint {path} is not a checkpoint of this toolkit")
-    if CHECKSUM in payload and payload[CHECKSUM] != content_checksum(payload):
+    if CHECKSUM not in payload:
+        raise CheckpointError(f"checkpoint {path} has no checksum, so its contents cannot be trusted "
+                              "(this toolkit writes one into every checkpoint)")
+    if payload[CHECKSUM] != content_checksum(payload):
         raise CheckpointError(f"checkpoint {path} is damaged: its contents do not match its checksum")
     if payload["kind"] != kind:
         raise CheckpointError(
@@ -133,10 +137,30 @@ def save_model(path: Path | str, learner: Learner, meta: dict) -> None:
     save_checkpoint(path, {**learner.model_state(), "meta": meta})
 
 
+def non_finite(obj, where: str = "") -> str | None:
+    """The key path of the first NaN or infinite number in ``obj`` (tensors, floats, nested
+    mappings and lists), or None if every number is finite."""
+    if isinstance(obj, torch.Tensor) and (obj.is_floating_point() or obj.is_complex()):
+        return where if not bool(torch.isfinite(obj).all()) else None
+    if isinstance(obj, float):
+        return where if not np.isfinite(obj) else None
+    items = obj.items() if isinstance(obj, Mapping) else enumerate(obj) if isinstance(obj, (list, tuple)) else ()
+    for key, value in items:
+        found = non_finite(value, f"{where}.{key}" if where else str(key))
+        if found is not None:
+            return found
+    return None
+
+
 def load_model(path: Path | str, learner: Learner) -> None:
     """Loads a ``model.pt`` into the built ``learner``; refused with one line if it is not
-    one of this learner's kind or does not fit it."""
+    one of this learner's kind, holds a number that is not finite, or does not fit it."""
+    payload = load_checkpoint(path, kind=learner.kind)
+    bad = non_finite({k: v for k, v in payload.items() if k != "meta"})
+    if bad is not None:
+        raise CheckpointError(f"checkpoint {path} holds values that are not finite (NaN or infinite) "
+                              f"in {bad}: a diverged or damaged model cannot be evaluated or trained on")
     try:
-        learner.load_model_state(load_checkpoint(path, kind=learner.kind), str(path))
+        learner.load_model_state(payload, str(path))
     except StateMismatch as err:
         raise CheckpointError(str(err)) from None

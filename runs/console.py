@@ -9,6 +9,8 @@ nothing. :func:`tee_console` copies the console into the run folder's log.
 
 from __future__ import annotations
 
+import argparse
+
 import math
 import sys
 from contextlib import contextmanager
@@ -156,3 +158,11 @@ def tee_console(path: Path) -> Iterator[None]:
             yield
         finally:
             sys.stdout, sys.stderr = out, err
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse whose mistakes are one ``error:`` line on stderr (no usage block) and exit 2."""
+
+    def error(self, message: str):
+        print(f"error: {message}; see {self.prog} --help", file=sys.stderr)
+        sys.exit(2)

@@ -27,9 +27,44 @@ RESUME_OVERRIDES = ("resume", "quiet", "verbose", "log_every", "torch_threads", 
 PICKS = GROUPS  # the config groups a run folder fixes
 
 
+def check_output_folder(key: str, path: str) -> None:
+    """``hydra.run.dir`` / ``hydra.sweep.dir`` (``key``) may be a new or empty folder, or one
+    this project made (a run's: run.json, its .lock or Hydra's .hydra record; a sweep's: multirun.yaml):
+    anything else (``/``, a home folder, a source tree) is refused before a file is written."""
+    if "${" in path:  # resolved by Hydra later: a time-stamped name, a new folder
+        return
+    folder = Path(path)
+    if not folder.exists():
+        return
+    if not folder.is_dir():
+        raise ConfigError(f"{key}={path} is a file; allowed: a new or empty folder, or a run or sweep "
+                          "folder of this project")
+    try:
+        names = sorted(p.name for p in folder.iterdir())
+    except OSError as err:
+        raise ConfigError(f"{key}={path} cannot be read ({err.strerror}); allowed: a new or empty "
+                          "folder, or a run or sweep folder of this project") from None
+    ours = ("run.json", ".hydra", ".hydra-resume", ".lock") if key == "hydra.run.dir" else ("multirun.yaml",)
+    if names and not any(name in names for name in ours):
+        shown = ", ".join(names[:4]) + (", ..." if len(names) > 4 else "")
+        raise ConfigError(f"{key}={path} is a folder that holds other files ({shown}); allowed: a new or "
+                          f"empty folder, or a {'run' if key == 'hydra.run.dir' else 'sweep'} folder of "
+                          "this project")
+
+
 def is_run_folder(path) -> bool:
     """Whether ``path`` holds a run's ``config.yaml``."""
     return bool(path) and (Path(str(path)) / "config.yaml").is_file()
+
+
+def is_finished(run_dir: Path) -> bool:
+    """Whether the run in ``run_dir`` ended (its summary.json, written last, does not say
+    ``interrupted``); a missing or unreadable summary.json is a run still to finish."""
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return isinstance(summary, dict) and not summary.get("interrupted")
 
 
 def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, Path]:
@@ -44,6 +79,10 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
     if others:
         raise ConfigError(f"resume= continues a run with its own config; drop {' '.join(others)} "
                           f"(allowed with resume: {', '.join(RESUME_OVERRIDES[1:])})")
+    if is_finished(run_dir):
+        raise CheckpointError(f"resume={run_dir}: it is finished (its summary.json says so), so there is "
+                              f"nothing to continue; allowed: a stopped or killed run (evaluate this one with "
+                              f"mode=eval checkpoint={run_dir})")
     read_run_json(run_dir)  # a damaged run.json is refused now, not when model.pt is written
     saved = load_run_config(run_dir)
     for key in RESUME_OVERRIDES[1:]:

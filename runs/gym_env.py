@@ -208,6 +208,25 @@ class MujocoRLEnv(gym.Env):
         return td.get("observation")[0].numpy().astype(np.float32, copy=True)
 
 
+class TimeLimitRequired(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Refuses an env made without a time limit: ``gymnasium.make(id, max_episode_steps=-1)``
+    drops Gymnasium's ``TimeLimit``, and the task's own limit is lifted under ``gymnasium.make``,
+    so an episode that never fails would never end. (Applied by ``gymnasium.make`` after the
+    ``TimeLimit``, so it sees whether there is one.)"""
+
+    def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
+        inner = env
+        while isinstance(inner, gym.Wrapper) and not isinstance(inner, gym.wrappers.TimeLimit):
+            inner = inner.env
+        if not isinstance(inner, gym.wrappers.TimeLimit):
+            env.close()
+            raise ValueError("max_episode_steps=-1 is refused: without a time limit an episode that never "
+                             "fails never ends; allowed: a positive integer (default: the task's "
+                             f"{int(env.unwrapped.config.task.max_episode_steps)})")
+
+
 def _plain_default(robot: str) -> tuple[str, int] | None:
     """``(default task, its max_episode_steps)`` of ``robot`` as its composed config has
     them, read from conf/robot/<robot>.yaml's ``defaults`` and conf/task/<task>.yaml; None
@@ -218,7 +237,7 @@ def _plain_default(robot: str) -> tuple[str, int] | None:
              if str(k).lstrip("/") == "task"]
     path = catalog.config_file("task", str(tasks[0])) if len(tasks) == 1 else None
     tuned = [p for d in catalog.config_dirs() for p in (d / "tuned").glob(f"{robot}_*.yaml")]
-    if path is None or any("max_episode_steps" in p.read_text() for p in tuned):
+    if path is None or any("max_episode_steps" in catalog.read_conf_text(p) for p in tuned):
         return None
     steps = OmegaConf.load(path).get("max_episode_steps")
     return (str(tasks[0]), steps) if type(steps) is int else None
@@ -250,6 +269,6 @@ def register_envs(config_dirs: Sequence[str] = ()) -> list[str]:
         if name not in gym.registry:
             kwargs = {"robot": robot, **({"config_dirs": dirs} if dirs else {})}
             gym.register(id=name, entry_point=f"{__name__}:MujocoRLEnv", kwargs=kwargs,
-                         max_episode_steps=steps)
+                         max_episode_steps=steps, additional_wrappers=(TimeLimitRequired.wrapper_spec(),))
         ids.append(name)
     return ids

@@ -14,12 +14,17 @@ greedy evaluation (:func:`log_evaluation`), ``train/<name>`` the learner's
 the start (:func:`log_hparams`). With no logger (``None``) they do nothing.
 W&B: TorchRL gives each group its own step metric (``episode/step``, ...),
 which holds these env steps.
+
+The CSV logger keeps no scalar in memory (TorchRL's keeps every one it writes:
+about 1 KB per episode, for ever); a resumed run cuts its files back to the
+checkpoint's rows (:func:`csv_sizes`, :func:`cut_csv_files`), as it does metrics.csv.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import os
+from collections import defaultdict
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -62,7 +67,43 @@ def make_logger(kind: str | None, run_dir: Path, exp_name: str, offline: bool = 
         from torchrl.record.loggers.mlflow import MLFlowLogger
 
         return MLFlowLogger(exp_name=exp_name, tracking_uri=f"sqlite:///{log_dir / 'mlflow.db'}")
-    return get_logger(kind, logger_name=str(log_dir), experiment_name=exp_name, **kwargs)
+    logger = get_logger(kind, logger_name=str(log_dir), experiment_name=exp_name, **kwargs)
+    if kind == "csv":  # each value is on disk the moment it is logged: keep only counts
+        logger.experiment.scalars = defaultdict(_Count)
+    return logger
+
+
+class _Count:
+    """Stands in for TorchRL's per-scalar list of (step, value): counts what is appended
+    (its length numbers steps logged without one) and keeps nothing else."""
+
+    def __init__(self) -> None:
+        self.n = 0
+
+    def append(self, _item: Any) -> None:
+        self.n += 1
+
+    def __len__(self) -> int:
+        return self.n
+
+
+def csv_sizes(run_dir: Path) -> dict[str, int]:
+    """The CSV logger's scalar files below ``run_dir/logs`` and their sizes in bytes (each
+    value is flushed as it is logged; empty without that logger): what a checkpoint records,
+    so a resume can cut them back (a stat per file, however long the run)."""
+    return {path.relative_to(run_dir).as_posix(): path.stat().st_size
+            for path in sorted((Path(run_dir) / "logs").glob("*/scalars/**/*.csv"))}
+
+
+def cut_csv_files(run_dir: Path, sizes: Mapping[str, int]) -> None:
+    """Cuts each CSV logger scalar file back to ``sizes[file]`` bytes and removes the files
+    ``sizes`` does not name (written after the checkpoint)."""
+    for path in (Path(run_dir) / "logs").glob("*/scalars/**/*.csv"):
+        size = sizes.get(path.relative_to(run_dir).as_posix())
+        if size is None:
+            path.unlink()
+        elif path.stat().st_size > size:
+            os.truncate(path, size)
 
 
 def log_episode(logger, ep: Episode, success: Success) -> None:

@@ -126,7 +126,7 @@ def check_targets(cfg: Any, where: str = "") -> None:
 
 def _check_target(target: Any, key: str) -> None:
     allowed = ", ".join(f"{p}." for p in ALLOWED_TARGET_PACKAGES)
-    refusal = ConfigError(f"{key}={target!r} is not allowed: a resumed run builds only classes "
+    refusal = ConfigError(f"{key}={target!r} is not allowed: a run folder's config.yaml builds only classes "
                           f"of the project's own packages ({allowed})")
     if not isinstance(target, str) or target.split(".", 1)[0] not in ALLOWED_TARGET_PACKAGES:
         raise refusal

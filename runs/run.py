@@ -27,8 +27,10 @@ and saves its whole state every ``checkpoint_every`` episodes through the
 
 from __future__ import annotations
 
+import ctypes
 import os
 import time
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping, Protocol
@@ -40,11 +42,29 @@ from tensordict import TensorDictBase
 from runs.console import Console
 from runs.episode import Episode
 from runs.evaluate import measure_of
-from runs.loggers import finish_log, log_episode, log_evaluation, log_train
+from runs.loggers import csv_sizes, cut_csv_files, finish_log, log_episode, log_evaluation, log_train
 from runs.metrics_files import MetricsFiles
 from runs.plot import plot_reward_curve
 from runs.verdict import run_summary
 from tasks.base import Success
+
+# Every this many episodes the C heap's free pages go back to the system (glibc's malloc_trim):
+# a long run's many small tensors otherwise leave its resident memory creeping up (bench/soak.py).
+TRIM_EPISODES = 1000
+_LIBC = None  # glibc's malloc_trim once looked up (False: not there)
+
+
+def _release_free_memory() -> None:
+    """Returns the C heap's free memory to the system where the C library can (glibc)."""
+    global _LIBC
+    if _LIBC is None:
+        try:
+            _LIBC = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _LIBC = False
+    if _LIBC:
+        _LIBC(0)
+
 
 # train/* scalars: at the step boundary after a step that finished an episode, and at least
 # every TRAIN_LOG_STEPS env steps (long episodes), and once at the end.
@@ -121,10 +141,12 @@ class Run:
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
         self.last_td: TensorDictBase | None = None  # where the next step would start
         self.n_episodes = 0
-        self.lengths: list[int] = []
-        self.values: list[float] = []  # the task's measure, per episode
+        # Per episode, packed (16 bytes an episode, not ~60 as Python lists: long runs stay small).
+        self.lengths = array("q")
+        self.values = array("d")  # the task's measure
         self.evals: list[dict] = []  # one row per greedy evaluation (evals.csv's, "value" the measure)
         self.last_eval: dict | None = None  # the newest evaluation's full result
+        self._log_sizes: dict[str, int] | None = None  # a resumed run's CSV logger bytes to keep
         self.env_steps = 0
         self.solved_at: int | None = None
         self.decided_by: str | None = None  # "training" or "greedy", once solved
@@ -133,6 +155,7 @@ class Run:
         self.first_step_s: float | None = None  # process start to the first step (``start``)
         self.divergences = 0  # the env's count of physics divergences (truncated episodes)
         self._last_checkpoint = 0
+        self._last_trim = 0
         self._ret = np.zeros(num_envs)
         self._len = np.zeros(num_envs, dtype=np.int64)
         self._t0 = time.perf_counter()
@@ -201,6 +224,9 @@ class Run:
         if due and not self.done:  # the session saves the end
             self.checkpoint(td)
             self._last_checkpoint = self.n_episodes
+        if self.n_episodes - self._last_trim >= TRIM_EPISODES:  # after the checkpoint's garbage
+            _release_free_memory()
+            self._last_trim = self.n_episodes
         return td
 
     # -- episodes and evaluations ---------------------------------------------
@@ -299,11 +325,13 @@ class Run:
 
     # -- saving, resuming, ending ---------------------------------------------
     def state_dict(self) -> dict:
-        return {"n_episodes": self.n_episodes, "lengths": list(self.lengths),
-                "values": list(self.values), "evals": [dict(r) for r in self.evals],
+        # Tensors, not lists: no Python object per episode (a long run's checkpoint stays cheap).
+        return {"n_episodes": self.n_episodes, "lengths": torch.tensor(np.frombuffer(self.lengths, np.int64)),
+                "values": torch.tensor(np.frombuffer(self.values, np.float64)), "evals": [dict(r) for r in self.evals],
                 "env_steps": self.env_steps, "solved_at": self.solved_at,
                 "decided_by": self.decided_by, "solved_value": self.solved_value,
-                "wall_s": self.wall_s,
+                "wall_s": self.wall_s, "last_eval": self.last_eval, "log_sizes": csv_sizes(self.run_dir),
+                "train_logged": self._train_logged, "train_due": self._train_due,
                 "ret": torch.from_numpy(self._ret.copy()), "len": torch.from_numpy(self._len.copy())}
 
     def load_state_dict(self, state: Mapping, reopen: bool = True) -> None:
@@ -312,13 +340,16 @@ class Run:
         if len(state["ret"]) != self.num_envs:
             raise ValueError(f"the checkpoint has {len(state['ret'])} copies, this run {self.num_envs}")
         self.n_episodes = self._last_checkpoint = int(state["n_episodes"])
-        self.lengths = [int(v) for v in state["lengths"]]
-        self.values = [float(v) for v in state["values"]]
+        self.lengths = array("q", np.asarray(state["lengths"], dtype=np.int64).tobytes())
+        self.values = array("d", np.asarray(state["values"], dtype=np.float64).tobytes())
         self.evals = [dict(r) for r in state["evals"]]
         self.env_steps = int(state["env_steps"])
         self.solved_at = state["solved_at"]
         self.decided_by = state["decided_by"]
         self.solved_value = state["solved_value"]
+        self.last_eval = state.get("last_eval")  # the final evaluation's, once it ran
+        self._log_sizes = state.get("log_sizes")
+        self._train_logged, self._train_due = state.get("train_logged"), bool(state.get("train_due", False))
         self._ret[:] = state["ret"].numpy()
         self._len[:] = state["len"].numpy()
         self._t0 = time.perf_counter() - float(state["wall_s"])
@@ -328,8 +359,11 @@ class Run:
     def reopen(self) -> None:
         """Continues a resumed run's outputs after its loaded episodes: metrics.csv and
         timing.csv cut back to them (rows of episodes after the checkpoint dropped),
-        evals.csv rewritten, the progress bar moved past them."""
+        evals.csv rewritten, the CSV logger's files cut back to the checkpoint's rows, the
+        progress bar moved past them."""
         self.files.open(self.n_episodes, self.evals)
+        if self._log_sizes is not None:
+            cut_csv_files(self.run_dir, self._log_sizes)
         self.console.skip(self.n_episodes)
 
     def summary(self) -> dict:

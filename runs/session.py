@@ -166,9 +166,10 @@ def final_evaluation(session: Session, run: Run) -> dict | None:
     n_eval = session.final_episodes
     if n_eval <= 0 or run.stop_requested:
         return None
-    fresh = run.last_eval is not None and run.evals[-1]["episode"] == run.n_episodes
-    if fresh and n_eval == int(session.cfg.eval_episodes):
-        return run.last_eval
+    last = run.last_eval
+    # Also a resumed run killed after its final evaluation was saved: never a second row.
+    if last is not None and run.evals[-1]["episode"] == run.n_episodes and last["episodes"] == n_eval:
+        return last
     return run.evaluate_greedy(partial(session.evaluator, n_eval))
 
 

@@ -12,6 +12,7 @@ wheel carries its own ffmpeg binary: no system ffmpeg needed.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import warnings
 from pathlib import Path
@@ -19,11 +20,14 @@ from typing import Callable
 
 import imageio.v2 as imageio
 import torch
-from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from tensordict import TensorDictBase
 from torchrl.envs.utils import step_mdp
 
 from runs.checkpoint import load_model
+from runs.console import OneLineParser
+from runs.resume import check_targets, load_run_config
+from runs.settings import check_run_config
 from tasks.factory import build_env
 
 
@@ -76,16 +80,26 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
                  **kwargs) -> Path:
     """Rebuilds a finished run's env (one copy, seed ``seed + 20000``) and learner from
     its folder and writes the greedy policy's video (default ``<run_dir>/policy.mp4``);
-    ``kwargs`` go to :func:`record_video`. Returns the path."""
+    ``kwargs`` go to :func:`record_video`. Returns the path. A folder that is not a run's,
+    a damaged config.yaml or model.pt, or a config naming classes outside the project
+    is a ``ValueError`` (one line)."""
+    from hydra.errors import InstantiationException
     from hydra.utils import instantiate
 
     run_dir = Path(run_dir)
     for name in ("config.yaml", "model.pt"):
         if not (run_dir / name).is_file():
             raise FileNotFoundError(f"{run_dir} is not a run folder: it has no {name}")
-    cfg = OmegaConf.load(run_dir / "config.yaml")
-    learner = instantiate(cfg.learner, _convert_="all")
-    env = build_env(cfg, 1, int(cfg.seed) + 20_000, learner.nsteps)
+    cfg = load_run_config(run_dir)
+    check_targets(cfg)  # config.yaml is data: it may build only the project's own classes
+    try:
+        check_run_config(cfg)
+        learner = instantiate(cfg.learner, _convert_="all")
+        env = build_env(cfg, 1, int(cfg.seed) + 20_000, learner.nsteps)
+    except (InstantiationException, OmegaConfBaseException) as err:
+        cause = err.__cause__ or err
+        raise ValueError(f"{run_dir / 'config.yaml'} does not build its run: "
+                         f"{(str(cause).strip().splitlines() or [type(cause).__name__])[0]}") from None
     try:
         learner.build(env.task)
         with warnings.catch_warnings():  # torchrl's target updater notes it is re-initialised
@@ -99,8 +113,27 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
     return out
 
 
+def check_arguments(args: argparse.Namespace) -> None:
+    """The numbers and the output path, before anything is built (``ValueError``, one line)."""
+    if not 0 <= args.steps <= 100_000:
+        raise ValueError(f"--steps must be an integer in [0, 100000]; got {args.steps}")
+    if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= 1000):
+        raise ValueError(f"--fps must be a number in (0, 1000] (default: real time); got {args.fps:g}")
+    for name in ("width", "height"):
+        value = getattr(args, name)
+        if not (2 <= value <= 8192 and value % 2 == 0):
+            raise ValueError(f"--{name} must be an even number of pixels in [2, 8192]; got {value}")
+    if args.out is not None:
+        out = Path(args.out)
+        if out.is_dir():
+            raise ValueError(f"--out={out} is a folder; allowed: the path of an .mp4 file")
+        for parent in out.parents:
+            if parent.exists() and not parent.is_dir():
+                raise ValueError(f"--out={out} lies below {parent}, which is a file; allowed: a path in a folder")
+
+
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="Write <run_dir>/policy.mp4 of a trained run's greedy policy.")
+    parser = OneLineParser(prog="python -m runs.video", description="Write <run_dir>/policy.mp4 of a trained run's greedy policy.")
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("--steps", type=int, default=500, help="env steps to record (default 500)")
     parser.add_argument("--out", type=Path, default=None, help="default <run_dir>/policy.mp4")
@@ -112,10 +145,15 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     camera = int(args.camera) if args.camera and args.camera.lstrip("-").isdigit() else args.camera
     try:
+        check_arguments(args)
         out = video_of_run(args.run_dir, args.steps, args.out, width=args.width,
                            height=args.height, camera=camera, fps=args.fps)
-    except (FileNotFoundError, ValueError) as err:  # CheckpointError is a ValueError
+    except (FileNotFoundError, ValueError) as err:  # CheckpointError, ConfigError are ValueErrors
         print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    except OSError as err:  # the video file: a folder it cannot create, a full disk
+        print(f"error: cannot write the video: {err.filename or ''} {err.strerror or err}".replace("  ", " "),
+              file=sys.stderr)
         sys.exit(2)
     print(f"video in {out}")
 

@@ -18,8 +18,9 @@ from runs.catalog import GROUPS, conf_dir
 from runs.settings import check_run_config
 from runs.summary import summarize_run
 from sweeps.comparison import score
-from sweeps.tuning import (Plan, check_space, current_trial, load_space, make_pruner, now_utc, open_storage,
-                           override_value, shown_url, tuned_text)
+from sweeps.tuning import (Plan, check_space, check_sweeper_settings, current_trial, load_space, make_pruner,
+                           now_utc, open_storage, override_value, replace_tuned, shown_url, tuned_text)
+from tasks.factory import build_task
 
 # Settings the sweeper itself gives every job: the command line may not.
 OWN = ("seed", "trial", "max_env_steps", "stop_when_solved")
@@ -32,13 +33,14 @@ class TuningSweep:
                  seeds: Sequence[int] = (0, 1), search: str | None = None, budget_steps: int = 50_000,
                  report_every: int = 50, pruner: dict | None = None, startup_trials: int = 5,
                  sampler_seed: int | None = None, write_tuned: bool = False, start_from_current: bool = True) -> None:
+        # As given: :meth:`_check_settings` checks each and keeps it in its type (1.5 trials is
+        # refused, not rounded; ``write_tuned=maybe`` is refused, not taken as true).
+        self.settings = dict(study=study, storage=storage, n_trials=n_trials, trials_per_batch=trials_per_batch,
+                             seeds=seeds, search=search, budget_steps=budget_steps, report_every=report_every,
+                             pruner=pruner, startup_trials=startup_trials, sampler_seed=sampler_seed,
+                             write_tuned=write_tuned, start_from_current=start_from_current)
         self.study_name, self.storage_url = str(study), str(storage)
-        self.n_trials, self.trials_per_batch = int(n_trials), int(trials_per_batch)
-        self.seeds = [int(s) for s in seeds]
-        self.search, self.budget_steps, self.report_every = search, int(budget_steps), int(report_every)
-        self.pruner = dict(pruner) if pruner else None
-        self.startup_trials, self.sampler_seed = int(startup_trials), sampler_seed
-        self.write_tuned, self.start_from_current = bool(write_tuned), bool(start_from_current)
+        self.search, self.pruner, self.sampler_seed = search, pruner, sampler_seed
         self.config: DictConfig | None = None
         self.launcher = None
         self.hydra_context: HydraContext | None = None
@@ -50,16 +52,15 @@ class TuningSweep:
 
     # -- checks before any trial ------------------------------------------------
     def _check_settings(self) -> None:
-        bad = [(name, value, rule) for name, value, rule in (
-            ("n_trials", self.n_trials, self.n_trials >= 1), ("trials_per_batch", self.trials_per_batch,
-             self.trials_per_batch >= 1), ("budget_steps", self.budget_steps, self.budget_steps >= 1),
-            ("report_every", self.report_every, self.report_every >= 1),
-            ("seeds", self.seeds, len(self.seeds) >= 1 and len(set(self.seeds)) == len(self.seeds)))
-            if not rule]
-        if bad:
-            name, value, _ = bad[0]
-            need = "distinct seeds, at least one" if name == "seeds" else "an integer >= 1"
-            raise ConfigError(f"hydra.sweeper.{name} must be {need}; got {value!r}")
+        """Checks every sweeper setting (one line naming it, its value and what is allowed)
+        and keeps each in its type."""
+        checked = check_sweeper_settings(self.settings)
+        self.study_name, self.storage_url, self.search = checked["study"], checked["storage"], checked["search"]
+        self.n_trials, self.trials_per_batch = checked["n_trials"], checked["trials_per_batch"]
+        self.seeds, self.budget_steps = checked["seeds"], checked["budget_steps"]
+        self.report_every, self.pruner = checked["report_every"], checked["pruner"]
+        self.startup_trials, self.sampler_seed = checked["startup_trials"], checked["sampler_seed"]
+        self.write_tuned, self.start_from_current = checked["write_tuned"], checked["start_from_current"]
 
     def _fixed(self, arguments: list[str]) -> list[str]:
         """The command line's overrides, given to every job; sweeps and the sweeper's own keys refused."""
@@ -111,6 +112,7 @@ class TuningSweep:
         params = load_space(space_file)
         base = self._compose(fixed)
         check_run_config(base)
+        _check_builds(base)
         check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
         return Plan(robot, task, learner, given, fixed, space_file, params, _measure_of(base),
                     current_trial(params, base))
@@ -234,10 +236,22 @@ class TuningSweep:
             f"{k}={override_value(v)}" for k, v in values.items()))
         print(f"tuned file: {out}")
         if self.write_tuned:
-            base_file.write_text(text)
-            print(f"wrote {base_file}: the next `python train.py robot={robot} learner={learner}` uses it")
+            print(replace_tuned(base_file, text, sweep_dir))
+            print(f"the next `python train.py robot={robot} learner={learner}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
+
+
+def _check_builds(cfg: DictConfig) -> None:
+    """The robot and its task build (a task that does not fit the robot is refused here, in
+    one line, not in every trial's jobs)."""
+    from hydra.errors import InstantiationException
+
+    try:
+        build_task(cfg)
+    except InstantiationException as err:
+        cause = err.__cause__ or err
+        raise ConfigError((str(cause).strip().splitlines() or [type(cause).__name__])[0]) from None
 
 
 def search_file(robot: str, learner: str) -> Path:

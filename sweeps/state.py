@@ -12,8 +12,10 @@ prints the comparison of the sweep's learners and writes its files into the fold
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -136,10 +138,86 @@ def end_failed_sweep() -> bool:
 
 
 def end_sweep() -> int:
-    """After a sweep that was not stopped: 0, or 1 (and one line) when a job failed or
-    never started, as its comparison counted them."""
+    """After a sweep that was not stopped: 0 when every job finished; else one line on stderr
+    and a non-zero status. Every job failed: the first job's reason (:func:`sweep_failures`),
+    2 where it is an input error, else 1. Some failed or never started: how many, and 1."""
+    failures = sweep_failures(SWEEP["dir"] or sweep_dir())
+    if failures is not None and failures[0]:
+        print(failures[1], file=sys.stderr, flush=True)
+        return failures[0]
     if not SWEEP["unfinished"]:
         return 0
+    first = f"; {failures[1].split('; ', 1)[1]}" if failures is not None else ""
     print(f"error: {SWEEP['unfinished']} of {SWEEP['jobs']} jobs failed or never started "
-          "(listed above): the sweep exits 1", file=sys.stderr, flush=True)
+          f"(listed above){first}: the sweep exits 1", file=sys.stderr, flush=True)
     return 1
+
+
+def sweep_failures(folder: Path | None) -> tuple[int, str] | None:
+    """After a sweep: None if no job failed; else the exit status and one line. Every job
+    failed: ``error: every job of the sweep failed (N); the first, <job>: <its reason>``, status
+    2 where that reason is a one-line input error (``error: ...``), else 1. Some failed:
+    ``K of N jobs failed; the first, ...``, status 0 (:func:`end_sweep` makes it 1)."""
+    if folder is None or not folder.is_dir():
+        return None
+    jobs = sorted((p for p in folder.iterdir()
+                   if p.is_dir() and ((p / "run.json").exists() or (p / "error.txt").exists())), key=_job_number)
+    failed = [(job, summarize_run(job)) for job in jobs]
+    failed = [(job, state) for job, state in failed if state["status"] == "failed"]
+    if not failed:
+        return None
+    job, state = failed[0]
+    reason = str(state.get("error") or "failed")
+    first = f"the first, {job.name}: {reason.removeprefix('error: ')}"
+    if len(failed) < len(jobs):
+        return 0, f"{len(failed)} of {len(jobs)} jobs failed; {first}"
+    return (2 if reason.startswith("error: ") else 1), f"error: every job of the sweep failed ({len(jobs)}); {first}"
+
+
+def _job_number(job: Path) -> tuple[int, str]:
+    number = job.name.split("_", 1)[0]
+    return (int(number) if number.isdigit() else 1 << 62, job.name)
+
+
+BROKEN = ".broken"  # in the sweep folder: the launcher is ending its workers (one of them died)
+GRACE_S = 60.0  # how long the siblings of a dead worker get to save before they are killed
+
+
+def let_siblings_save(grace_s: float = GRACE_S) -> None:
+    """In the launching process of a joblib sweep: when one worker dies, loky kills the others
+    at once (SIGKILL), losing what they trained since their last checkpoint. Patched here to
+    ask them first (SIGTERM: each stops after its step and saves, see :func:`sibling_should_exit`)
+    and to wait up to ``grace_s`` seconds before loky's SIGKILL. Idempotent; a no-op without loky."""
+    try:
+        from joblib.externals.loky.process_executor import _ExecutorManagerThread
+    except ImportError:
+        return
+    kill = _ExecutorManagerThread.kill_workers
+    if getattr(kill, "lets_siblings_save", False):
+        return
+
+    def gentle(self, reason: str = "") -> None:
+        if reason == "broken executor":
+            folder = sweep_dir()
+            workers = list(self.processes.values())
+            if folder is not None and folder.is_dir():
+                (folder / BROKEN).write_text("a worker died\n")
+                for worker in workers:
+                    try:
+                        os.kill(worker.pid, signal.SIGTERM)
+                    except (ProcessLookupError, TypeError):
+                        pass
+                deadline = time.monotonic() + grace_s
+                for worker in workers:
+                    worker.join(max(0.0, deadline - time.monotonic()))
+        kill(self, reason)
+
+    gentle.lets_siblings_save = True
+    _ExecutorManagerThread.kill_workers = gentle
+
+
+def sibling_should_exit() -> bool:
+    """Inside a job: whether its launcher is ending the workers (:func:`let_siblings_save`), so a
+    job stopped by its SIGTERM, saved, ends its worker process (else the launcher would wait)."""
+    folder = sweep_dir()
+    return folder is not None and (folder / BROKEN).exists()

@@ -31,6 +31,7 @@ from typing import Any, Callable, Iterable, Mapping
 from omegaconf import OmegaConf
 
 from params import ConfigError, did_you_mean, dotted
+from params.declare import is_integer
 
 @dataclass
 class Plan:
@@ -46,6 +47,69 @@ class Plan:
     params: dict
     measure: str
     current: dict | None = None  # the run's own values as a trial, where the space holds them
+
+
+# The sweeper's whole numbers: (least, most). Bounds keep a typo (1e308) from running for ever.
+SWEEPER_INTS = {"n_trials": (1, 10**6), "trials_per_batch": (1, 10**4), "budget_steps": (1, 10**12),
+                "report_every": (1, 10**8), "startup_trials": (0, 10**6)}
+SEED_LIMIT = 2**32  # numpy's (and so Optuna's samplers') seeds; a run's own seeds are checked by the run
+PRUNER_KEYS = ("n_startup_trials", "n_warmup_steps", "interval_steps", "n_min_trials")
+
+
+def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """``hydra.sweeper``'s settings checked and in their types; :class:`ConfigError`
+    ``hydra.sweeper.<name> must be <allowed>; got <value>`` for the first bad one."""
+    out = dict(settings)
+
+    def refuse(name: str, allowed: str) -> ConfigError:
+        return ConfigError(f"hydra.sweeper.{name} must be {allowed}; got {_plain(settings[name])!r}")
+
+    for name, (low, high) in SWEEPER_INTS.items():
+        if not (is_integer(settings[name]) and low <= settings[name] <= high):
+            raise refuse(name, f"an integer >= {low} and <= {high:.0e}" if high >= 10**6 else
+                         f"an integer >= {low} and <= {high}")
+        out[name] = int(settings[name])
+    for name in ("write_tuned", "start_from_current"):
+        if not isinstance(settings[name], bool):
+            raise refuse(name, "true or false")
+    for name in ("study", "storage"):
+        if not isinstance(settings[name], str) or not settings[name].strip():
+            raise refuse(name, "a non-empty name" if name == "study" else "a non-empty database URL (sqlite:///file.db)")
+    if settings["search"] is not None and not (isinstance(settings["search"], str) and settings["search"].strip()):
+        raise refuse("search", "null (conf/search/) or the path of a search space file")
+    seeds = _plain(settings["seeds"])
+    seeds = list(seeds) if isinstance(seeds, tuple) else seeds
+    if not (isinstance(seeds, list) and seeds and all(is_integer(s) and 0 <= s < 2**63 for s in seeds)
+            and len(set(seeds)) == len(seeds)):
+        raise refuse("seeds", "distinct seeds, at least one, each an integer from 0 to 2^63-1 (a list: [0,1])")
+    out["seeds"] = [int(s) for s in seeds]
+    sampler_seed = settings["sampler_seed"]
+    if sampler_seed is not None and not (is_integer(sampler_seed) and 0 <= sampler_seed < SEED_LIMIT):
+        raise refuse("sampler_seed", "null or an integer from 0 to 2^32-1")
+    out["sampler_seed"] = None if sampler_seed is None else int(sampler_seed)
+    out["pruner"] = _checked_pruner(_plain(settings["pruner"]), refuse)
+    return out
+
+
+def _checked_pruner(pruner: Any, refuse: Callable[[str, str], ConfigError]) -> dict | None:
+    """The median pruner's settings (null or {} for none), each a whole number >= 0."""
+    if pruner is None or pruner == {}:
+        return None
+    if not isinstance(pruner, dict):
+        raise refuse("pruner", f"null, or a mapping of {', '.join(PRUNER_KEYS)} to integers >= 0")
+    for key, value in pruner.items():
+        if key not in PRUNER_KEYS:
+            hint = did_you_mean(str(key), PRUNER_KEYS, "hydra.sweeper.pruner.")
+            raise ConfigError(f"hydra.sweeper.pruner.{key} is not a setting of the median pruner; {hint}"
+                              f"allowed: {', '.join(PRUNER_KEYS)}")
+        if not (is_integer(value) and 0 <= value <= 10**9):
+            raise ConfigError(f"hydra.sweeper.pruner.{key} must be an integer >= 0 and <= 1e+09; got {value!r}")
+    return {k: int(v) for k, v in pruner.items()}
+
+
+def _plain(value: Any) -> Any:
+    """A setting as plain Python (Hydra hands lists and mappings over as OmegaConf nodes)."""
+    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
 
 
 SAMPLED = "choice(...), interval(...), int(interval(...)), tag(log, interval(...)) or range(...)"
@@ -307,6 +371,34 @@ def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header
         OmegaConf.update(conf, key, value, force_add=True)
     lines = ["# @package _global_", *(f"# {line}".rstrip() for line in header)]
     return "\n".join(lines) + "\n" + OmegaConf.to_yaml(conf)
+
+
+def replace_tuned(path: Path, text: str, keep_in: Path) -> str:
+    """Writes the tuned file ``text`` to ``path`` (``hydra.sweeper.write_tuned=true``), the
+    previous file first copied to ``keep_in/previous_<name>``; returns one line saying what
+    changed (``key old -> new``, keys only one of them has with ``(none)``)."""
+    old_text = path.read_text(errors="replace") if path.is_file() else None
+    kept = ""
+    if old_text is not None:
+        backup = keep_in / f"previous_{path.name}"
+        backup.write_text(old_text)
+        kept = f" (the previous one kept as {backup})"
+    path.write_text(text)
+    before, after = (_settings_of(t) for t in (old_text, text))
+    changes = [f"{k} {before.get(k, '(none)')} -> {after.get(k, '(none)')}"
+               for k in sorted(set(before) | set(after)) if before.get(k, "(none)") != after.get(k, "(none)")]
+    return f"wrote {path}{kept}: " + ("; ".join(changes) if changes else "no setting changed")
+
+
+def _settings_of(text: str | None) -> dict[str, Any]:
+    """A tuned file's settings by dotted key (none for no file, or one that does not parse)."""
+    if text is None:
+        return {}
+    try:
+        conf = OmegaConf.to_container(OmegaConf.create(text), resolve=False)
+    except Exception:  # noqa: BLE001 - a damaged old file: everything counts as changed
+        return {}
+    return {k: override_value(v) for k, v in dotted(conf).items()} if isinstance(conf, dict) else {}
 
 
 def now_utc() -> str:

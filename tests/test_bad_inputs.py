@@ -35,6 +35,9 @@ TRIED = [
     ["robot=cartpole", "task=maze"], ["robot=turtlebot", "task=stay_up"],
     ["checkpoint=/nonexistent/model.pt"], ["mode=eval"], ["hydra.run.dir=/proc/nope"],
     ["learner=dqn", "learner.epsilon._target_=os.system"],
+    # issue 28
+    ["hydra.run.dir=/"], ["learner.number_splits=1e308"], ["learner.number_splits=0"],
+    ["learner.number_splits=[10,10,10,1e308]"], ["learner.number_splits.pole_vel=-2"],
 ]
 ALL = TRIED + [overrides for overrides, _, _ in CASES]
 
@@ -62,7 +65,7 @@ def test_a_bad_command_line_is_one_error_line_and_exit_2(args, tmp_path, monkeyp
 
 
 def test_the_table_covers_what_was_tried():
-    assert len(ALL) >= 129
+    assert len(ALL) >= 134
 
 
 def test_a_full_disk_mid_run_is_one_line_and_the_last_checkpoint_survives(tmp_path, monkeypatch,
@@ -99,3 +102,108 @@ def test_a_mistyped_key_gets_the_closest_one(args, suggestion, tmp_path, monkeyp
     assert cli(args, tmp_path, monkeypatch) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
     assert len(err) == 1 and suggestion in err[0], err
+
+
+# -- inputs that need files: a finished run, damaged models, folders that are not ours --------
+@pytest.fixture(scope="module")
+def made(tmp_path_factory) -> dict[str, str]:
+    """A finished run and the damaged or foreign files the cases below point at."""
+    import subprocess
+    from pathlib import Path
+
+    from runs.checkpoint import save_checkpoint
+
+    base = tmp_path_factory.mktemp("made")
+    finished = base / "finished"
+    done = subprocess.run([sys.executable, "train.py", "learner.nepisodes=10", "eval_episodes=2", "quiet=true",
+                           f"hydra.run.dir={finished}"], cwd=Path(__file__).resolve().parents[1],
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-1500:]
+    model = torch.load(finished / "model.pt", weights_only=True)
+    unchecked = {k: v for k, v in model.items() if k != "checksum"}
+    torch.save(unchecked, base / "unchecked.pt")
+    table = unchecked["table"].clone()
+    table[0, 0] = float("nan")
+    save_checkpoint(base / "nan.pt", {**unchecked, "table": table})
+    (base / "foreign").mkdir()
+    (base / "foreign" / "notes.txt").write_text("not a run\n")
+    (base / "conf" / "tuned").mkdir(parents=True)
+    (base / "conf" / "tuned" / "latin1.yaml").write_bytes(b"# @package _global_\nlearner:\n  alpha: 0.\xe93\n")
+    return {"finished": str(finished), "base": str(base), "foreign": str(base / "foreign")}
+
+
+MADE = [  # (arguments, what the one line must say); {name} is made[name]
+    (["mode=eval", "checkpoint={base}/unchecked.pt"], "unchecked.pt has no checksum"),
+    (["mode=eval", "checkpoint={base}/nan.pt"], "holds values that are not finite (NaN or infinite) in table"),
+    (["resume={finished}"], "resume={finished}: it is finished"),
+    (["hydra.run.dir={foreign}"], "hydra.run.dir={foreign} is a folder that holds other files (notes.txt)"),
+    (["-m", "hydra.sweep.dir={foreign}"], "hydra.sweep.dir={foreign} is a folder that holds other files"),
+    (["hydra.searchpath=[file://{base}/conf]", "tuned=latin1"],
+     "conf/tuned/latin1.yaml is not valid UTF-8 (byte 0xe9 at position 40)"),
+    (["-m", "seed=-1,-2"], "every job of the sweep failed (2); the first, 0_cartpole_qlearn_seed-1: seed must be "
+                           "an integer in [0, 9223372036854775808); got -1"),
+    (["-m", "hydra/sweeper=optuna", "robot=cartpole", "task=maze"], "task maze needs robot=turtlebot"),
+    *((["-m", "hydra/sweeper=optuna", f"hydra.sweeper.{key}={value}"], f"hydra.sweeper.{key} must be {allowed}")
+      for key, value, allowed in (
+          ("write_tuned", "maybe", "true or false; got 'maybe'"), ("start_from_current", "1", "true or false"),
+          ("n_trials", "1.5", "an integer >= 1"), ("budget_steps", "1e308", "an integer >= 1"),
+          ("startup_trials", "-1", "an integer >= 0"), ("study", "''", "a non-empty name"),
+          ("seeds", "[-1]", "distinct seeds"), ("pruner.n_warmup_steps", "-5", "an integer >= 0"))),
+]
+
+
+@pytest.mark.parametrize("args, words", MADE, ids=[" ".join(a) for a, _ in MADE])
+def test_a_bad_input_that_needs_files_is_one_line_and_writes_nowhere(args, words, made, tmp_path, monkeypatch,
+                                                                    capsys):
+    args = [a.format(**made) for a in args]
+    sweep = ["hydra.sweep.dir=" + str(tmp_path / "run")]
+    if "hydra/sweeper=optuna" in args:
+        sweep.append(f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}")
+    if "-m" in args:
+        args += [a for a in sweep if a.split("=", 1)[0] not in {x.split("=", 1)[0] for x in args}]
+        args += [] if "hydra/sweeper=optuna" in args else ["learner.nepisodes=1"]
+    before = _listing(made["base"])
+    assert cli(args, tmp_path, monkeypatch) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("error: ") and words.format(**made) in err[0], err
+    assert _listing(made["base"]) == before, "a refused command wrote into a folder not its own"
+    assert not (tmp_path / "s.db").exists() and not (tmp_path / "run" / "config.yaml").exists()
+
+
+def _listing(folder: str) -> dict[str, int]:
+    """Every file below ``folder`` with its size (train.log aside: Hydra's log of the refusal)."""
+    from pathlib import Path
+
+    return {str(p): p.stat().st_size for p in Path(folder).rglob("*") if p.is_file() and p.name != "train.log"}
+
+
+def test_a_typo_is_one_line_whatever_hydra_full_error_says(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("HYDRA_FULL_ERROR", "0")
+    assert cli(["learner.alpah=0.1"], tmp_path, monkeypatch) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "did you mean learner.alpha?" in err[0], err
+
+
+def test_a_sweep_where_some_jobs_failed_says_how_many(tmp_path, monkeypatch, capsys):
+    GlobalHydra.instance().clear()
+    monkeypatch.setattr(train, "_IN_JOB", False)
+    monkeypatch.setattr(sys, "argv", ["train.py", "-m", "seed=-1,3", "learner.nepisodes=2", "eval_episodes=0",
+                                      "quiet=true", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+                                      "hydra/job_logging=none", "hydra/hydra_logging=none"])
+    with pytest.raises(SystemExit) as stop:  # the sweep ran, and one of its jobs failed
+        train.cli()
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert stop.value.code == 1
+    assert err == ["error: 1 of 2 jobs failed or never started (listed above); the first, 0_cartpole_qlearn_seed-1: "
+                   "seed must be an integer in [0, 9223372036854775808); got -1: the sweep exits 1"], err
+
+
+@pytest.mark.parametrize("argv", [[], ["a", "b"], ["--bogus", "x"]])
+def test_compare_usage_mistakes_are_one_line(argv, capsys):
+    import compare
+
+    with pytest.raises(SystemExit) as stop:
+        compare.main(argv)
+    err = capsys.readouterr().err.splitlines()
+    assert stop.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    assert err[0].endswith("; see python compare.py --help")

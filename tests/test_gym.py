@@ -359,3 +359,16 @@ def test_torchrls_gym_env_takes_task_parameters_and_its_own_frame_skip():
         env.close()
     with pytest.raises(TypeError, match="unexpected keyword argument 'pos_stepp'"):
         GymEnv("MujocoRL/CartPoleStayUp-v0", pos_stepp=0.5)
+
+
+def test_make_without_a_time_limit_is_refused():
+    """``max_episode_steps=-1`` drops Gymnasium's TimeLimit; the task's own limit is lifted
+    under ``gymnasium.make``, so its episodes could run for ever: refused in one line."""
+    register_envs()
+    with pytest.raises(ValueError) as err:
+        gym.make("MujocoRL/CartPoleStayUp-v0", max_episode_steps=-1)
+    assert str(err.value).startswith("max_episode_steps=-1 is refused") and "allowed: a positive integer" in str(err.value)
+    env = gym.make("MujocoRL/CartPoleStayUp-v0", max_episode_steps=3)
+    env.reset(seed=0)
+    assert env.spec.max_episode_steps == 3
+    env.close()

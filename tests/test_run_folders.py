@@ -60,8 +60,9 @@ def test_an_existing_run_is_neither_overwritten_nor_damaged_by_a_rejected_one(tm
         assert err.strip().splitlines()[-1].startswith("error: "), err[-1500:]
     after = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file() and p.name not in ("train.log", ".lock")}
     assert after == before
-    resumed = train(f"resume={run_dir}", "quiet=true")  # still a resumable run
-    assert resumed.wait(timeout=300) == 0
+    resumed = train(f"resume={run_dir}", "quiet=true")  # finished, and still so: nothing to resume
+    _, err = resumed.communicate(timeout=300)
+    assert resumed.returncode == 2 and f"resume={run_dir}: it is finished" in err, err[-1500:]
 
 
 def test_sigterm_stops_with_143_and_the_run_resumes(tmp_path):
@@ -108,3 +109,24 @@ def test_ctrl_c_on_a_joblib_sweep_leaves_every_started_job_resumable(tmp_path):
     resumed.terminate()
     out, err = resumed.communicate(timeout=120)
     assert resumed.returncode == 143 and f"resuming {started[0]}" in out, err[-1500:]
+
+
+def test_a_killed_joblib_worker_lets_its_healthy_sibling_save(tmp_path):
+    """One worker killed from outside: loky ends the others, but first asks them (SIGTERM), so
+    the sibling saves its whole state on the way out (checkpoint_every=0: only then)."""
+    sweep = tmp_path / "sweep"
+    proc = train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1",
+                 "learner.nepisodes=100000", "eval_episodes=0", "quiet=true", "checkpoint_every=0",
+                 f"hydra.sweep.dir={sweep}", start_new_session=True)
+    deadline = time.time() + 180
+    while len(list(sweep.glob("*/metrics.csv"))) < 2 or any(
+            p.stat().st_size < 200 for p in sweep.glob("*/metrics.csv")):
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.2)
+    victim, sibling = sorted(p.parent for p in sweep.glob("*/run.json"))
+    os.kill(int((victim / ".lock").read_text()), signal.SIGKILL)
+    out, err = proc.communicate(timeout=240)
+    assert proc.returncode == 1, err[-2000:]
+    assert not (victim / "checkpoint.pt").exists()
+    assert (sibling / "checkpoint.pt").is_file() and (sibling / "model.pt").is_file(), out[-2000:] + err[-2000:]
+    assert f"resume with: python train.py resume={sibling}" in out.splitlines()

@@ -2,6 +2,7 @@
 the trial jobs' reports and pruning, a study shared by two workers, the tuned file."""
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -205,8 +206,21 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
 
 
 @pytest.mark.parametrize("settings, args, words", [
-    ({"n_trials": 0}, [], "hydra.sweeper.n_trials must be an integer >= 1; got 0"),
+    ({"n_trials": 0}, [], "hydra.sweeper.n_trials must be an integer >= 1 and <= 1e+06; got 0"),
+    ({"n_trials": 1.5}, [], "hydra.sweeper.n_trials must be an integer >= 1 and <= 1e+06; got 1.5"),
+    ({"budget_steps": 1e308}, [], "hydra.sweeper.budget_steps must be an integer >= 1 and <= 1e+12; got 1e+308"),
+    ({"startup_trials": -1}, [], "hydra.sweeper.startup_trials must be an integer >= 0 and <= 1e+06; got -1"),
+    ({"report_every": "5"}, [], "hydra.sweeper.report_every must be an integer >= 1"),
+    ({"study": ""}, [], "hydra.sweeper.study must be a non-empty name; got ''"),
+    ({"write_tuned": "maybe"}, [], "hydra.sweeper.write_tuned must be true or false; got 'maybe'"),
+    ({"write_tuned": 1}, [], "hydra.sweeper.write_tuned must be true or false; got 1"),
+    ({"start_from_current": "yes"}, [], "hydra.sweeper.start_from_current must be true or false"),
     ({"seeds": [1, 1]}, [], "hydra.sweeper.seeds must be distinct seeds"),
+    ({"seeds": [-1]}, [], "hydra.sweeper.seeds must be distinct seeds, at least one, each an integer"),
+    ({"sampler_seed": 2**40}, [], "hydra.sweeper.sampler_seed must be null or an integer"),
+    ({"pruner": {"n_warmup_steps": -1}}, [], "hydra.sweeper.pruner.n_warmup_steps must be an integer >= 0"),
+    ({"pruner": {"n_warmup_step": 1}}, [], "did you mean hydra.sweeper.pruner.n_warmup_steps?"),
+    ({"pruner": 5}, [], "hydra.sweeper.pruner must be null, or a mapping"),
     ({}, ["learner.lr=0.1,0.2"], "the study picks the values"),
     ({}, ["trial=3"], "the sweeper sets trial for each job"),
     ({}, ["max_env_steps=10"], "hydra.sweeper.budget_steps"),
@@ -214,10 +228,26 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
 def test_the_sweepers_own_checks(settings, args, words):
     from sweeps.optuna_sweep import TuningSweep
 
-    sweep = TuningSweep(study="s", storage="sqlite://", **settings)
-    with pytest.raises(ConfigError, match=words.replace(".", r"\.").replace("[", r"\[")):
+    sweep = TuningSweep(**{"study": "s", "storage": "sqlite://", **settings})
+    with pytest.raises(ConfigError, match=re.escape(words)):
         sweep._check_settings()
         sweep._fixed(args)
+
+
+def test_checked_sweeper_settings_keep_their_types():
+    from sweeps.optuna_sweep import TuningSweep
+
+    sweep = TuningSweep(study="s", storage="sqlite://", n_trials=3.0, seeds=OmegaConf.create([2, 0]),
+                        pruner=OmegaConf.create({"n_warmup_steps": 10}))
+    sweep._check_settings()
+    assert (sweep.n_trials, sweep.seeds, sweep.pruner) == (3, [2, 0], {"n_warmup_steps": 10})
+    assert type(sweep.n_trials) is int and sweep.write_tuned is False
+
+
+def test_a_space_reaching_zero_bins_is_refused_before_any_trial():
+    with pytest.raises(ConfigError, match=r"learner\.number_splits can be 0, which the run refuses"):
+        check_space(parse_space({"learner.number_splits": "int(interval(0, 14))"}, "s.yaml"), compose(),
+                    "s.yaml", _check([]))
 
 
 def test_a_missing_search_space_is_one_line():
@@ -341,3 +371,18 @@ def test_a_database_that_refuses_the_login_is_one_line_and_writes_nothing(tmp_pa
     assert len(lines) == 1 and "cannot be opened" in lines[0] and "password authentication failed" in lines[0]
     assert "not-the-password" not in proc.stderr + proc.stdout and ":***@" in lines[0]
     assert not (tmp_path / "sweep").exists()
+
+
+def test_a_tuned_file_replaced_keeps_the_old_one_and_says_what_changed(tmp_path):
+    from sweeps.tuning import replace_tuned
+
+    path, study = tmp_path / "cartpole_qlearn.yaml", tmp_path / "sweep"
+    study.mkdir()
+    old = "# @package _global_\n# hand-tuned\nlearner:\n  alpha: 0.2\n  gamma: 0.995\nnum_envs: 8\n"
+    path.write_text(old)
+    new = tuned_text({"learner.alpha": 0.78}, {"learner": {"alpha": 0.2, "gamma": 0.995}, "num_envs": 8}, ["h"])
+    line = replace_tuned(path, new, study)
+    assert "\n" not in line
+    assert line == (f"wrote {path} (the previous one kept as {study / 'previous_cartpole_qlearn.yaml'}): "
+                    "learner.alpha 0.2 -> 0.78")
+    assert (study / "previous_cartpole_qlearn.yaml").read_text() == old and path.read_text() == new

@@ -146,3 +146,39 @@ def test_every_robot_renders_full_hd(robot):
     frame = env.render(1920, 1080)
     assert frame.shape == (1080, 1920, 3) and frame.std() > 5  # a picture, not a blank
     env.close()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--fps", "-5"], "--fps must be a number in (0, 1000] (default: real time); got -5"),
+    (["--fps", "nan"], "--fps must be a number in (0, 1000]"),
+    (["--steps", "-1"], "--steps must be an integer in [0, 100000]; got -1"),
+    (["--steps", "x"], "argument --steps: invalid int value: 'x'"),
+    (["--bogus"], "unrecognized arguments: --bogus"),
+    (["--out", "{file}/x.mp4"], "lies below {file}, which is a file; allowed: a path in a folder"),
+    (["--out", "{folder}"], "is a folder; allowed: the path of an .mp4 file"),
+])
+def test_cli_bad_arguments_are_one_line_before_anything_is_built(run_folder, tmp_path, capsys, args, words):
+    (tmp_path / "notes.txt").write_text("x")
+    where = {"file": tmp_path / "notes.txt", "folder": tmp_path}
+    with pytest.raises(SystemExit) as exit_:
+        video.main([str(run_folder), *(a.format(**where) for a in args)])
+    err = capsys.readouterr().err.splitlines()
+    assert exit_.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    assert words.format(**where) in err[0]
+    assert not (run_folder / "policy.mp4").exists()
+
+
+@pytest.mark.parametrize("text, words", [
+    ("learner: [1, 2\n", "config.yaml does not parse"),
+    ("- 1\n", "must hold a mapping of settings"),
+    ("learner:\n  _target_: os.system\n", "learner._target_='os.system' is not allowed"),
+    (None, "learner.gamma must be a finite number in [0, 1]; got -3"),
+])
+def test_cli_on_a_damaged_config_is_one_line(run_folder, capsys, text, words):
+    config = run_folder / "config.yaml"
+    config.write_text(text if text is not None else config.read_text().replace("gamma: ", "gamma: -3 #", 1))
+    with pytest.raises(SystemExit) as exit_:
+        video.main([str(run_folder), "--steps", "1"])
+    err = capsys.readouterr().err.splitlines()
+    assert exit_.value.code == 2 and len(err) == 1 and words in err[0], err
+    assert not (run_folder / "policy.mp4").exists()
