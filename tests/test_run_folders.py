@@ -80,16 +80,21 @@ def test_sigterm_stops_with_143_and_the_run_resumes(tmp_path):
     assert (run_dir / "checkpoint.pt").is_file()
 
 
-def test_ctrl_c_on_a_joblib_sweep_leaves_every_started_job_resumable(tmp_path):
-    sweep = tmp_path / "sweep"
-    proc = train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1,2",
-                 "learner.nepisodes=100000", "eval_episodes=0", "quiet=true",
-                 f"hydra.sweep.dir={sweep}", start_new_session=True)
+def wait_for_two_training_jobs(sweep: Path, proc) -> None:
+    """Until two jobs of ``sweep`` have written a few episodes (the sweep still running)."""
     deadline = time.time() + 180
     while len(list(sweep.glob("*/metrics.csv"))) < 2 or any(
             p.stat().st_size < 200 for p in sweep.glob("*/metrics.csv")):
         assert time.time() < deadline and proc.poll() is None
         time.sleep(0.2)
+
+
+def test_ctrl_c_on_a_joblib_sweep_leaves_every_started_job_resumable(tmp_path):
+    sweep = tmp_path / "sweep"
+    proc = train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1,2",
+                 "learner.nepisodes=100000", "eval_episodes=0", "quiet=true",
+                 f"hydra.sweep.dir={sweep}", start_new_session=True)
+    wait_for_two_training_jobs(sweep, proc)
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the whole process group
     out, err = proc.communicate(timeout=180)
     assert proc.returncode == 130, err[-2000:]
@@ -118,11 +123,7 @@ def test_a_killed_joblib_worker_lets_its_healthy_sibling_save(tmp_path):
     proc = train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1",
                  "learner.nepisodes=100000", "eval_episodes=0", "quiet=true", "checkpoint_every=0",
                  f"hydra.sweep.dir={sweep}", start_new_session=True)
-    deadline = time.time() + 180
-    while len(list(sweep.glob("*/metrics.csv"))) < 2 or any(
-            p.stat().st_size < 200 for p in sweep.glob("*/metrics.csv")):
-        assert time.time() < deadline and proc.poll() is None
-        time.sleep(0.2)
+    wait_for_two_training_jobs(sweep, proc)
     victim, sibling = sorted(p.parent for p in sweep.glob("*/run.json"))
     os.kill(int((victim / ".lock").read_text()), signal.SIGKILL)
     out, err = proc.communicate(timeout=240)
