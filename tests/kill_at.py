@@ -45,7 +45,7 @@ def arm(point: str) -> None:
     if point == "second_checkpoint":
         session.save_training_state = after(session.save_training_state, calls=2)
     elif point == "final_evaluation":
-        session._final_evaluation = die
+        session.final_evaluation = die
     elif point == "final_checkpoint":
         run_module.Run.close = die  # the session closes the run right after its final checkpoint
     elif point == "model":

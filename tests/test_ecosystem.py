@@ -100,8 +100,9 @@ def test_a_submitit_sweep_keeps_its_jobs_in_one_folder_and_a_failed_job_fails_it
     rows = list(csv.DictReader(open(sweep / "comparison.csv")))
     counts = {r["swept"]: (r["finished"], r["failed"], r["never_started"]) for r in rows}
     assert counts == {"learner.alpha=-1": ("0", "1", "0"), "learner.alpha=0.5": ("1", "0", "0")}
-    assert proc.stderr.strip().splitlines()[-1] == ("error: 1 of 2 jobs failed or never started (listed above): "
-                                                    "the sweep exits 1")
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "error: 1 of 2 jobs failed or never started (listed above); the first, 0_cartpole_qlearn_seed0: "
+        "learner.alpha must be a finite number in (0, 1]; got -1: the sweep exits 1")
 
 
 def test_a_failing_job_does_not_cost_the_sweep_its_other_jobs_but_fails_it(tmp_path):
