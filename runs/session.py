@@ -174,16 +174,16 @@ def final_evaluation(session: Session, run: Run) -> dict | None:
 
 
 def close_run(session: Session, run: Run, finished: bool) -> dict:
-    """The training state (``finished``: at a step boundary, so consistent), the run's files
-    closed and ``model.pt``; returns the run's summary."""
+    """The training state (``finished``: at a step boundary, so consistent), ``model.pt``, then
+    the run's files closed (the reward curve drawn last: a run stopped by its launcher has its
+    states saved first); returns the run's summary."""
     if finished:
         run.checkpoint(run.last_td)
-    summary = run.close()
     save_model(session.run_dir / "model.pt", session.learner, meta={
         "choices": json.loads((session.run_dir / "run.json").read_text()),
         "config": OmegaConf.to_container(session.cfg, resolve=True),
     })
-    return summary
+    return run.close()
 
 
 def stopped(session: Session, run: Run, summary: dict, signum: int) -> dict:

@@ -19,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from runs import run as run_module, session  # noqa: E402
+from runs import session  # noqa: E402
 
 
 def die(*_args, **_kwargs) -> None:
@@ -47,7 +47,7 @@ def arm(point: str) -> None:
     elif point == "final_evaluation":
         session.final_evaluation = die
     elif point == "final_checkpoint":
-        run_module.Run.close = die  # the session closes the run right after its final checkpoint
+        session.save_model = die  # the session saves model.pt right after its final checkpoint
     elif point == "model":
         session.save_model = after(session.save_model)
     else:
