@@ -43,7 +43,7 @@ from runs.folder import run_lock, start_run
 from runs.resume import save_training_state
 from runs.run import Run
 from runs.seeding import seed_everything
-from tasks.env import RobotTaskEnv, SeedBlock
+from tasks.env import RobotTaskEnv
 from tasks.factory import build_env
 
 # Settings a batched job may not have: each makes a run that is not a fresh training run.
