@@ -269,7 +269,7 @@ def _train(slots: list[_Slot], env: RobotTaskEnv) -> None:
             ended = [slot for slot in live if slot.done]
             for slot in ended:
                 _finish(slot, stopped["signal"])
-                env.physics.hold(np.arange(env.num_envs) // env.block_size == slot.index)
+                env.physics.hold(env.block_mask(slot.index))
             live = [slot for slot in live if slot not in ended]
             if not live:
                 break

@@ -157,6 +157,12 @@ class RobotTaskEnv(EnvBase):
         """The copies of seed block ``b``."""
         return slice(b * self.block_size, (b + 1) * self.block_size)
 
+    def block_mask(self, b: int, within: np.ndarray | None = None) -> np.ndarray:
+        """Bool ``(num_envs,)``: the copies of seed block ``b`` (that ``within`` marks, if given)."""
+        mask = np.zeros(self.num_envs, dtype=bool)
+        mask[self.block(b)] = True if within is None else within[self.block(b)]
+        return mask
+
     def seed_block(self, b: int) -> SeedBlock:
         """Seed block ``b`` seen as an env of its own (see :class:`SeedBlock`)."""
         return SeedBlock(self, b)
@@ -271,8 +277,7 @@ class RobotTaskEnv(EnvBase):
             self.task.initialize_episode(self.physics, mask, self._rng)
         else:  # each block draws from its own generator, as alone
             for b, rng in enumerate(self._rngs):
-                block_mask = np.zeros_like(mask)
-                block_mask[self.block(b)] = mask[self.block(b)]
+                block_mask = self.block_mask(b, within=mask)
                 if block_mask.any():
                     self.task.initialize_episode(self.physics, block_mask, rng)
         self.physics.forward(mask)
