@@ -1,0 +1,381 @@
+"""Every learner on every task, on fresh seeds under one env-step budget: the README's table.
+
+    python -m bench.benchmark                      # the plan in bench/benchmark.yaml; rewrites README
+    python -m bench.benchmark --quick              # cart-pole x qlearn, dqn; 3 seeds; minutes
+    python -m bench.benchmark --tasks cube --learners dqn --seeds 5 [-- extra overrides]
+    python -m bench.benchmark --read benchmark/<folder>   # tabulate a finished (or partial) run again
+
+Each task x learner x setting (``published``: the learner's defaults, ``'~tuned'``;
+``tuned``: its ``conf/tuned/`` file) is one Hydra multirun of ``train.py`` over the seeds,
+trained together in one process (the ``seeds`` launcher), each seed with the same budget
+of env steps and stopped when its verdict says solved. A seed *succeeds* when its
+finished policy does: the final greedy evaluation's measure meets the task's threshold
+(the training verdict alone can be met by a policy that no longer is). Results go to a
+folder (``benchmark/<time>/`` unless ``--out``): ``seeds.csv`` (one row per seed),
+``benchmark.csv`` and ``benchmark.md`` (one row per pair), and the sweeps' job folders.
+Without ``--quick`` the README's Benchmark section is rewritten from the table
+(``--readme`` names another file, ``--no-readme`` leaves it alone).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from omegaconf import OmegaConf
+from tqdm import tqdm
+
+ROOT = Path(__file__).resolve().parents[1]
+PLAN = Path(__file__).with_name("benchmark.yaml")
+BEGIN, END = "<!-- benchmark:begin -->", "<!-- benchmark:end -->"
+SETTINGS = ("published", "tuned")
+SEED_COLUMNS = ("task", "robot/task", "learner", "setting", "seed", "status", "success", "verdict",
+                "measure", "threshold", "greedy", "env_steps", "wall_s", "steps_to_solve",
+                "wall_to_solve", "error", "run_dir")
+PAIR_COLUMNS = ("task", "learner", "setting", "seeds", "success", "verdict_solved", "failed",
+                "measure", "greedy_iqm", "ci_low", "ci_high", "steps_to_success", "wall_to_success",
+                "batch_wall_s", "budget_steps", "note")
+
+
+class BadInput(Exception):
+    """A benchmark request that cannot run; the message says what is allowed."""
+
+
+@dataclass(frozen=True)
+class Job:
+    """One task x learner x setting: one multirun over the seeds."""
+
+    task: str
+    robot: str
+    task_name: str
+    learner: str
+    setting: str
+    budget: int
+
+    @property
+    def folder(self) -> str:
+        return f"{self.task}/{self.learner}_{self.setting}"
+
+
+def load_plan(quick: bool) -> dict:
+    """bench/benchmark.yaml as a dict, with its ``quick`` preset applied when asked."""
+    plan = OmegaConf.to_container(OmegaConf.load(PLAN))
+    preset = plan.pop("quick")
+    if quick:
+        plan["tasks"] = {name: dict(plan["tasks"][name], budget_steps=preset["budget_steps"])
+                         for name in preset["tasks"]}
+        plan.update(learners=preset["learners"], settings=preset["settings"], seeds=preset["seeds"])
+    return plan
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m bench.benchmark", description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the small preset of bench/benchmark.yaml")
+    parser.add_argument("--tasks", nargs="+", help="task names of bench/benchmark.yaml (default: all)")
+    parser.add_argument("--learners", nargs="+", help="learners (default: the plan's)")
+    parser.add_argument("--settings", nargs="+", help="published and/or tuned (default: the plan's)")
+    parser.add_argument("--seeds", type=int, help="seeds per pair (default: the plan's)")
+    parser.add_argument("--first-seed", type=int, help="the first seed (default: the plan's)")
+    parser.add_argument("--budget", type=int, help="env steps per seed, every task (default: each task's)")
+    parser.add_argument("--out", type=Path, help="the results folder (default: benchmark/<time>)")
+    parser.add_argument("--readme", type=Path, help="the README whose Benchmark section to rewrite")
+    parser.add_argument("--no-readme", action="store_true", help="leave the README alone")
+    parser.add_argument("--read", type=Path, help="tabulate this results folder again; run nothing")
+    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (after --)")
+    return parser.parse_args(argv)
+
+
+def plan_jobs(args: argparse.Namespace, plan: dict) -> tuple[list[Job], list[int]]:
+    """The jobs and seeds asked for; :class:`BadInput` for anything that cannot run."""
+    from runs import catalog
+
+    tasks = args.tasks or list(plan["tasks"])
+    unknown = [t for t in tasks if t not in plan["tasks"]]
+    if unknown:
+        raise BadInput(f"unknown task {unknown[0]!r}; the benchmark's tasks: {', '.join(plan['tasks'])}")
+    learners = args.learners or plan["learners"]
+    known = catalog.names("learner")
+    bad = [name for name in learners if name not in known]
+    if bad:
+        raise BadInput(f"unknown learner {bad[0]!r}; learners: {', '.join(known)}")
+    settings = args.settings or plan["settings"]
+    bad = [s for s in settings if s not in SETTINGS]
+    if bad:
+        raise BadInput(f"unknown setting {bad[0]!r}; settings: {', '.join(SETTINGS)}")
+    n = plan["seeds"] if args.seeds is None else args.seeds
+    if n < 1:
+        raise BadInput(f"--seeds must be at least 1, got {n}")
+    first = plan["first_seed"] if args.first_seed is None else args.first_seed
+    if first < 0:
+        raise BadInput(f"--first-seed must be >= 0, got {first}")
+    if args.budget is not None and args.budget < 1:
+        raise BadInput(f"--budget must be a positive number of env steps, got {args.budget}")
+    jobs = []
+    for task in tasks:
+        spec = plan["tasks"][task]
+        for learner in learners:
+            for setting in settings:
+                jobs.append(Job(task, spec["robot"], spec["task"], learner, setting,
+                                args.budget or int(spec["budget_steps"])))
+    return jobs, list(range(first, first + n))
+
+
+def overrides(job: Job, extra: list[str]) -> list[str]:
+    """The Hydra overrides of one job (its seeds aside)."""
+    picks = [f"robot={job.robot}", f"task={job.task_name}", f"learner={job.learner}",
+             f"max_env_steps={job.budget}", "learner.nepisodes=100000000"]
+    return [*picks, *(["~tuned"] if job.setting == "published" else []), *extra]
+
+
+def has_tuned_file(job: Job) -> bool:
+    from runs import catalog
+
+    return catalog.config_file("tuned", f"{job.robot}_{job.learner}") is not None
+
+
+def check_budget(job: Job, extra: list[str]) -> None:
+    """:class:`BadInput` when the budget cannot let every copy finish one full-length episode."""
+    from params import ConfigError
+    from runs import catalog
+
+    try:
+        cfg = catalog.compose(overrides=overrides(job, extra))
+    except ConfigError as err:
+        raise BadInput(f"{job.task} x {job.learner} ({job.setting}): {err}") from None
+    except Exception as err:  # Hydra's own errors: an override that names nothing
+        raise BadInput(f"{job.task} x {job.learner} ({job.setting}): "
+                       f"{str(err).splitlines()[0]}") from None
+    need = int(cfg.num_envs) * int(cfg.learner.nsteps)
+    if job.budget < need:
+        raise BadInput(f"a budget of {job.budget} env steps cannot finish an episode of {job.task} x "
+                       f"{job.learner} ({job.setting}): {cfg.num_envs} copies x up to "
+                       f"{cfg.learner.nsteps} steps need {need}; give --budget {need} or more")
+
+
+def run_job(job: Job, seeds: list[int], out: Path, extra: list[str], bar: tqdm) -> dict:
+    """Trains ``job``'s seeds as one multirun into ``out/<task>/<learner>_<setting>/``; its
+    command, exit code and wall seconds go to ``<learner>_<setting>.json`` beside it, its
+    console to ``<learner>_<setting>.log``. The bar moves as each seed writes its verdict."""
+    sweep = out / job.folder
+    sweep.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
+           f"seed={','.join(map(str, seeds))}", *overrides(job, extra)]
+    done = 0
+    t0 = time.perf_counter()
+    with open(sweep.with_suffix(".log"), "w") as log:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+        while proc.poll() is None:
+            time.sleep(1.0)
+            finished = sum(1 for d in sweep.glob("*/") if (d / "summary.json").exists()
+                           or (d / "error.txt").exists()) if sweep.is_dir() else 0
+            bar.update(max(0, finished - done))
+            done = max(done, finished)
+    bar.update(len(seeds) - done)
+    lines = sweep.with_suffix(".log").read_text(errors="replace").strip().splitlines()
+    record = {"command": cmd, "returncode": proc.returncode, "wall_s": time.perf_counter() - t0,
+              "last_line": lines[-1] if lines else ""}
+    sweep.with_suffix(".json").write_text(json.dumps(record, indent=1))
+    if proc.returncode not in (0, 1):  # 1: some seed failed (its row says why)
+        tqdm.write(f"warning: {job.folder} exited {proc.returncode}: {record['last_line']}")
+    return record
+
+
+def job_record(job: Job, out: Path) -> dict:
+    """What :func:`run_job` wrote about ``job`` (empty if it never ran)."""
+    path = (out / job.folder).with_suffix(".json")
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def seed_rows(job: Job, sweep: Path) -> list[dict]:
+    """One row per job folder of the sweep: its verdict, greedy measure and costs."""
+    from runs.summary import summarize_run
+
+    rows = []
+    folders = sorted((p for p in sweep.iterdir() if p.is_dir() and p.name.split("_")[0].isdigit()),
+                     key=lambda p: int(p.name.split("_")[0])) if sweep.is_dir() else []
+    for folder in folders:
+        s = summarize_run(folder)
+        greedy, threshold = s.get("greedy"), s.get("threshold")
+        ok = s["status"] == "ok"
+        rows.append({
+            "task": job.task, "robot/task": f"{job.robot}/{job.task_name}", "learner": job.learner,
+            "setting": job.setting, "seed": s.get("seed"), "status": s["status"],
+            "success": bool(ok and greedy is not None and greedy >= threshold),
+            "verdict": bool(ok and s.get("solved")), "measure": s.get("measure"),
+            "threshold": threshold, "greedy": greedy, "env_steps": s.get("env_steps"),
+            "wall_s": s.get("wall_s"), "steps_to_solve": s.get("steps_to_solve"),
+            "wall_to_solve": s.get("wall_to_solve"), "error": s.get("error", ""), "run_dir": str(folder),
+        })
+    return rows
+
+
+def _median(values: list) -> float | None:
+    values = [v for v in values if v is not None]
+    return statistics.median(values) if values else None
+
+
+def pair_row(job: Job, rows: list[dict], wall: float | None, note: str = "") -> dict:
+    """The table's row of one pair: success over seeds, the greedy measure's IQM and CI, costs."""
+    from sweeps.stats import iqm_ci
+
+    won = [r for r in rows if r["success"]]
+    centre, low, high = iqm_ci([r["greedy"] for r in rows if r["status"] == "ok"])
+    measure = next((r["measure"] for r in rows if r["measure"]), "")
+    errors = [r["error"] for r in rows if r["status"] != "ok" and r["error"]]
+    if errors and not note:
+        note = f"{len(errors)} seed(s) did not finish; the first: {errors[0]}"
+    return {
+        "task": job.task, "learner": job.learner, "setting": job.setting, "seeds": len(rows),
+        "success": len(won), "verdict_solved": sum(r["verdict"] for r in rows),
+        "failed": sum(r["status"] != "ok" for r in rows), "measure": measure,
+        "greedy_iqm": centre, "ci_low": low, "ci_high": high,
+        "steps_to_success": _median([r["steps_to_solve"] for r in won]),
+        "wall_to_success": _median([r["wall_to_solve"] for r in won]),
+        "batch_wall_s": wall, "budget_steps": job.budget, "note": note,
+    }
+
+
+def write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def _g(value, spec: str = ".3g") -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
+
+
+def _iqm_text(row: dict) -> str:
+    if row["seeds"] == 0 or _g(row["greedy_iqm"]) == "-":
+        return "-"
+    if _g(row["ci_low"]) == "-":
+        return f"{_g(row['greedy_iqm'])} [no CI]"
+    return f"{_g(row['greedy_iqm'])} [{_g(row['ci_low'])}, {_g(row['ci_high'])}]"
+
+
+def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str]) -> str:
+    """The Benchmark section's body: how it was made, then one table per task."""
+    lines = [plan_text, ""]
+    for task in dict.fromkeys(p["task"] for p in pairs):
+        mine = [p for p in pairs if p["task"] == task]
+        lines += [f"**{task}** ({specs[task]}; budget {mine[0]['budget_steps']:,} env steps per seed)", "",
+                  "| learner | setting | success | greedy_" + (mine[0]["measure"] or "measure")
+                  + " IQM [95% CI] | env steps to success (median) | wall s to success (median) "
+                  "| wall s, all seeds | note |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for p in mine:
+            success = f"{p['success']}/{p['seeds']}" if p["seeds"] else "-"
+            lines.append(f"| {p['learner']} | {p['setting']} | {success} | {_iqm_text(p)} | "
+                         f"{_g(p['steps_to_success'], ',.0f')} | {_g(p['wall_to_success'], '.1f')} | "
+                         f"{_g(p['batch_wall_s'], '.0f')} | {p['note']} |")
+        lines.append("")
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def rewrite_readme(readme: Path, body: str) -> None:
+    """Replaces what lies between the benchmark markers of ``readme`` with ``body``."""
+    text = readme.read_text()
+    if BEGIN not in text or END not in text:
+        raise BadInput(f"{readme} has no {BEGIN} ... {END} markers to put the table between")
+    head, rest = text.split(BEGIN, 1)
+    _, tail = rest.split(END, 1)
+    readme.write_text(f"{head}{BEGIN}\n{body}{END}{tail}")
+
+
+def describe(seeds: list[int], command: str) -> str:
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return (f"Generated by `{command}` on {time.strftime('%Y-%m-%d')} ({cores} cores, "
+            f"{platform.processor() or platform.machine()}): seeds {seeds[0]}-{seeds[-1]}, which no "
+            "tuning used. A seed succeeds when its final greedy evaluation meets the task's threshold; "
+            "the IQM and its 95% bootstrap CI are over the seeds' final greedy measure; costs are "
+            "medians over the seeds that succeeded; each pair's seeds trained in one process.")
+
+
+def read_plan(out: Path) -> tuple[list[Job], list[int], str]:
+    """The jobs, seeds and command line of the results folder ``out`` (its ``plan.json``)."""
+    if not out.is_dir():
+        raise BadInput(f"--read {out}: no such results folder")
+    try:
+        plan = json.loads((out / "plan.json").read_text())
+        return [Job(**job) for job in plan["jobs"]], [int(s) for s in plan["seeds"]], str(plan["command"])
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise BadInput(f"--read {out}: no readable plan.json ({type(err).__name__}); "
+                       "a folder written by python -m bench.benchmark has one") from None
+
+
+def run(args: argparse.Namespace) -> Path:
+    """Runs (or reads back) the benchmark and writes its tables; returns the results folder."""
+    command = "python -m bench.benchmark" + (" " + " ".join(sys.argv[1:]) if sys.argv[1:] else "")
+    if args.read:
+        out = args.read
+        jobs, seeds, command = read_plan(out)
+        args.quick = "--quick" in command.split()
+    else:
+        jobs, seeds = plan_jobs(args, load_plan(args.quick))
+        out = args.out or ROOT / "benchmark" / time.strftime("%Y%m%d-%H%M%S")
+    runnable = []
+    for job in jobs:
+        if job.setting == "tuned" and not has_tuned_file(job):
+            continue
+        if not args.read:
+            check_budget(job, args.overrides)
+        runnable.append(job)
+    if not args.read:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "plan.json").write_text(json.dumps(
+            {"command": command, "seeds": seeds, "jobs": [asdict(job) for job in jobs]}, indent=1))
+        with tqdm(total=len(runnable) * len(seeds), unit="seed", desc="benchmark") as bar:
+            for job in runnable:
+                bar.set_postfix_str(job.folder)
+                run_job(job, seeds, out, args.overrides, bar)
+    all_seeds, pairs = [], []
+    for job in jobs:
+        if job not in runnable:
+            pairs.append(pair_row(job, [], None, "no tuned file"))
+            continue
+        record = job_record(job, out)
+        rows = seed_rows(job, out / job.folder)
+        all_seeds += rows
+        note = "" if rows or not record else f"exit {record.get('returncode')}: {record.get('last_line', '')}"
+        pairs.append(pair_row(job, rows, record.get("wall_s"), note if record else "not run"))
+    write_csv(out / "seeds.csv", SEED_COLUMNS, all_seeds)
+    write_csv(out / "benchmark.csv", PAIR_COLUMNS, pairs)
+    specs = {}
+    for job in jobs:
+        rule = next((r for r in all_seeds if r["task"] == job.task and r["threshold"] is not None), None)
+        specs[job.task] = f"{job.robot}/{job.task_name}" + (
+            f", success: greedy {rule['measure']} >= {rule['threshold']:g}" if rule else "")
+    body = markdown(pairs, describe(seeds, command), specs)
+    (out / "benchmark.md").write_text(body)
+    readme = args.readme or (None if args.quick else ROOT / "README.md")
+    if readme is not None and not args.no_readme:
+        rewrite_readme(readme, body)
+    print(body)
+    print(f"results in {out}")
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    try:
+        run(args)
+    except BadInput as err:
+        sys.exit(f"error: {err}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,86 @@
+"""``python -m bench.benchmark``: end to end on the ``--quick`` preset with a tiny budget, and
+its one-line errors for bad input."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench import benchmark
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _readme(tmp_path: Path) -> Path:
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\n## Benchmark\n\n{benchmark.BEGIN}\nold table\n{benchmark.END}\n\n## After\n")
+    return readme
+
+
+def test_quick_benchmark_end_to_end(tmp_path):
+    out, readme = tmp_path / "results", _readme(tmp_path)
+    cmd = [sys.executable, "-m", "bench.benchmark", "--quick", "--seeds", "2", "--budget", "1600",
+           "--out", str(out), "--readme", str(readme), "--", "learner.nsteps=100", "eval_episodes=4"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    with open(out / "seeds.csv") as f:
+        seeds = list(csv.DictReader(f))
+    # the quick preset: cart-pole x qlearn and dqn with their tuned files, seeds 1000 and 1001
+    assert [(r["learner"], r["setting"], r["seed"]) for r in seeds] == [
+        ("qlearn", "tuned", "1000"), ("qlearn", "tuned", "1001"),
+        ("dqn", "tuned", "1000"), ("dqn", "tuned", "1001")]
+    for row in seeds:
+        assert row["status"] == "ok" and row["measure"] == "length"
+        assert int(row["env_steps"]) <= 1600 + 16  # the budget, up to one batched step
+        assert float(row["greedy"]) > 0
+        # success is the final greedy policy meeting the threshold, nothing else
+        assert (row["success"] == "True") == (float(row["greedy"]) >= float(row["threshold"]))
+        assert Path(row["run_dir"], "eval.json").is_file()
+    with open(out / "benchmark.csv") as f:
+        pairs = list(csv.DictReader(f))
+    assert [(p["learner"], p["seeds"], p["budget_steps"]) for p in pairs] == [
+        ("qlearn", "2", "1600"), ("dqn", "2", "1600")]
+    text = readme.read_text()
+    assert "old table" not in text and text.endswith("## After\n")
+    table = text.split(benchmark.BEGIN)[1].split(benchmark.END)[0]
+    assert "**cartpole** (cartpole/stay_up, success: greedy length >= 250" in table
+    assert "| qlearn | tuned | " in table and "| dqn | tuned | " in table
+    assert "greedy_length IQM [95% CI]" in table
+    # Read back from its folder, the run gives the same table (its command line aside).
+    again = tmp_path / "again.md"
+    again.write_text(readme.read_text().replace(table, "\nx\n"))
+    benchmark.main(["--read", str(out), "--readme", str(again)])
+    strip = lambda s: s.split("\n", 1)[1]  # noqa: E731 - the first line names the command
+    assert strip(again.read_text().split(benchmark.BEGIN)[1]) == strip(text.split(benchmark.BEGIN)[1])
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--tasks", "moon"], "unknown task 'moon'; the benchmark's tasks: cartpole, cube, maze, wall"),
+    (["--learners", "sarsa"], "unknown learner 'sarsa'; learners: dqn, mbalunovic, n1try, qlearn, ruippeixotog"),
+    (["--seeds", "0"], "--seeds must be at least 1, got 0"),
+    (["--budget", "-3"], "--budget must be a positive number of env steps, got -3"),
+    (["--settings", "best"], "unknown setting 'best'; settings: published, tuned"),
+    (["--quick", "--budget", "100"], "a budget of 100 env steps cannot finish an episode of cartpole x qlearn "
+                                     "(tuned): 8 copies x up to 1000 steps need 8000; give --budget 8000 or more"),
+    (["--read", "/no/such/folder"], "--read /no/such/folder: no such results folder"),
+    (["--quick", "--", "learner.no_such_knob=3"], "cartpole x qlearn (tuned): "),
+])
+def test_bad_input_is_one_line(argv, says, tmp_path):
+    out = ["--out", str(tmp_path / "o")]
+    at = argv.index("--") if "--" in argv else len(argv)
+    with pytest.raises(SystemExit) as exc:
+        benchmark.main([*argv[:at], *out, *argv[at:]])
+    message = str(exc.value)
+    assert message.startswith("error: ") and says in message and "\n" not in message
+    assert not (tmp_path / "o").exists()  # nothing ran
+
+
+def test_missing_markers_is_one_line(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("# no markers\n")
+    with pytest.raises(benchmark.BadInput, match="has no <!-- benchmark:begin --> ... "):
+        benchmark.rewrite_readme(readme, "table\n")
