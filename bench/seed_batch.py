@@ -1,12 +1,12 @@
 """Seeds in one process against one seed alone: wall time and peak memory (run by hand).
 
-    python bench/seed_batch.py [--seeds 10] [--learners qlearn dqn] [--qlearn-episodes 4000]
+    python bench/seed_batch.py [--seeds 10] [--learners qlearn dqn] [--qlearn-steps 150000]
                                [--dqn-steps 30000]
 
 Per learner, side by side in this run: one plain process ``train.py seed=0`` and one
 ``train.py -m seed='range(N)'`` (the ``seeds`` launcher: one batch of N seeds), each
-with the same per-seed budget (the episode budget for qlearn, ``max_env_steps`` for
-dqn), training past "solved" so every seed spends the whole budget. Timed from
+with the same per-seed budget of env steps (``max_env_steps``; an episode budget
+would let the batch wait for its slowest seed), training past "solved" so every seed spends the whole budget. Timed from
 outside, start to exit; the peak memory is the largest resident set of the process.
 
 Measured 2026-11-26 (2 cores, one busy with another job; seeds 10, the defaults):
@@ -45,16 +45,16 @@ def timed(cmd: list[str]) -> tuple[float, float]:
 
 
 def budget(learner: str, args) -> list[str]:
-    if learner == "qlearn":
-        return [f"learner.nepisodes={args.qlearn_episodes}", "stop_when_solved=false"]
-    return [f"max_env_steps={args.dqn_steps}", "stop_when_solved=false"]
+    """The same env-step budget for every seed (so no seed waits for a slower one)."""
+    steps = args.qlearn_steps if learner == "qlearn" else args.dqn_steps
+    return [f"max_env_steps={steps}", "learner.nepisodes=100000000", "stop_when_solved=false"]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--learners", nargs="+", default=["qlearn", "dqn"])
-    parser.add_argument("--qlearn-episodes", type=int, default=4000)
+    parser.add_argument("--qlearn-steps", type=int, default=150000)
     parser.add_argument("--dqn-steps", type=int, default=30000)
     args = parser.parse_args()
     if args.seeds < 1:
