@@ -118,6 +118,11 @@ class Run:
     (``greedy_eval``, run every ``eval_every`` episodes); either way the run
     stops once it is met. Every evaluation is kept (``evals``, evals.csv),
     whichever judge decides.
+
+    A run called solved leaves a solved policy: when the training episodes meet the
+    rule, the greedy policy is evaluated at once and the run is solved only if it meets
+    the threshold too (``confirmed``); otherwise training goes on and the next try waits
+    ``window`` episodes. Without ``greedy_eval`` the training rule alone decides.
     """
 
     def __init__(self, run_dir: Path | str, num_envs: int, max_episodes: int, success: Success,
@@ -151,6 +156,9 @@ class Run:
         self.solved_at: int | None = None
         self.decided_by: str | None = None  # "training" or "greedy", once solved
         self.solved_value: float | None = None  # the judged mean that solved it
+        self.confirmed: float | None = None  # the greedy measure that confirmed a training verdict
+        self._confirm: float | None = None  # a training mean that met the rule, to confirm greedily
+        self._next_confirm = 0  # the episode count from which a training verdict may be tried again
         self.stop_requested = False
         self.first_step_s: float | None = None  # process start to the first step (``start``)
         self.divergences = 0  # the env's count of physics divergences (truncated episodes)
@@ -216,6 +224,8 @@ class Run:
         self.log_train()
         if self.progress is not None and self.progress.every and self.n_episodes >= self._next_progress:
             self._report_progress()
+        if self._confirm is not None and not self.stop_requested:
+            self._confirm_greedily()
         last_eval = self.evals[-1]["episode"] if self.evals else 0
         if (self.eval_every and self.greedy_eval is not None and not self.done
                 and self.n_episodes - last_eval >= self.eval_every):
@@ -267,10 +277,25 @@ class Run:
         self.files.write_episode(ep)
         log_episode(self.logger, ep, self.success)
         self.console.episode(ep, self.evals[-1] if self.evals else None, self._peek_train_stats)
-        if (self.solved_at is None and self.success.judge == "training"
-                and self.success.met(ep.rolling, self.n_episodes)):
-            self._solve("training", ep.rolling)
+        if (self.solved_at is None and self.success.judge == "training" and self._confirm is None
+                and self.n_episodes >= self._next_confirm and self.success.met(ep.rolling, self.n_episodes)):
+            if self.greedy_eval is None:
+                self._solve("training", ep.rolling)
+            else:  # at the step's end (:meth:`end_step`), once its episodes are booked
+                self._confirm = ep.rolling
         return ep
+
+    def _confirm_greedily(self) -> None:
+        """The greedy policy's evaluation of a training verdict: solved if it meets the
+        threshold too, else the next try ``window`` episodes later."""
+        rolling, self._confirm = self._confirm, None
+        self.evaluate_greedy()
+        value = self.evals[-1]["value"]
+        if self.success.met(value, self.n_episodes):
+            self._solve("training", rolling)
+            self.confirmed = value
+        else:
+            self._next_confirm = self.n_episodes + self.success.window
 
     def evaluate_greedy(self, evaluation=None) -> dict:
         """Runs ``evaluation`` (default ``greedy_eval``) now, records it and, if the greedy
@@ -330,6 +355,7 @@ class Run:
                 "values": torch.tensor(np.frombuffer(self.values, np.float64)), "evals": [dict(r) for r in self.evals],
                 "env_steps": self.env_steps, "solved_at": self.solved_at,
                 "decided_by": self.decided_by, "solved_value": self.solved_value,
+                "confirmed": self.confirmed, "next_confirm": self._next_confirm,
                 "wall_s": self.wall_s, "last_eval": self.last_eval, "log_sizes": csv_sizes(self.run_dir),
                 "train_logged": self._train_logged, "train_due": self._train_due,
                 "ret": torch.from_numpy(self._ret.copy()), "len": torch.from_numpy(self._len.copy())}
@@ -347,6 +373,8 @@ class Run:
         self.solved_at = state["solved_at"]
         self.decided_by = state["decided_by"]
         self.solved_value = state["solved_value"]
+        self.confirmed = state.get("confirmed")
+        self._next_confirm = int(state.get("next_confirm", 0))
         self.last_eval = state.get("last_eval")  # the final evaluation's, once it ran
         self._log_sizes = state.get("log_sizes")
         self._train_logged, self._train_due = state.get("train_logged"), bool(state.get("train_due", False))

@@ -153,6 +153,37 @@ def test_stay_up_keeps_the_seeds_rule_on_training_episodes(tmp_path):
     run.close()
 
 
+def test_a_training_verdict_needs_the_greedy_policy_to_meet_it_too(tmp_path):
+    """A run called solved leaves a solved policy: when the last 100 training episodes meet
+    the rule, the greedy policy is evaluated at once; below the threshold the run goes on,
+    tries again a window later, and is solved (and stops) only once the greedy policy
+    meets it too."""
+    task = StayUp(CartPole())
+    greedy = iter([180.0, 320.0])  # the greedy policy's mean length, try by try
+    tries = []
+
+    def evaluation():
+        tries.append(run.n_episodes)
+        return {"episodes": 20, "mean_length": next(greedy), "mean_return": 0.0}
+
+    run = Run(tmp_path, 1, 1000, task.success, quiet=True, hooks=Hooks(greedy_eval=evaluation))
+
+    def feed_steps(lengths):
+        for length in lengths:
+            feed(run, [length])
+            run.end_step(None)
+
+    feed_steps([300] * 100)  # episode 100: the rule is met, the greedy policy is not
+    assert tries == [100] and run.solved_at is None and not run.done
+    feed_steps([300] * 99)  # no new try within the window
+    assert tries == [100] and run.solved_at is None
+    feed_steps([300])  # episode 200: tried again, and met
+    assert tries == [100, 200]
+    assert run.solved_at == 200 and run.decided_by == "training" and run.confirmed == 320.0
+    assert run.done and [r["value"] for r in run.evals] == [180.0, 320.0]
+    run.close()
+
+
 def test_scores_are_named_for_what_they_are(tmp_path):
     """The headline is the best rolling mean; the seeds' "best 100" is the mean of the 100
     best episodes, wherever they fell."""
