@@ -84,3 +84,19 @@ def test_missing_markers_is_one_line(tmp_path):
     readme.write_text("# no markers\n")
     with pytest.raises(benchmark.BadInput, match="has no <!-- benchmark:begin --> ... "):
         benchmark.rewrite_readme(readme, "table\n")
+
+
+def test_a_results_folder_takes_more_jobs_and_keeps_finished_ones(tmp_path):
+    """``--out`` of an earlier benchmark: new pairs join its plan, a finished pair is never
+    rerun nor replaced by other settings, an unfinished one is replaced."""
+    job = lambda learner, budget=1000: benchmark.Job(  # noqa: E731
+        "cartpole", "cartpole", "stay_up", learner, "tuned", budget, (1000, 1001))
+    done, stopped = job("qlearn"), job("dqn")
+    (tmp_path / "cartpole").mkdir()
+    (tmp_path / "cartpole" / "qlearn_tuned.json").write_text('{"returncode": 0, "wall_s": 3.0}')
+    (tmp_path / "cartpole" / "dqn_tuned.json").write_text('{"returncode": -9, "wall_s": 3.0}')
+    merged = benchmark.merge([done, stopped], [job("n1try"), job("dqn", 2000), done], tmp_path)
+    assert merged == [done, job("dqn", 2000), job("n1try")]
+    assert benchmark.finished(done, tmp_path) and not benchmark.finished(stopped, tmp_path)
+    with pytest.raises(benchmark.BadInput, match="already holds cartpole/qlearn_tuned run with other"):
+        benchmark.merge([done], [job("qlearn", 5000)], tmp_path)
