@@ -92,6 +92,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, help="the results folder (default: benchmark/<time>)")
     parser.add_argument("--readme", type=Path, help="the README whose Benchmark section to rewrite")
     parser.add_argument("--no-readme", action="store_true", help="leave the README alone")
+    parser.add_argument("--solo", action="store_true",
+                        help="also time each pair's first seed alone (what one process saved)")
     parser.add_argument("--read", type=Path, help="tabulate this results folder again; run nothing")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (after --)")
     return parser.parse_args(argv)
@@ -127,7 +129,8 @@ def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
         spec = plan["tasks"][task]
         for learner in learners:
             for setting in settings:
-                extra = [*(plan.get("published_overrides", []) if setting == "published" else []),
+                extra = [*spec.get("overrides", []),
+                         *(plan.get("published_overrides", []) if setting == "published" else []),
                          *args.overrides]
                 jobs.append(Job(task, spec["robot"], spec["task"], learner, setting,
                                 args.budget or int(spec["budget_steps"]), tuple(range(first, first + n)),
@@ -167,10 +170,12 @@ def check_budget(job: Job) -> None:
                        f"{cfg.learner.nsteps} steps need {need}; give --budget {need} or more")
 
 
-def run_job(job: Job, out: Path, bar: tqdm) -> dict:
+def run_job(job: Job, out: Path, bar: tqdm, solo: bool = False) -> dict:
     """Trains ``job``'s seeds as one multirun into ``out/<task>/<learner>_<setting>/``; its
     command, exit code and wall seconds go to ``<learner>_<setting>.json`` beside it, its
-    console to ``<learner>_<setting>.log``. The bar moves as each seed writes its verdict."""
+    console to ``<learner>_<setting>.log``. The bar moves as each seed writes its verdict.
+    ``solo``: also times the first seed trained alone (``solo_wall_s``), to say what
+    training the seeds in one process saved."""
     sweep = out / job.folder
     sweep.parent.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
@@ -189,6 +194,12 @@ def run_job(job: Job, out: Path, bar: tqdm) -> dict:
     lines = sweep.with_suffix(".log").read_text(errors="replace").strip().splitlines()
     record = {"command": cmd, "returncode": proc.returncode, "wall_s": time.perf_counter() - t0,
               "last_line": lines[-1] if lines else ""}
+    if solo:
+        t0 = time.perf_counter()
+        alone = subprocess.run([sys.executable, "train.py", "quiet=true", f"hydra.run.dir={sweep}_solo",
+                                f"seed={job.seeds[0]}", *overrides(job)], cwd=ROOT, capture_output=True)
+        if alone.returncode == 0:
+            record["solo_wall_s"] = time.perf_counter() - t0
     sweep.with_suffix(".json").write_text(json.dumps(record, indent=1))
     if proc.returncode not in (0, 1):  # 1: some seed failed (its row says why)
         tqdm.write(f"warning: {job.folder} exited {proc.returncode}: {record['last_line']}")
@@ -375,7 +386,7 @@ def run(args: argparse.Namespace) -> Path:
         with tqdm(total=sum(len(job.seeds) for job in todo), unit="seed", desc="benchmark") as bar:
             for job in todo:
                 bar.set_postfix_str(job.folder)
-                run_job(job, out, bar)
+                run_job(job, out, bar, args.solo)
         commands.append(command)
     pairs, all_seeds = tabulate(jobs, runnable, out)
     body = markdown(pairs, describe(jobs, commands), specs_of(jobs, all_seeds))
@@ -400,6 +411,10 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         rows = seed_rows(job, out / job.folder)
         all_seeds += rows
         note = "" if rows or not record else f"exit {record.get('returncode')}: {record.get('last_line', '')}"
+        solo = record.get("solo_wall_s")
+        if solo and rows and not note:
+            note = (f"{len(rows)} seeds in one process: {record['wall_s']:.0f} s; one seed alone "
+                    f"{solo:.0f} s ({record['wall_s'] / (len(rows) * solo):.2f} of {len(rows)} runs alone)")
         pairs.append(pair_row(job, rows, record.get("wall_s"), note if record else "not run"))
     write_csv(out / "seeds.csv", SEED_COLUMNS, all_seeds)
     write_csv(out / "benchmark.csv", PAIR_COLUMNS, pairs)

@@ -24,7 +24,7 @@ def _readme(tmp_path: Path) -> Path:
 def test_quick_benchmark_end_to_end(tmp_path):
     out, readme = tmp_path / "results", _readme(tmp_path)
     cmd = [sys.executable, "-m", "bench.benchmark", "--quick", "--seeds", "2", "--budget", "1600",
-           "--out", str(out), "--readme", str(readme), "--", "learner.nsteps=100", "eval_episodes=4"]
+           "--out", str(out), "--readme", str(readme), "--solo", "--", "learner.nsteps=100", "eval_episodes=4"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     with open(out / "seeds.csv") as f:
@@ -50,6 +50,9 @@ def test_quick_benchmark_end_to_end(tmp_path):
     assert "**cartpole** (cartpole/stay_up, success: greedy length >= 250" in table
     assert "| qlearn | tuned | " in table and "| dqn | tuned | " in table
     assert "greedy_length IQM [95% CI]" in table
+    # --solo: what training the seeds in one process saved, against the first seed alone
+    assert table.count("2 seeds in one process: ") == 2 and "one seed alone" in table
+    assert Path(str(out / "cartpole" / "dqn_tuned") + "_solo", "summary.json").is_file()
     # Read back from its folder, the run gives the same table (its command line aside).
     again = tmp_path / "again.md"
     again.write_text(readme.read_text().replace(table, "\nx\n"))
@@ -59,7 +62,7 @@ def test_quick_benchmark_end_to_end(tmp_path):
 
 
 @pytest.mark.parametrize("argv, says", [
-    (["--tasks", "moon"], "unknown task 'moon'; the benchmark's tasks: cartpole, cube, maze, wall"),
+    (["--tasks", "moon"], "unknown task 'moon'; the benchmark's tasks: cartpole, cube, cube_minus_y, maze, wall"),
     (["--learners", "sarsa"], "unknown learner 'sarsa'; learners: dqn, mbalunovic, n1try, qlearn, ruippeixotog"),
     (["--seeds", "0"], "--seeds must be at least 1, got 0"),
     (["--budget", "-3"], "--budget must be a positive number of env steps, got -3"),
