@@ -437,6 +437,9 @@ def main(argv: list[str] | None = None) -> None:
         run(args)
     except BadInput as err:
         sys.exit(f"error: {err}")
+    except KeyboardInterrupt:
+        where = f" --out {args.out}" if args.out else " --out <its results folder>"
+        sys.exit(f"stopped; finished pairs are kept: run the same command with{where} to go on")
 
 
 if __name__ == "__main__":
