@@ -370,7 +370,7 @@ def run(args: argparse.Namespace) -> Path:
         jobs, commands = read_plan(out)
     else:
         jobs = plan_jobs(args, load_plan(args.quick))
-        out = args.out or ROOT / "benchmark" / time.strftime("%Y%m%d-%H%M%S")
+        out = args.out = args.out or ROOT / "benchmark" / time.strftime("%Y%m%d-%H%M%S")
         commands = []
         if (out / "plan.json").exists():
             old, commands = read_plan(out)
@@ -438,8 +438,7 @@ def main(argv: list[str] | None = None) -> None:
     except BadInput as err:
         sys.exit(f"error: {err}")
     except KeyboardInterrupt:
-        where = f" --out {args.out}" if args.out else " --out <its results folder>"
-        sys.exit(f"stopped; finished pairs are kept: run the same command with{where} to go on")
+        sys.exit(f"stopped; finished pairs are kept: run the same command with --out {args.out} to go on")
 
 
 if __name__ == "__main__":
