@@ -276,3 +276,34 @@ def test_device_cuda_keeps_networks_and_buffer_on_the_gpu():
     learner.optimize(3)
     assert learner.buffer.rows.is_cuda and all(p.is_cuda for p in learner.net.parameters())
     assert seen["action"].device.type == "cpu" and learner.train_stats()["updates"] == 3
+
+
+def test_obs_scale_multiplies_named_observations_before_the_network(tmp_path):
+    """``obs_scale``: a fixed factor per named observation in front of the layers, saved
+    with the model (a model without it does not load into one with it); an unknown name
+    is a one-line error naming the task's observations."""
+    from params import ConfigError
+
+    task = StayUp(CartPole())
+    names = list(task.observation_names)
+    scaled = variant("dqn", obs_scale={names[0]: 0.5, names[2]: 10.0})
+    scaled.build(task)
+    plain = variant("dqn")
+    plain.build(task)
+    # the layers after the scale are plain's layers: copy them over and compare the values
+    scaled.net.load_state_dict({"0.scale": scaled.net[0].scale, **{
+        f"{int(k.split('.')[0]) + 1}.{k.split('.', 1)[1]}": v for k, v in plain.net.state_dict().items()}})
+    obs = torch.randn(7, len(names))
+    factor = torch.ones(len(names))
+    factor[0], factor[2] = 0.5, 10.0
+    assert torch.allclose(scaled.net(obs), plain.net(obs * factor))
+    save_model(tmp_path / "model.pt", scaled, meta={})
+    again = variant("dqn", obs_scale={names[0]: 0.5, names[2]: 10.0})
+    again.build(task)
+    load_model(tmp_path / "model.pt", again)
+    assert torch.equal(again.net(obs), scaled.net(obs))
+    with pytest.raises(CheckpointError, match="does not fit"):
+        load_model(tmp_path / "model.pt", plain)
+    with pytest.raises(ConfigError, match=f"learner.obs_scale names no observation of this task; its "
+                                          f"observations: {', '.join(names)}"):
+        variant("dqn", obs_scale={"wheel": 2.0}).build(task)
