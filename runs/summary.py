@@ -132,7 +132,8 @@ class MeasureKeys:
         what = description or self.measure
         unit = f" ({unit})" if unit else ""
         return {
-            self.judged: f"the mean {what}{unit} the verdict compared with the threshold",
+            self.judged: f"the mean {what}{unit} the verdict compared with the threshold (where it solved; "
+                         "else the last greedy evaluation's, or the best training window's)",
             self.train_return_mean: "the mean return over all training episodes",
             self.train_return_last100: f"the mean return of the last {RETURN_WINDOW} training episodes",
             self.train_best_rolling: f"the best mean {what}{unit} of {self.window} consecutive training episodes",
