@@ -93,29 +93,23 @@ def mean_curve(curves: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray,
 
 def greedy_points(evaluations: list[list[tuple[float, float]]]) -> tuple[np.ndarray, ...]:
     """``(x, iqm, low, high)`` of the seeds' greedy ``evaluations`` (per seed, ``(x, measure)``
-    points): the x range is cut into as many equal bins as the seed with the most
-    evaluations has; in each bin every seed that evaluated there counts once (the mean of
-    its evaluations in it), and the bin's point is at the mean x of those evaluations, by
-    the IQM over its seeds and their 95% bootstrap interval (one seed: no interval). Seeds
-    evaluate at different env steps (their episodes differ), so the k-th evaluations of two
-    seeds need not be near each other; the same x range is."""
+    points in order): at the mean x of the seeds' k-th evaluations, for each k but the last,
+    and at the last evaluation's x, the IQM over seeds of each seed's evaluated measure there,
+    with its 95% bootstrap interval (one seed: none). Seeds evaluate at different env steps
+    (their episodes differ): a seed counts with its measure interpolated between its
+    evaluations, after its last with that one (as its training curve holds its end: the last
+    point is the IQM of every seed's final evaluation), and not before its first."""
     evaluations = [e for e in evaluations if e]
     if not evaluations:
         return tuple(np.array([]) for _ in range(4))
-    xs = np.array([x for e in evaluations for x, _ in e])
-    n = max(map(len, evaluations))
-    edges = np.linspace(xs.min(), xs.max(), n + 1)
+    seeds = [(np.array([x for x, _ in e]), np.array([v for _, v in e])) for e in evaluations]
+    most = max(len(xs) for xs, _ in seeds)
+    grid = sorted({*(float(np.mean([xs[k] for xs, _ in seeds if k < len(xs)])) for k in range(most - 1)),
+                   max(float(xs[-1]) for xs, _ in seeds)})
     out = []
-    for b in range(n):
-        at, values = [], []
-        for e in evaluations:
-            mine = [(x, v) for x, v in e if min(int(np.searchsorted(edges, x, side="right")) - 1, n - 1) == b]
-            if mine:
-                at += [x for x, _ in mine]
-                values.append(float(np.mean([v for _, v in mine])))
-        if values:
-            centre, low, high = iqm_ci(values, n_resamples=CI_RESAMPLES)
-            out.append((float(np.mean(at)), centre, low, high))
+    for x in grid:
+        values = [float(np.interp(x, xs, vs)) for xs, vs in seeds if x >= xs[0]]
+        out.append((x, *iqm_ci(values, n_resamples=CI_RESAMPLES)))
     return tuple(np.array(column) for column in zip(*out))
 
 

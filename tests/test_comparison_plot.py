@@ -87,7 +87,7 @@ def test_curves_are_against_env_steps_with_greedy_points_and_the_threshold(two_l
     greedy = by_gid(left, "greedy:")
     assert len(greedy) == 2 and all(len(line.get_xdata()) == EPISODES // EVAL_EVERY for line in greedy)
     dqn = next(line for line in greedy if "dqn" in line.get_gid())
-    assert dqn.get_ydata()[-1] == pytest.approx(2 * 160.0)  # the last bin's IQM of the final evaluations
+    assert dqn.get_ydata()[-1] == pytest.approx(2 * 160.0)  # the IQM of the seeds' final evaluations
     assert len(by_gid(left, "greedy_ci:")) == 2  # the CI bands
     assert any(list(line.get_ydata()) == [250, 250] for line in left.lines)  # the threshold
     texts = [t.get_text() for t in left.get_legend().get_texts()]
@@ -144,11 +144,16 @@ def test_many_trials_fade_behind_the_best_and_the_legend_stays_short(tmp_path):
     assert right.get_yticklabels()[0].get_color() == BEST_COLOUR
 
 
-def test_greedy_points_pool_the_seeds_evaluations_by_env_steps():
-    """Seeds evaluate at different env steps: each x bin takes every seed once."""
-    x, centre, low, high = greedy_points([[(100, 1.0), (200, 2.0), (300, 3.0)], [(120, 2.0), (260, 4.0)], [(90, 0.0)]])
-    assert list(x) == pytest.approx([(100 + 120 + 90) / 3, 200.0, 280.0])
-    assert list(centre) == pytest.approx([1.0, 2.0, 3.5])
-    assert np.isnan(low[1]) and np.isnan(high[1])  # one seed: no interval
-    assert low[0] <= centre[0] <= high[0]
+def test_greedy_points_take_every_seed_at_the_same_env_steps():
+    """Seeds evaluate at different env steps: at the mean x of the k-th evaluations (the last
+    at the last one's x), each seed counts with its measure interpolated there, held after its
+    last evaluation, not before its first."""
+    x, centre, low, high = greedy_points([[(100, 1.0), (200, 2.0), (300, 3.0)], [(120, 2.0), (260, 4.0)],
+                                          [(90, 0.0)]])
+    assert list(x) == pytest.approx([(100 + 120 + 90) / 3, 230.0, 300.0])
+    b_at_230 = 2.0 + 2.0 * (230 - 120) / (260 - 120)
+    assert list(centre) == pytest.approx([(1 + 1 / 30) / 2, (2.3 + b_at_230 + 0.0) / 3, (3.0 + 4.0 + 0.0) / 3])
+    assert all(lo <= c <= hi for lo, c, hi in zip(low, centre, high))
+    x, centre, low, high = greedy_points([[(100, 5.0)]])
+    assert list(centre) == [5.0] and np.isnan(low[0]) and np.isnan(high[0])  # one seed: no interval
     assert all(len(a) == 0 for a in greedy_points([[], []]))
