@@ -172,9 +172,10 @@ def _learning(ax, rows: list[dict], x: str) -> tuple[set[float], list]:
             if shown:
                 ax.fill_between(grid, low, high, color=style["color"], alpha=0.12, lw=0)
                 handles.append((line, label(row, len(curves))))
-        evaluations = [_evaluations(run, x) for run in finished]
-        ex, centre, low, high = greedy_points(evaluations)
-        if shown and len(ex):
+        if not shown:  # a faded row's evaluations are not drawn (its curve says enough)
+            continue
+        ex, centre, low, high = greedy_points([_evaluations(run, x) for run in finished])
+        if len(ex):
             ax.plot(ex, centre, "o--", ms=5, lw=1, color=style["color"], gid=f"greedy:{label(row)}", zorder=4)
             has_ci = ~np.isnan(low)
             ax.fill_between(ex, np.where(has_ci, low, centre), np.where(has_ci, high, centre),
@@ -182,7 +183,7 @@ def _learning(ax, rows: list[dict], x: str) -> tuple[set[float], list]:
     if many:
         handles.append((Line2D([], [], **FADED), _others(rows)))
     handles.append((Line2D([], [], color="k", lw=1.8),
-                    f"training: mean of the last {window} episodes (mean over seeds, band min-max)"))
+                    f"training: mean of the last {window or 'window of'} episodes (mean over seeds, band min-max)"))
     handles.append((Line2D([], [], color="k", ls="--", marker="o", ms=5, lw=1),
                     "greedy evaluation (IQM over seeds, band 95% CI)"))
     ax.set_xlabel(X_LABELS[x])
