@@ -1,5 +1,6 @@
 """The README's generated tables: parameters, made from the declarations
-(:mod:`params.declare`), and what there is to pick (:mod:`runs.catalog`).
+(:mod:`params.declare`), what there is to pick (:mod:`runs.catalog`), and the names of the
+numbers a run reports (:mod:`runs.summary`).
 
     python -m readme_tables            # prints the tables
     python -m readme_tables --write    # rewrites them in README.md between their markers
@@ -22,11 +23,14 @@ from omegaconf import OmegaConf
 from params.declare import specs, table
 from runs import catalog
 from runs.gym_env import env_id
+from runs.summary import MeasureKeys
 from tasks.base import Task
 
 BEGIN, END = "<!-- parameter tables: python -m readme_tables --write -->", "<!-- end of parameter tables -->"
 DISCOVERY_BEGIN = "<!-- discovery tables: python -m readme_tables --write -->"
 DISCOVERY_END = "<!-- end of discovery tables -->"
+NAMES_BEGIN = "<!-- names table: python -m readme_tables --write -->"
+NAMES_END = "<!-- end of names table -->"
 
 
 def _targets(node, key: str):
@@ -67,7 +71,8 @@ def tables() -> str:
 
 def blocks() -> dict[tuple[str, str], str]:
     """(begin marker, end marker) -> what goes between them in the README."""
-    return {(BEGIN, END): tables(), (DISCOVERY_BEGIN, DISCOVERY_END): discovery_tables()}
+    return {(BEGIN, END): tables(), (DISCOVERY_BEGIN, DISCOVERY_END): discovery_tables(),
+            (NAMES_BEGIN, NAMES_END): names_table()}
 
 
 def _row(*cells: str) -> str:
@@ -89,6 +94,18 @@ def discovery_tables() -> str:
     fits = {(r, t): catalog.built(r, t) for r in catalog.robot_names() for t in catalog.names("task")}
     tuned = [pair for pair in catalog.tuned_pairs().values() if pair]
     return "\n\n".join((_robots(fits, tuned), _tasks(fits), _learners(tuned))) + "\n"
+
+
+def names_table() -> str:
+    """The numbers a run reports, by their summary.json names (:class:`runs.summary.MeasureKeys`,
+    with ``<measure>`` and ``<window>`` for the task's), and what each is."""
+    keys = MeasureKeys("<measure>", "<window>")  # type: ignore[arg-type]  # the patterns, not a task's
+    rows = [(f"`{name}`", meaning.replace("<measure>", "`<measure>`").replace("<window>", "`<window>`"))
+            for name, meaning in keys.meanings().items()]
+    return _table("The numbers a run reports, by the names summary.json, the verdict, the loggers' `run/*` "
+                  "scalars, the comparison and the tuning objective give them (`<measure>`: the task's "
+                  "measure, `<window>`: its window; e.g. `greedy_distance_walked`, `train_length_last100`):",
+                  ("name", "what"), rows) + "\n"
 
 
 def _table(intro: str, header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:

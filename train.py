@@ -11,9 +11,11 @@ timing.csv, reward_curve.png, model.pt, checkpoint.pt (the whole training
 state, every ``checkpoint_every`` episodes and at the end) and, with
 ``video=true``, policy.mp4. Ctrl-C (or SIGTERM) stops at the next step, saves
 checkpoint.pt and prints the resume command. The last line printed is
-machine-readable:
-``VERDICT solved=<true|false> episodes=<n> measure=<task's measure> judge=<training|greedy>
-value=<v> threshold=<v> best_rolling100=<v> greedy=<v> wall_s=<v> run_dir=<path>``.
+machine-readable, its numbers named as in summary.json (:mod:`runs.summary`; ``<m>`` the
+task's measure, ``<w>`` its window):
+``VERDICT solved=<true|false> episodes=<n> solved_at=<n|-> measure=<m> judge=<training|greedy>
+judged_<m>=<v> threshold=<v> train_<m>_best_rolling<w>=<v> train_<m>_last<w>=<v> greedy_<m>=<v>
+train_return_mean=<v> greedy_return=<v> wall_s=<v> run_dir=<path>``.
 """
 
 from __future__ import annotations

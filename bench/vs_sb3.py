@@ -34,7 +34,7 @@ from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 from stable_baselines3.common.monitor import Monitor  # noqa: E402
 
 from tasks.base import Success  # noqa: E402
-from runs.summary import summarize_run  # noqa: E402
+from runs.summary import measure_keys, summarize_run  # noqa: E402
 from tasks.factory import build_task  # noqa: E402
 from runs.catalog import compose  # noqa: E402
 
@@ -112,7 +112,8 @@ def run_ours(seed: int) -> dict:
             "episodes": s["episodes_to_solve"] if solved else s["episodes"],
             "env_steps": s["steps_to_solve"] if solved else s["env_steps"],
             "wall_s": s["wall_to_solve"] if solved else s["wall_s"],
-            "best100": float(s["best_rolling"]), "run_dir": str(run_dir)}
+            "best100": float(s[measure_keys(s["measure"], s["window"]).train_best_rolling]),
+            "run_dir": str(run_dir)}
 
 
 def report(ours: dict, sb3: dict, seed: int, cap: int, win: Success) -> None:

@@ -10,7 +10,8 @@ What a training run sends, every scalar at the step of the run's env steps
 (:func:`log_episode`, ``episode/index`` its number), ``eval/<name>`` per
 greedy evaluation (:func:`log_evaluation`), ``train/<name>`` the learner's
 ``train_stats()`` (:func:`log_train`; when, :class:`~runs.run.Run` says),
-``run/<name>`` at the end (:func:`finish_log`) and the resolved config once at
+``run/<name>`` at the end (:func:`finish_log`: the summary's numbers under their
+summary.json names, :func:`run_scalar_names`) and the resolved config once at
 the start (:func:`log_hparams`). With no logger (``None``) they do nothing.
 W&B: TorchRL gives each group its own step metric (``episode/step``, ...),
 which holds these env steps.
@@ -26,19 +27,20 @@ import importlib.util
 import os
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
 from runs.episode import Episode
 from runs.metrics_files import rolling_field
+from runs.summary import measure_keys
 from params import ConfigError
 from tasks.base import Success
 
 # logger kind -> the package it needs (None: nothing beyond the base install)
 NEEDS = {"csv": None, "tensorboard": "tensorboard", "wandb": "wandb", "mlflow": "mlflow"}
-# the summary's numbers logged as run/<name> at the end
-RUN_SCALARS = ("best_rolling", "mean_of_100_best_episodes", "score", "env_steps", "wall_s", "divergences")
+# the summary's counts logged as run/<name> at the end, after its named numbers (run_scalar_names)
+RUN_COUNTS = ("env_steps", "episodes", "wall_s", "divergences", "solved")
 
 
 def make_logger(kind: str | None, run_dir: Path, exp_name: str, offline: bool = True,
@@ -133,13 +135,22 @@ def log_train(logger, stats: Mapping[str, float], env_steps: int) -> None:
         _log(logger, "train", stats, env_steps)
 
 
+def run_scalar_names(measure: str, window: int) -> tuple[str, ...]:
+    """The ``run/<name>`` scalars of a run of the task measure ``measure`` judged over
+    ``window`` episodes: its summary's numbers under their summary.json names
+    (``train_return_mean``, ..., ``greedy_<measure>``, ``greedy_return``), then
+    ``RUN_COUNTS``."""
+    return tuple(f"run/{name}" for name in (*measure_keys(measure, window).logged(), *RUN_COUNTS))
+
+
 def finish_log(logger, summary: dict) -> None:
-    """``run/<name>``: the summary's headline numbers, its episodes and whether it solved;
-    then closes ``logger``."""
+    """``run/<name>`` (:func:`run_scalar_names`): the summary's numbers, each under its
+    summary.json name (a number the run lacks, such as the greedy one without an
+    evaluation, is left out), its counts and whether it solved; then closes ``logger``."""
     if logger is None:
         return
-    scalars = {key: summary[key] for key in RUN_SCALARS}
-    scalars |= {"episodes": summary["episodes"], "solved": summary["solved"]}
+    names = [n.split("/", 1)[1] for n in run_scalar_names(summary["measure"], summary["window"])]
+    scalars = {key: summary[key] for key in names if summary.get(key) is not None}
     _log(logger, "run", scalars, summary["env_steps"])
     logger.close()
 
@@ -169,14 +180,11 @@ def flat_config(cfg: DictConfig | Mapping) -> dict[str, int | float | str | bool
     return flat
 
 
-RUN_METRICS = tuple(f"run/{key}" for key in (*RUN_SCALARS, "episodes", "solved"))
-
-
-def log_hparams(logger, cfg: DictConfig | Mapping) -> None:
+def log_hparams(logger, cfg: DictConfig | Mapping, metrics: Sequence[str] = ()) -> None:
     """The resolved run config (:func:`flat_config`), once, at the start: TensorBoard's
-    HParams tab (the run's session in its own event file; the ``run/*`` scalars at the end
-    are its final measures), W&B's config, MLflow's params, the CSV logger's
-    ``texts/hparams0.txt``."""
+    HParams tab (the run's session in its own event file; its metrics, ``metrics``, are the
+    ``run/*`` scalars logged at the end: :func:`run_scalar_names`), W&B's config, MLflow's
+    params, the CSV logger's ``texts/hparams0.txt``."""
     if logger is None:
         return
     flat = flat_config(cfg)
@@ -192,16 +200,17 @@ def log_hparams(logger, cfg: DictConfig | Mapping) -> None:
     # of its own, :func:`write_sweep_hparams`).
     from torch.utils.tensorboard.summary import hparams
 
-    _, session_start, session_end = hparams(flat, dict.fromkeys(RUN_METRICS, 0.0))
+    _, session_start, session_end = hparams(flat, dict.fromkeys(metrics, 0.0))
     writer = logger.experiment._get_file_writer()
     for summary in (session_start, session_end):
         writer.add_summary(summary)
 
 
-def write_sweep_hparams(folder: Path, configs: list[Mapping]) -> Path:
+def write_sweep_hparams(folder: Path, configs: list[Mapping], metrics: Sequence[str]) -> Path:
     """TensorBoard's experiment for a sweep's runs, in ``folder/hparams``: every setting any
-    of ``configs`` (the runs' resolved configs) has, and the ``run/*`` final measures as the
-    metrics, so ``tensorboard --logdir <sweep>`` compares the runs in its HParams tab."""
+    of ``configs`` (the runs' resolved configs) has, and ``metrics`` (the runs' ``run/*``
+    scalars, :func:`run_scalar_names`) as its metrics, so ``tensorboard --logdir <sweep>``
+    compares the runs in its HParams tab."""
     from torch.utils.tensorboard import SummaryWriter
     from torch.utils.tensorboard.summary import hparams
 
@@ -209,7 +218,7 @@ def write_sweep_hparams(folder: Path, configs: list[Mapping]) -> Path:
     for cfg in configs:
         for key, value in flat_config(cfg).items():
             examples.setdefault(key, value)
-    experiment, _, _ = hparams(dict(sorted(examples.items())), dict.fromkeys(RUN_METRICS, 0.0))
+    experiment, _, _ = hparams(dict(sorted(examples.items())), dict.fromkeys(dict.fromkeys(metrics), 0.0))
     out = Path(folder) / "hparams"
     for old in out.glob("events.out.tfevents.*"):
         old.unlink()  # compare.py again: one experiment

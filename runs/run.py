@@ -27,6 +27,7 @@ and saves its whole state every ``checkpoint_every`` episodes through the
 
 from __future__ import annotations
 
+import csv
 import ctypes
 import os
 import time
@@ -146,9 +147,10 @@ class Run:
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
         self.last_td: TensorDictBase | None = None  # where the next step would start
         self.n_episodes = 0
-        # Per episode, packed (16 bytes an episode, not ~60 as Python lists: long runs stay small).
+        # Per episode, packed (24 bytes an episode, not ~90 as Python lists: long runs stay small).
         self.lengths = array("q")
         self.values = array("d")  # the task's measure
+        self.returns = array("d")  # the sum of the env's rewards
         self.evals: list[dict] = []  # one row per greedy evaluation (evals.csv's, "value" the measure)
         self.last_eval: dict | None = None  # the newest evaluation's full result
         self._log_sizes: dict[str, int] | None = None  # a resumed run's CSV logger bytes to keep
@@ -270,6 +272,7 @@ class Run:
         value = float(length) if measure == "length" else float(ended_info[measure][i])
         self.lengths.append(length)
         self.values.append(value)
+        self.returns.append(float(self._ret[i]))
         self.n_episodes += 1
         ep = Episode(episode=self.n_episodes, env_index=i, reward=float(self._ret[i]), length=length,
                      terminated=terminated, env_steps=self.env_steps, wall_s=round(self.wall_s, 3),
@@ -352,7 +355,9 @@ class Run:
     def state_dict(self) -> dict:
         # Tensors, not lists: no Python object per episode (a long run's checkpoint stays cheap).
         return {"n_episodes": self.n_episodes, "lengths": torch.tensor(np.frombuffer(self.lengths, np.int64)),
-                "values": torch.tensor(np.frombuffer(self.values, np.float64)), "evals": [dict(r) for r in self.evals],
+                "values": torch.tensor(np.frombuffer(self.values, np.float64)),
+                "returns": torch.tensor(np.frombuffer(self.returns, np.float64)),
+                "evals": [dict(r) for r in self.evals],
                 "env_steps": self.env_steps, "solved_at": self.solved_at,
                 "decided_by": self.decided_by, "solved_value": self.solved_value,
                 "confirmed": self.confirmed, "next_confirm": self._next_confirm,
@@ -368,6 +373,8 @@ class Run:
         self.n_episodes = self._last_checkpoint = int(state["n_episodes"])
         self.lengths = array("q", np.asarray(state["lengths"], dtype=np.int64).tobytes())
         self.values = array("d", np.asarray(state["values"], dtype=np.float64).tobytes())
+        returns = state["returns"] if "returns" in state else self._returns_from_metrics(self.n_episodes)
+        self.returns = array("d", np.asarray(returns, dtype=np.float64).tobytes())
         self.evals = [dict(r) for r in state["evals"]]
         self.env_steps = int(state["env_steps"])
         self.solved_at = state["solved_at"]
@@ -383,6 +390,19 @@ class Run:
         self._t0 = time.perf_counter() - float(state["wall_s"])
         if reopen:
             self.reopen()
+
+    def _returns_from_metrics(self, episodes: int) -> list[float]:
+        """The first ``episodes`` returns in metrics.csv (its ``reward`` column): a checkpoint
+        saved before the run kept its returns; ValueError where the file has fewer."""
+        path = self.run_dir / "metrics.csv"
+        try:
+            with open(path, newline="") as f:
+                rows = [float(r["reward"]) for _, r in zip(range(episodes), csv.DictReader(f))]
+        except OSError as err:
+            raise ValueError(f"{path} is unreadable ({type(err).__name__})") from None
+        if len(rows) != episodes:
+            raise ValueError(f"{path} has {len(rows)} episode rows, the checkpoint needs {episodes}")
+        return rows
 
     def reopen(self) -> None:
         """Continues a resumed run's outputs after its loaded episodes: metrics.csv and

@@ -31,7 +31,7 @@ from runs.banner import banner_lines
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.evaluate import GreedyEvaluator, describe_evaluation, measure_of
 from runs.folder import model_path, start_run
-from runs.loggers import log_hparams, make_logger
+from runs.loggers import log_hparams, make_logger, run_scalar_names
 from runs.resume import load_training_state, save_training_state
 from runs.run import Hooks, Progress, Run
 from runs.seeding import seed_everything
@@ -105,7 +105,7 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
     if resume:
         run.continue_from(load_training_state(session.state_path, learner, env, run))
         print(f"resuming {session.run_dir} after episode {run.n_episodes} ({run.env_steps} env steps)")
-    log_hparams(logger, cfg)
+    log_hparams(logger, cfg, run_scalar_names(session.success.measure, session.success.window))
     return run
 
 

@@ -1,15 +1,59 @@
-"""Reading run folders back: what a comparison or a benchmark needs.
+"""summary.json's names, and reading run folders back: what a comparison, a tuning study
+or a benchmark needs.
 
-:func:`summarize_run` never raises on a damaged folder: a missing, empty or
-corrupt file makes the run ``failed`` (or ``interrupted``, when it can still be
-resumed) with one line in ``error`` saying which file and what is wrong.
+Every number a run reports is named for what it is, the same in ``summary.json``, the
+console verdict (its ``VERDICT`` line too), the loggers' ``run/*`` scalars, the
+comparison and the Optuna objective. ``<measure>`` is the task's success measure
+(``success.measure``: ``length``, ``distance_walked``, ``laps``, ...), ``<window>`` its
+judging window (``success.window``); :func:`measure_keys` builds the names, and every
+reader finds a number through it, never by spelling the name itself:
+
+- ``train_return_mean``: the mean return over all training episodes;
+- ``train_return_last100``: the mean return of the last 100 training episodes;
+- ``train_<measure>_best_rolling<window>``: the best mean of ``window`` consecutive
+  training episodes;
+- ``train_<measure>_last<window>``: the mean of the last ``window`` training episodes;
+- ``train_<measure>_best100_mean``: the mean of the 100 best training episodes, wherever
+  they fell (the seeds' "best 100");
+- ``greedy_<measure>``, ``greedy_return``: the final greedy evaluation's mean measure and
+  mean return (None without one);
+- ``judged_<measure>``: the mean the verdict compared with the threshold (at the solving
+  point; else the last greedy evaluation's, or the best training window's).
+
+:func:`summarize_run` returns, for any run folder (it never raises on a damaged one:
+a missing, empty or corrupt file makes the run ``failed``, or ``interrupted`` when it
+can still be resumed, with one line in ``error`` saying which file and what is wrong):
+
+- always: ``run_dir``, ``status`` (one of ``STATUSES``), ``overrides`` (the job's
+  command-line overrides, or None), and where known ``robot``, ``task``, ``learner``,
+  ``seed``; ``error`` (why a run is not ``ok``), ``resume`` (the command that continues
+  an interrupted run), ``warning`` (a finished run's damaged optional files);
+- for a finished run (``status == "ok"``) also: the task's rule, ``measure``, ``unit``,
+  ``window``, ``judge`` (``training`` or ``greedy``), ``threshold``; the outcome,
+  ``solved``, ``decided_by`` (the judge that solved it, else None), ``episodes``,
+  ``episodes_to_solve``, ``steps_to_solve``, ``wall_to_solve`` (None unless solved),
+  ``env_steps``, ``wall_s``, ``pruned_at`` (the episode a tuning study stopped it at, or
+  None); every number above under its name (``train_return_mean``, ...,
+  ``greedy_<measure>``, ``judged_<measure>``); ``greedy``, the same number as
+  ``greedy_<measure>`` under a name that does not depend on the task (None without a
+  greedy evaluation); ``headline``, the name of the number a comparison and a tuning
+  study rank a run by (:meth:`MeasureKeys.headline`: ``greedy_<measure>`` for a greedily
+  judged task, ``train_<measure>_last<window>`` otherwise), and ``headline_value``, that
+  number.
+
+Run folders written before these names (summary.json with ``greedy``, ``best_rolling``,
+``last_rolling``, ``mean_of_100_best_episodes``, ``value`` and ``score``) read the same:
+the old keys are mapped to the new names (:meth:`MeasureKeys.legacy`), and the returns
+come from metrics.csv.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from omegaconf import OmegaConf
@@ -20,6 +64,89 @@ from runs.metrics_files import rolling_field
 # (Ctrl-C, or killed: partial metrics), "failed" (error.txt, or nothing usable),
 # "never started" (no folder, or one without run.json and metrics.csv).
 STATUSES = ("ok", "interrupted", "failed", "never started")
+
+RETURN_WINDOW = 100  # train_return_last100's episodes
+BEST_EPISODES = 100  # train_<measure>_best100_mean's episodes (the seeds' "best 100")
+
+
+@dataclass(frozen=True)
+class MeasureKeys:
+    """The names of a run's numbers for the task measure ``measure`` judged over ``window``
+    training episodes (see the module's docstring for what each means)."""
+
+    measure: str
+    window: int
+
+    train_return_mean: ClassVar[str] = "train_return_mean"
+    train_return_last100: ClassVar[str] = f"train_return_last{RETURN_WINDOW}"
+    greedy_return: ClassVar[str] = "greedy_return"
+
+    @property
+    def train_best_rolling(self) -> str:
+        """``train_<measure>_best_rolling<window>``."""
+        return f"train_{self.measure}_best_rolling{self.window}"
+
+    @property
+    def train_last(self) -> str:
+        """``train_<measure>_last<window>``."""
+        return f"train_{self.measure}_last{self.window}"
+
+    @property
+    def train_best100_mean(self) -> str:
+        """``train_<measure>_best100_mean``."""
+        return f"train_{self.measure}_best{BEST_EPISODES}_mean"
+
+    @property
+    def greedy(self) -> str:
+        """``greedy_<measure>``."""
+        return f"greedy_{self.measure}"
+
+    @property
+    def judged(self) -> str:
+        """``judged_<measure>``."""
+        return f"judged_{self.measure}"
+
+    def numbers(self) -> tuple[str, ...]:
+        """Every number's name, in summary.json's order."""
+        return (self.judged, self.train_return_mean, self.train_return_last100, self.train_best_rolling,
+                self.train_last, self.train_best100_mean, self.greedy, self.greedy_return)
+
+    def logged(self) -> tuple[str, ...]:
+        """The numbers the loggers get as ``run/<name>`` (all but ``judged_<measure>``, which
+        repeats one of them)."""
+        return self.numbers()[1:]
+
+    def headline(self, judge: str, has_greedy: bool = True) -> str:
+        """The number a run is ranked by: the final greedy evaluation's measure for a greedily
+        judged task (``greedy_<measure>``), else, or without a greedy evaluation, the mean of
+        the last ``window`` training episodes (``train_<measure>_last<window>``)."""
+        return self.greedy if judge == "greedy" and has_greedy else self.train_last
+
+    def legacy(self) -> dict[str, str]:
+        """Old summary.json keys -> these names (folders written before them read the same)."""
+        return {"greedy": self.greedy, "best_rolling": self.train_best_rolling, "last_rolling": self.train_last,
+                "mean_of_100_best_episodes": self.train_best100_mean, "value": self.judged}
+
+    def meanings(self, unit: str = "", description: str | None = None) -> dict[str, str]:
+        """Each name -> what it is, in words (``description``: the measure's, e.g. "steps balanced")."""
+        what = description or self.measure
+        unit = f" ({unit})" if unit else ""
+        return {
+            self.judged: f"the mean {what}{unit} the verdict compared with the threshold (where it solved; "
+                         "else the last greedy evaluation's, or the best training window's)",
+            self.train_return_mean: "the mean return over all training episodes",
+            self.train_return_last100: f"the mean return of the last {RETURN_WINDOW} training episodes",
+            self.train_best_rolling: f"the best mean {what}{unit} of {self.window} consecutive training episodes",
+            self.train_last: f"the mean {what}{unit} of the last {self.window} training episodes",
+            self.train_best100_mean: f"the mean {what}{unit} of the {BEST_EPISODES} best training episodes",
+            self.greedy: f"the final greedy evaluation's mean {what}{unit}",
+            self.greedy_return: "the final greedy evaluation's mean return",
+        }
+
+
+def measure_keys(measure: str, window: int) -> MeasureKeys:
+    """The names of a run's numbers for the task measure ``measure`` and judging ``window``."""
+    return MeasureKeys(str(measure), int(window))
 
 
 class Unusable(Exception):
@@ -108,9 +235,8 @@ def _names(run_dir: Path) -> dict:
 
 
 def summarize_run(run_dir: Path | str) -> dict:
-    """Status (see ``STATUSES``), and for a finished run: solved or not (and by which judge),
-    episodes/steps/seconds to solve, the task's measure for the training episodes and
-    the greedy policy.
+    """What the run folder ``run_dir`` holds, as the module's docstring lists: its status,
+    and for a finished run its rule, outcome and every number under its name.
 
     Reads ``run.json`` (robot, task, learner names, seed, overrides), ``summary.json``
     (the run's own verdict: what "solved" means is the task's, see ``success.json``),
@@ -171,13 +297,15 @@ def _interrupted(run_dir: Path, why: str) -> dict:
 def _finished(run_dir: Path, summary: dict) -> dict:
     """The numbers of a run whose summary.json says it finished."""
     measure, window = _field(summary, "measure", str), _field(summary, "window", int)
+    keys = measure_keys(measure, window)
+    summary = _renamed(summary, keys)
     path = run_dir / "metrics.csv"
     rows = read_csv(path, ("reward", "length", "env_steps", rolling_field(measure, window)))
     at = _field(summary, "solved_at", int, optional=True)
     if at is not None and not 0 < at <= len(rows):
         raise Unusable(f"metrics.csv has {len(rows)} episodes, summary.json says solved at {at}")
     steps = numbers(rows, "env_steps", path)
-    rewards, lengths = numbers(rows[-100:], "reward", path), numbers(rows[-100:], "length", path)
+    returns = numbers(rows, "reward", path)
     solved = bool(summary.get("solved"))
     out = dict(
         status="ok", measure=measure, unit=_field(summary, "unit", str), window=window,
@@ -185,19 +313,35 @@ def _finished(run_dir: Path, summary: dict) -> dict:
         episodes=_field(summary, "episodes", int), solved=solved,
         decided_by=summary.get("decided_by") if solved else None,
         episodes_to_solve=at, steps_to_solve=int(steps[at - 1]) if at else None,
-        best_rolling=_field(summary, "best_rolling"), last_rolling=_field(summary, "last_rolling"),
-        greedy=_field(summary, "greedy", optional=True),
-        final_mean_length=float(np.mean(lengths)) if rows else None,
-        final_mean_return=float(np.mean(rewards)) if rows else None,
         wall_s=_field(summary, "wall_s"), env_steps=_field(summary, "env_steps", int),
         pruned_at=_field(summary, "pruned_at", int, optional=True),
     )
-    return out | _optional_files(run_dir, at)
+    out[keys.train_best_rolling] = _field(summary, keys.train_best_rolling)
+    out[keys.train_last] = _field(summary, keys.train_last)
+    for name in (keys.judged, keys.train_best100_mean, keys.greedy, keys.greedy_return):
+        out[name] = _field(summary, name, optional=True)
+    # Folders from before the returns were summarized: metrics.csv holds them.
+    for name, window_returns in ((keys.train_return_mean, returns),
+                                 (keys.train_return_last100, returns[-RETURN_WINDOW:])):
+        given = _field(summary, name, optional=True)
+        out[name] = given if given is not None else (float(np.mean(window_returns)) if rows else None)
+    out |= _optional_files(run_dir, at, keys, out)
+    out["greedy"] = out[keys.greedy]
+    out["headline"] = keys.headline(out["judge"], out[keys.greedy] is not None)
+    out["headline_value"] = out[out["headline"]]
+    return out
 
 
-def _optional_files(run_dir: Path, at: int | None) -> dict:
-    """Seconds to solve (timing.csv) and the final greedy evaluation (eval.json), where
-    present; a damaged one gives a ``warning`` instead."""
+def _renamed(summary: dict, keys: MeasureKeys) -> dict:
+    """``summary`` with an old folder's keys (``greedy``, ``best_rolling``, ...) under their
+    new names (:meth:`MeasureKeys.legacy`); a new folder's keys win."""
+    old = {new: summary[key] for key, new in keys.legacy().items() if key in summary and new not in summary}
+    return summary | old
+
+
+def _optional_files(run_dir: Path, at: int | None, keys: MeasureKeys, numbers_so_far: dict) -> dict:
+    """Seconds to solve (timing.csv), and the final greedy evaluation (eval.json) where
+    summary.json lacks it; a damaged file gives a ``warning`` instead."""
     out: dict = {"wall_to_solve": None}
     problems = []
     timing = run_dir / "timing.csv"
@@ -210,10 +354,11 @@ def _optional_files(run_dir: Path, at: int | None) -> dict:
     if (run_dir / "eval.json").exists():
         try:
             result = read_json(run_dir / "eval.json")
-            out.update(greedy_mean_length=float(result["mean_length"]),
-                       greedy_mean_return=float(result["mean_return"]))
-            if result.get("value") is not None:
-                out["greedy"] = float(result["value"])
+            greedy_return = float(result["mean_return"])
+            if numbers_so_far.get(keys.greedy_return) is None:
+                out[keys.greedy_return] = greedy_return
+            if result.get("value") is not None and numbers_so_far.get(keys.greedy) is None:
+                out[keys.greedy] = float(result["value"])
         except (Unusable, KeyError, TypeError, ValueError) as err:
             problems.append(str(err) if isinstance(err, Unusable) else f"eval.json is incomplete ({err!r})")
     return out | ({"warning": "; ".join(problems)} if problems else {})

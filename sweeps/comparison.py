@@ -3,16 +3,20 @@ next to the jobs (``comparison.csv``, ``comparison.md``, ``comparison.png``).
 
 One row per robot/task, learner and setting of the swept hyperparameters (column
 ``swept``: every override whose value differs between the sweep's jobs, the seed
-aside). The headline is each row's ``score``, the task's own measure per seed as its
-judge sees it (the final greedy evaluation for greedily judged tasks, the mean of the
-last ``window`` training episodes otherwise), summarized over the finished seeds by
-its interquartile mean with a 95% bootstrap confidence interval (``IQM [95% CI]``).
-Also: seeds solved and by which judge, episodes and env steps to solve, the greedy
-policy's measure, the best rolling training mean, final mean return, wall time
-(mean +- std). Each row counts its jobs (``seeds``) by how they ended: finished,
-failed, interrupted, never started; only finished jobs enter the numbers, and
-every job that did not finish gets one line saying why. Rows of different
-robot/task (other measures, other units) are never pooled.
+aside). The ``headline`` column names the number each seed is ranked by, the task's own
+measure as its judge sees it (:meth:`runs.summary.MeasureKeys.headline`):
+``greedy_<measure>``, the final greedy evaluation's, for greedily judged tasks,
+``train_<measure>_last<window>``, the mean of the last ``window`` training episodes,
+otherwise; it is summarized over the finished seeds by its interquartile mean with a 95%
+bootstrap confidence interval (``IQM [95% CI]``) and ``mean +- std``. Also: seeds solved,
+episodes and env steps to solve, and (mean +- std over the finished seeds) the numbers
+under their summary.json names, ``greedy_<measure>``, ``greedy_return``,
+``train_<measure>_best_rolling<window>``, ``train_<measure>_last<window>``,
+``train_return_last100``, and wall time. Each row counts its jobs (``seeds``) by how they
+ended: finished, failed, interrupted, never started; only finished jobs enter the
+numbers, and every job that did not finish gets one line saying why. Rows of different
+robot/task (other measures, other units) are never pooled; rows whose measures differ
+are printed as tables of their own, each with its own column names.
 """
 
 from __future__ import annotations
@@ -25,32 +29,34 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 
-from runs.loggers import write_sweep_hparams
-from sweeps.comparison_plot import plot
+from runs.loggers import run_scalar_names, write_sweep_hparams
+from runs.summary import Unusable, measure_keys, read_json
+from sweeps.comparison_plot import X_AXES, plot
 from sweeps.stats import format_iqm_ci, iqm_ci
 from sweeps.folder import sweep_jobs, swept_keys, swept_label
 
 IQM = "IQM [95% CI]"
-COLUMNS = ("robot/task", "learner", "swept", "measure", "score", IQM, "mean +- std", "seeds", "finished",
-           "solved", "failed", "interrupted", "never_started", "episodes_to_solve", "steps_to_solve",
-           "greedy", "best_rolling", "final_mean_return", "wall_s")
+HEAD = ("robot/task", "learner", "swept", "measure", "headline", IQM, "mean +- std", "seeds", "finished",
+        "solved", "failed", "interrupted", "never_started", "episodes_to_solve", "steps_to_solve")
+TAIL = ("wall_s",)
 NUMBERS = ("iqm", "ci_low", "ci_high")  # the headline as numbers, in comparison.csv only
-LEGEND = (f"{IQM}: interquartile mean of the score over the finished seeds, 95% percentile bootstrap "
-          "interval (seeds resampled); rows of different tasks are never pooled")
+LEGEND = (f"headline: the number each seed is ranked by (greedy_<measure>: the final greedy evaluation's "
+          f"mean; train_<measure>_last<window>: the mean of the last <window> training episodes); {IQM}: "
+          "its interquartile mean over the finished seeds, 95% percentile bootstrap interval (seeds "
+          "resampled); rows of different tasks are never pooled")
 
 
 class NotASweep(Exception):
     """The folder is missing or holds no job of train.py; the message says which."""
 
 
-def score(job: dict) -> tuple[float | None, str]:
-    """A finished job's headline number and what it is: the final greedy evaluation's
-    measure for a greedily judged task, else (or without one) the mean of the last
-    ``window`` training episodes."""
-    if job["judge"] == "greedy" and job.get("greedy") is not None:
-        return job["greedy"], "greedy policy"
-    kind = f"last-{job['window']} training mean"
-    return job.get("last_rolling"), kind if job["judge"] != "greedy" else f"{kind} (no greedy evaluation)"
+def named_columns(job: dict) -> tuple[str, ...]:
+    """The summary.json names of the numbers a finished job's row shows (its task's measure
+    and window in them): ``greedy_<measure>``, ``greedy_return``,
+    ``train_<measure>_best_rolling<window>``, ``train_<measure>_last<window>``,
+    ``train_return_last100``."""
+    k = measure_keys(job["measure"], job["window"])
+    return (k.greedy, k.greedy_return, k.train_best_rolling, k.train_last, k.train_return_last100)
 
 
 def _mean_std(values: list) -> str:
@@ -61,23 +67,25 @@ def _mean_std(values: list) -> str:
 
 
 def _headline(ok: list[dict]) -> dict:
-    """The score's kind, IQM with its interval (text and numbers) and mean +- std."""
-    scored = [score(j) for j in ok]
-    values = [v for v, _ in scored if v is not None and math.isfinite(v)]
+    """The headline's name (the names, where seeds differ), its IQM with its interval (text
+    and numbers) and mean +- std over the finished seeds ``ok``."""
+    values = [j["headline_value"] for j in ok if j["headline_value"] is not None and math.isfinite(j["headline_value"])]
     centre, low, high = iqm_ci(values)
-    return {"score": "; ".join(sorted({kind for _, kind in scored})) or "-",
+    return {"headline": "; ".join(sorted({j["headline"] for j in ok})) or "-",
             IQM: format_iqm_ci(centre, low, high, len(values)), "mean +- std": _mean_std(values),
             "iqm": centre, "ci_low": low, "ci_high": high}
 
 
 def table_row(key: tuple[str, str, str], jobs: list[dict]) -> dict:
-    """One row of the table: the jobs of one robot/task, learner and swept setting."""
+    """One row of the table: the jobs of one robot/task, learner and swept setting
+    (``_columns``: the names of its numbers' columns, :func:`named_columns`)."""
     pair, learner, swept = key
     ok = [j for j in jobs if j["status"] == "ok"]
     won = [j for j in ok if j["solved"]]
     count = Counter(j["status"] for j in jobs)
     measures = sorted({f"{j['measure']} ({j['unit'] + ', ' if j['unit'] else ''}{j['judge']} >= "
                        f"{j['threshold']:g})" for j in ok})
+    names = list(dict.fromkeys(name for j in ok for name in named_columns(j)))
     return {
         "robot/task": pair, "learner": learner, "swept": swept, "measure": "; ".join(measures) or "-",
         **_headline(ok), "seeds": len(jobs), "finished": len(ok),
@@ -85,12 +93,26 @@ def table_row(key: tuple[str, str, str], jobs: list[dict]) -> dict:
         "interrupted": count["interrupted"], "never_started": count["never started"],
         "episodes_to_solve": _mean_std([j["episodes_to_solve"] for j in won]),
         "steps_to_solve": _mean_std([j["steps_to_solve"] for j in won]),
-        "greedy": _mean_std([j["greedy"] for j in ok]),
-        "best_rolling": _mean_std([j["best_rolling"] for j in ok]),
-        "final_mean_return": _mean_std([j["final_mean_return"] for j in ok]),
+        **{name: _mean_std([j.get(name) for j in ok]) for name in names},
         "wall_s": _mean_std([j["wall_s"] for j in ok]),
-        "_runs": jobs,
+        "_columns": names, "_runs": jobs,
     }
+
+
+def columns(rows: list[dict]) -> tuple[str, ...]:
+    """The table's columns for ``rows``: the fixed ones, the numbers' names of every row (in
+    order of appearance), wall time."""
+    names = dict.fromkeys(name for r in rows for name in r["_columns"])
+    return (*HEAD, *names, *TAIL)
+
+
+def blocks(rows: list[dict]) -> list[list[dict]]:
+    """``rows`` in tables of the same column names (one table, unless the rows' measures or
+    windows differ), each in the rows' order."""
+    found: dict[tuple, list[dict]] = {}
+    for row in rows:
+        found.setdefault(tuple(row["_columns"]), []).append(row)
+    return list(found.values())
 
 
 def job_line(job: dict) -> str | None:
@@ -114,34 +136,46 @@ def compare(sweep_dir: Path) -> tuple[list[dict], list[str]]:
     return rows, notes + [line for line in map(job_line, jobs) if line]
 
 
-def write_outputs(sweep_dir: Path, rows: list[dict], lines: list[str]) -> None:
-    """comparison.csv (the table, and the IQM as numbers), comparison.md (the table and
-    ``lines``), comparison.png."""
+def write_outputs(sweep_dir: Path, rows: list[dict], lines: list[str], x: str = "env_steps") -> None:
+    """comparison.csv (one table of every row: each number under its name, empty where a
+    row's task has no such number; and the IQM as numbers), comparison.md (the tables as
+    printed, and ``lines``), comparison.png (its x-axis ``x``: env steps or wall seconds)."""
     with open(sweep_dir / "comparison.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS + NUMBERS, extrasaction="ignore")
+        writer = csv.DictWriter(f, fieldnames=columns(rows) + NUMBERS, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
-    md = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    md += ["| " + " | ".join(str(r[c]) for c in COLUMNS) + " |" for r in rows]
-    md += ["", LEGEND]
+    md = []
+    for block in blocks(rows):
+        names = columns(block)
+        md += ["| " + " | ".join(names) + " |", "|" + "---|" * len(names)]
+        md += ["| " + " | ".join(str(r[c]) for c in names) + " |" for r in block]
+        md += [""]
+    md += [LEGEND]
     if lines:
         md += ["", "Jobs that did not finish, and damaged files:", "", *(f"- {line}" for line in lines)]
     (sweep_dir / "comparison.md").write_text("\n".join(md) + "\n")
-    plot(sweep_dir, rows)
+    plot(sweep_dir, rows, x=x)
 
 
 def table_text(rows: list[dict]) -> str:
-    """The rows as aligned columns under a header line, then the IQM's legend."""
-    shown = [dict(zip(COLUMNS, COLUMNS)), *rows]
-    widths = {c: max(len(str(r[c])) for r in shown) for c in COLUMNS}
-    lines = ["  ".join(str(r[c]).ljust(widths[c]) for c in COLUMNS).rstrip() for r in shown]
-    return "\n".join([*lines, LEGEND])
+    """The rows as aligned columns under a header line (a table per :func:`blocks`), then
+    the headline's legend."""
+    out = []
+    for block in blocks(rows):
+        names = columns(block)
+        shown = [dict(zip(names, names)), *block]
+        widths = {c: max(len(str(r[c])) for r in shown) for c in names}
+        out += ["  ".join(str(r[c]).ljust(widths[c]) for c in names).rstrip() for r in shown]
+    return "\n".join([*out, LEGEND])
 
 
-def report(sweep_dir: Path, stopped: str | None = None) -> list[dict]:
+def report(sweep_dir: Path, stopped: str | None = None, x: str = "env_steps") -> list[dict]:
     """Prints the comparison of the sweep in ``sweep_dir``, writes its files there and
     returns its rows; :class:`NotASweep` if the folder is missing or holds no job.
-    ``stopped``: the signal that stopped the sweep (else its ``.stop`` file tells), said first."""
+    ``stopped``: the signal that stopped the sweep (else its ``.stop`` file tells), said first.
+    ``x``: comparison.png's x-axis, one of ``X_AXES`` (ValueError, one line, otherwise)."""
+    if x not in X_AXES:
+        raise ValueError(f"the comparison plot's x-axis must be one of {', '.join(X_AXES)}; got {x!r}")
     if not sweep_dir.is_dir():
         raise NotASweep(f"{sweep_dir} is not a folder (give a Hydra multirun sweep folder)")
     rows, lines = compare(sweep_dir)
@@ -155,7 +189,7 @@ def report(sweep_dir: Path, stopped: str | None = None) -> list[dict]:
     if lines:
         print("\njobs that did not finish, and damaged files:")
         print("\n".join(lines))
-    write_outputs(sweep_dir, rows, lines)
+    write_outputs(sweep_dir, rows, lines, x)
     print(f"\nwrote {sweep_dir / 'comparison.csv'}, comparison.md and comparison.png")
     hparams_for_tensorboard(sweep_dir)
     return rows
@@ -163,10 +197,17 @@ def report(sweep_dir: Path, stopped: str | None = None) -> list[dict]:
 
 def hparams_for_tensorboard(sweep_dir: Path) -> None:
     """Where the sweep's jobs logged to TensorBoard, its experiment (every job's settings, the
-    final measures as metrics) in ``<sweep>/hparams`` for the HParams tab."""
+    ``run/*`` numbers of every job's task as metrics) in ``<sweep>/hparams`` for the HParams tab."""
     logged = sorted({p.parents[2] for p in sweep_dir.glob("*/logs/*/events.out.tfevents.*")})
     configs = [OmegaConf.to_container(OmegaConf.load(job / "config.yaml")) for job in logged
                if (job / "config.yaml").is_file()]
+    metrics: dict[str, None] = {}
+    for job in logged:
+        try:  # the task's rule, as the run judged it (a job that never got so far has none)
+            rule = read_json(job / "success.json")
+            metrics |= dict.fromkeys(run_scalar_names(rule["measure"], rule["window"]))
+        except (Unusable, KeyError, TypeError, ValueError):
+            pass
     if configs:
-        write_sweep_hparams(sweep_dir, configs)
+        write_sweep_hparams(sweep_dir, configs, list(metrics))
         print(f"TensorBoard: tensorboard --logdir {sweep_dir} compares the jobs in its HParams tab")

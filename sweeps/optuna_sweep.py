@@ -1,11 +1,17 @@
 """The tuning sweep: Optuna asks for trials, each runs as one job per seed, the study is told
-their mean score (``hydra/sweeper=optuna``; Hydra's plugin class is the thin shell
-:class:`hydra_plugins.rl_optuna_sweeper.optuna_sweeper.OptunaSweeper`, which imports this
-module only when a tuning sweep starts)."""
+the mean over the seeds of its objective (``hydra/sweeper=optuna``; Hydra's plugin class is
+the thin shell :class:`hydra_plugins.rl_optuna_sweeper.optuna_sweeper.OptunaSweeper`, which
+imports this module only when a tuning sweep starts).
+
+The objective is named as summary.json names it (:meth:`runs.summary.MeasureKeys.headline`):
+``greedy_<measure>``, the final greedy evaluation's mean measure, for a greedily judged
+task, ``train_<measure>_last<window>``, the mean of the last ``window`` training episodes,
+otherwise; it is the study's metric name and the name its console lines print."""
 
 from __future__ import annotations
 
 import statistics
+import warnings
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -16,10 +22,10 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from params import ConfigError
 from runs.catalog import GROUPS, conf_dir
 from runs.settings import check_run_config
-from runs.summary import summarize_run
-from sweeps.comparison import score
+from runs.summary import measure_keys, summarize_run
 from sweeps.tuning import (Plan, check_space, check_sweeper_settings, current_trial, load_space, make_pruner,
                            now_utc, open_storage, override_value, replace_tuned, shown_url, tuned_text)
+from tasks.base import Success
 from tasks.factory import build_task
 
 # Settings the sweeper itself gives every job: the command line may not.
@@ -27,7 +33,7 @@ OWN = ("seed", "trial", "max_env_steps", "stop_when_solved")
 
 
 class TuningSweep:
-    """Asks Optuna for trials, launches each as one job per seed, tells it their mean score."""
+    """Asks Optuna for trials, launches each as one job per seed, tells it the mean of their objective."""
 
     def __init__(self, study: str, storage: str, n_trials: int = 12, trials_per_batch: int = 1,
                  seeds: Sequence[int] = (0, 1), search: str | None = None, budget_steps: int = 50_000,
@@ -94,7 +100,7 @@ class TuningSweep:
 
     def _trial_defaults(self, fixed: list[str]) -> list[str]:
         """What trial jobs get unless the command line says otherwise: ``eval_every=0`` (a
-        trial's score is its final greedy evaluation; evaluations during training would only
+        greedily judged trial is valued by its final greedy evaluation; evaluations during training would only
         cost time, the pruner reads training episodes) and ``quiet=true`` (banner and verdict
         per job; the sweeper prints one line per trial)."""
         given = {a.split("=", 1)[0] for a in fixed}
@@ -112,10 +118,10 @@ class TuningSweep:
         params = load_space(space_file)
         base = self._compose(fixed)
         check_run_config(base)
-        _check_builds(base)
+        success = _check_builds(base)
         check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
-        return Plan(robot, task, learner, given, fixed, space_file, params, _measure_of(base),
-                    current_trial(params, base))
+        return Plan(robot, task, learner, given, fixed, space_file, params, success.measure,
+                    _objective(base, success), current_trial(params, base))
 
     # -- the study ----------------------------------------------------------------
     def sweep(self, arguments: list[str]) -> Any:
@@ -124,13 +130,13 @@ class TuningSweep:
         assert self.config is not None and self.launcher is not None
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         plan = self._plan(arguments)
-        study = self._open_study(plan.measure)
+        study = self._open_study(plan)
         sweep_dir = Path(str(self.config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
         OmegaConf.save(self.config, sweep_dir / "multirun.yaml")
         print(f"tuning {plan.learner} on {plan.robot}/{plan.task}: study {self.study_name} in {shown_url(self.storage_url)}\n"
               f"  {self.n_trials} trials x seeds {self.seeds}, {self.budget_steps} env steps each, objective: "
-              f"{plan.measure} (the task's score), pruning: {self.pruner or 'off'}, space: {plan.space_file}",
+              f"{plan.objective} (mean over the seeds), pruning: {self.pruner or 'off'}, space: {plan.space_file}",
               flush=True)
         if self.start_from_current and not study.trials:
             if plan.current is not None:  # the study's first trial: what a plain run does now
@@ -157,26 +163,34 @@ class TuningSweep:
         returns = self.launcher.launch(jobs, initial_job_idx=first_job)
         n = len(self.seeds)
         for i, (trial, vals) in enumerate(zip(batch, values)):
-            self._tell(study, trial, vals, returns[i * n:(i + 1) * n])
+            self._tell(study, trial, plan, vals, returns[i * n:(i + 1) * n])
         return returns
 
-    def _open_study(self, measure: str):
+    def _open_study(self, plan: Plan):
+        """The study (made, or loaded), its objective named ``plan.objective`` (Optuna's metric
+        name); a study of another measure or objective is refused in one line."""
         import optuna
 
         storage = open_storage(self.storage_url)
         sampler = optuna.samplers.TPESampler(n_startup_trials=self.startup_trials, seed=self.sampler_seed)
         study = optuna.create_study(study_name=self.study_name, storage=storage, sampler=sampler,
                                     pruner=make_pruner(self.pruner), direction="maximize", load_if_exists=True)
-        known = study.user_attrs.get("measure")
+        known = study.user_attrs.get("measure")  # a study of an earlier version names only its measure
+        names = study.metric_names
+        if known not in (None, plan.measure) or names not in (None, [plan.objective]):
+            theirs = names[0] if names else known
+            raise ConfigError(f"study {self.study_name} in {shown_url(self.storage_url)} maximizes {theirs}, this "
+                              f"run's objective is {plan.objective}: name another study (hydra.sweeper.study=...)")
         if known is None:
-            study.set_user_attr("measure", measure)
-        elif known != measure:
-            raise ConfigError(f"study {self.study_name} in {shown_url(self.storage_url)} scores {known}, this run's task "
-                              f"{measure}: name another study (hydra.sweeper.study=...)")
+            study.set_user_attr("measure", plan.measure)
+        if names is None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                study.set_metric_names([plan.objective])
         return study
 
-    def _tell(self, study, trial, values: dict, returns: list) -> None:
-        """The trial's value: the mean of its seeds' scores (pruned if any job was pruned)."""
+    def _tell(self, study, trial, plan: Plan, values: dict, returns: list) -> None:
+        """The trial's value: the mean over its seeds of ``plan.objective`` (pruned if any job was pruned)."""
         import optuna
 
         jobs = [summarize_run(_run_dir(r)) if _run_dir(r) else {"status": "failed", "error": "no run folder"}
@@ -189,16 +203,16 @@ class TuningSweep:
             print(f"trial {trial.number} failed: {failed[0].get('error') or failed[0].get('status')} ({shown})",
                   flush=True)
             return
-        scores = [score(j)[0] for j in jobs]
+        objective = [j.get(plan.objective) for j in jobs]
         if pruned:
             study.tell(trial, state=optuna.trial.TrialState.PRUNED)
             print(f"trial {trial.number} pruned at episode {pruned[0]['pruned_at']} ({shown})", flush=True)
             return
-        value = statistics.fmean(float(s) for s in scores if s is not None) if any(
-            s is not None for s in scores) else float("nan")
+        value = statistics.fmean(float(v) for v in objective if v is not None) if any(
+            v is not None for v in objective) else float("nan")
         study.tell(trial, value)
-        per_seed = ", ".join(f"{s:.4g}" if s is not None else "-" for s in scores)
-        print(f"trial {trial.number}: {value:.4g} (seeds {per_seed}) {shown}", flush=True)
+        per_seed = ", ".join(f"{v:.4g}" if v is not None else "-" for v in objective)
+        print(f"trial {trial.number}: {plan.objective} {value:.4g} (seeds {per_seed}) {shown}", flush=True)
 
     def _finish(self, study, plan: Plan, sweep_dir: Path) -> None:
         """The study's counts, its best trial, and the tuned file."""
@@ -216,7 +230,7 @@ class TuningSweep:
         values = {k: p.value(best.params[k]) for k, p in params.items() if k in best.params}
         header = [
             f"Tuned by Optuna ({now_utc()}): study {self.study_name} in {shown_url(self.storage_url)}",
-            f"best trial {best.number}: {plan.measure} {best.value:.4g} (mean over seeds {self.seeds}), of "
+            f"best trial {best.number}: {plan.objective} {best.value:.4g} (mean over seeds {self.seeds}), of "
             f"{len(states)} trials ({complete} complete, {pruned} pruned, {failed} failed)",
             f"budget per trial and seed: {self.budget_steps} env steps, training past 'solved'; "
             f"pruner: {self.pruner or 'none'}; search space: {plan.space_file.name}",
@@ -232,7 +246,7 @@ class TuningSweep:
         text = tuned_text(values, base_values, header)
         out = sweep_dir / f"tuned_{tuned_name}"
         out.write_text(text)
-        print(f"best trial {best.number}: {best.value:.4g} " + " ".join(
+        print(f"best trial {best.number}: {plan.objective} {best.value:.4g} " + " ".join(
             f"{k}={override_value(v)}" for k, v in values.items()))
         print(f"tuned file: {out}")
         if self.write_tuned:
@@ -242,13 +256,13 @@ class TuningSweep:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
 
 
-def _check_builds(cfg: DictConfig) -> None:
+def _check_builds(cfg: DictConfig) -> Success:
     """The robot and its task build (a task that does not fit the robot is refused here, in
-    one line, not in every trial's jobs)."""
+    one line, not in every trial's jobs); returns the task's rule."""
     from hydra.errors import InstantiationException
 
     try:
-        build_task(cfg)
+        return build_task(cfg).success
     except InstantiationException as err:
         cause = err.__cause__ or err
         raise ConfigError((str(cause).strip().splitlines() or [type(cause).__name__])[0]) from None
@@ -274,6 +288,9 @@ def _run_dir(ret) -> Path | None:
         return None
 
 
-def _measure_of(cfg: DictConfig) -> str:
-    win = cfg.task.get("win") if "task" in cfg else None
-    return str(win.get("measure")) if win is not None else "measure"
+def _objective(cfg: DictConfig, success: Success) -> str:
+    """The name of the number a trial's job is valued by (its summary.json name): the final
+    greedy evaluation's measure for a greedily judged task whose jobs evaluate at the end,
+    else the mean of the last ``window`` training episodes."""
+    evaluates = bool(cfg.learner.get("run_episodes", 0) or cfg.get("eval_episodes", 0))
+    return measure_keys(success.measure, success.window).headline(success.judge, evaluates)

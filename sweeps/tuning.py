@@ -10,7 +10,10 @@ sweep grammar, the same as ``hydra-optuna-sweeper``'s ``params``::
     learner.hidden: choice([64, 64], [128, 128]) # categorical of lists
 
 The sweeper (``hydra_plugins/rl_optuna_sweeper``) asks the study for a trial, runs it
-as one job per seed and tells the study the mean of their scores. Each job reports its
+as one job per seed and tells the study the mean over them of its objective, the task's
+own measure as its judge sees it (``greedy_<measure>`` or
+``train_<measure>_last<window>``, :meth:`runs.summary.MeasureKeys.headline`; the study's
+metric name). Each job reports its
 rolling measure to the study every ``report_every`` episodes (:class:`TrialLink`); the
 first seed's values are the trial's intermediate values, and every seed's job stops
 when the pruner says the trial is hopeless.
@@ -46,6 +49,7 @@ class Plan:
     space_file: Path
     params: dict
     measure: str
+    objective: str  # the number each job is valued by, as summary.json names it (the study's metric)
     current: dict | None = None  # the run's own values as a trial, where the space holds them
 
 

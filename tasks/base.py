@@ -82,7 +82,7 @@ JUDGES = ("training", "greedy")
 class Success:
     """What "solved" means for a task: a per-episode measure and a threshold on it.
 
-    ``measure`` names the value an episode is scored by: ``"length"`` (its
+    ``measure`` names the value an episode is judged by: ``"length"`` (its
     number of steps) or a key of the task's ``episode_info``. ``judge`` says
     which episodes decide: ``"training"``, the mean over the last ``window``
     training (exploring) episodes, or ``"greedy"``, the mean over one greedy

@@ -75,12 +75,26 @@ def write_job(sweep: Path, num: int, overrides: list[str], status: str = "finish
 
 
 def summary(episodes: int, solved_at: int | None, interrupted: bool) -> dict:
+    """summary.json as train.py writes it (the returns those of ``write_job``'s metrics.csv)."""
+    returns = [10.0 * i for i in range(1, episodes + 1)]
     out = {"solved": solved_at is not None, "decided_by": "training", "episodes": episodes,
            "solved_at": solved_at, "measure": "length", "unit": "steps", "description": "steps balanced",
            "threshold": 250.0, "judge": "training", "window": 100, "min_episodes": 100,
-           "value": 7.0, "best_rolling": 7.0, "last_rolling": 7.0, "greedy": None, "evaluations": 0,
+           "judged_length": 7.0, "train_return_mean": sum(returns) / episodes,
+           "train_return_last100": sum(returns[-100:]) / len(returns[-100:]),
+           "train_length_best_rolling100": 7.0, "train_length_last100": 7.0, "train_length_best100_mean": 9.0,
+           "greedy_length": None, "greedy_return": None, "evaluations": 0,
            "env_steps": 55 * episodes, "wall_s": 0.5, "divergences": 0}
     return out | ({"interrupted": True} if interrupted else {})
+
+
+def old_summary(episodes: int) -> dict:
+    """summary.json as train.py wrote it before every number was named for what it is."""
+    return {"solved": False, "decided_by": "training", "episodes": episodes, "solved_at": None,
+            "measure": "length", "unit": "steps", "description": "steps balanced", "threshold": 250.0,
+            "judge": "training", "window": 100, "min_episodes": 100, "value": 7.0, "best_rolling": 7.5,
+            "last_rolling": 7.0, "mean_of_100_best_episodes": 9.0, "greedy": 6.5, "evaluations": 1,
+            "score": 30.0, "env_steps": 55 * episodes, "wall_s": 0.5, "divergences": 0}
 
 
 def fake_sweep(sweep: Path, sweeps: dict[str, list[str]], statuses: dict[int, str] | None = None) -> list:
@@ -149,7 +163,7 @@ def test_a_partial_interrupted_job_does_not_enter_the_numbers(tmp_path, capsys):
     write_job(tmp_path, 1, ["seed=1", *BASE], status="interrupted", episodes=300, solved_at=None)
     rows, _ = table(tmp_path, capsys)
     assert rows[0]["finished"] == "1" and rows[0]["interrupted"] == "1"
-    assert rows[0]["final_mean_return"].startswith("30 ")  # episodes 1..5 of the finished job only
+    assert rows[0]["train_return_last100"].startswith("30 ")  # episodes 1..5 of the finished job only
 
 
 def test_a_sweep_where_no_job_started_is_all_never_started(tmp_path, capsys):
@@ -273,37 +287,59 @@ def test_iqm_ci_of_one_seed_has_no_interval_and_equal_seeds_a_point():
         iqm_ci([1, 2], confidence=95)
 
 
-def set_scores(sweep: Path, scores: dict[int, float], **summary_fields) -> None:
-    """The summary.json of job ``num`` says its last rolling mean is ``scores[num]``."""
-    for num, value in scores.items():
+def set_last_means(sweep: Path, means: dict[int, float], **summary_fields) -> None:
+    """The summary.json of job ``num`` says the mean of its last 100 episodes is ``means[num]``."""
+    for num, value in means.items():
         path = next(sweep.glob(f"{num}_*")) / "summary.json"
-        path.write_text(json.dumps(json.loads(path.read_text()) | {"last_rolling": value} | summary_fields))
+        path.write_text(json.dumps(json.loads(path.read_text()) | {"train_length_last100": value} | summary_fields))
 
 
 def test_each_row_is_headed_by_the_iqm_of_its_seeds_with_a_bootstrap_interval(tmp_path, capsys):
     fake_sweep(tmp_path, {"learner.alpha": ["0.05", "1.0"], "seed": ["0", "1", "2", "3"]})
-    set_scores(tmp_path, {0: 1.0, 1: 2.0, 2: 3.0, 3: 4.0, 4: 5.0, 5: 5.0, 6: 5.0, 7: 5.0})
+    set_last_means(tmp_path, {0: 1.0, 1: 2.0, 2: 3.0, 3: 4.0, 4: 5.0, 5: 5.0, 6: 5.0, 7: 5.0})
     rows, out = table(tmp_path, capsys)
-    assert [(r["score"], r["IQM [95% CI]"], r["iqm"]) for r in rows] == [
-        ("last-100 training mean", "2.5 [1, 4]", "2.5"), ("last-100 training mean", "5 [5, 5]", "5.0")]
+    assert [(r["headline"], r["IQM [95% CI]"], r["iqm"]) for r in rows] == [
+        ("train_length_last100", "2.5 [1, 4]", "2.5"), ("train_length_last100", "5 [5, 5]", "5.0")]
     assert float(rows[0]["ci_low"]) <= 2.5 <= float(rows[0]["ci_high"])
     assert rows[0]["mean +- std"] == "2.5 +- 1.1"
     assert "IQM [95% CI]" in out.splitlines()[0] and "2.5 [1, 4]" in out
     assert "| 2.5 [1, 4] |" in (tmp_path / "comparison.md").read_text()
 
 
-def test_a_greedily_judged_task_is_scored_by_its_greedy_policy_and_tasks_are_never_pooled(tmp_path, capsys):
+def test_a_greedily_judged_task_is_headed_by_its_greedy_policy_and_tasks_are_never_pooled(tmp_path, capsys):
     fake_sweep(tmp_path, {"robot": ["cartpole", "cube"], "seed": ["0", "1"]})
     for num in (2, 3):  # the cube's jobs: another task, measure and judge
         job = next(tmp_path.glob(f"{num}_*"))
         names = json.loads((job / "run.json").read_text())
         (job / "run.json").write_text(json.dumps(names | {"robot": "cube", "task": "one_disk_walk"}))
-    set_scores(tmp_path, {2: 0.1, 3: 0.2}, judge="greedy", greedy=None)
+    set_last_means(tmp_path, {2: 0.1, 3: 0.2}, judge="greedy")
     (next(tmp_path.glob("2_*")) / "eval.json").write_text(json.dumps({"value": 0.9, "mean_length": 5, "mean_return": 1}))
     rows, _ = table(tmp_path, capsys)
-    assert [(r["robot/task"], r["score"], r["IQM [95% CI]"]) for r in rows] == [
-        ("cartpole/stay_up", "last-100 training mean", "7 [7, 7]"),
-        ("cube/one_disk_walk", "greedy policy; last-100 training mean (no greedy evaluation)", "0.55 [0.2, 0.9]")]
+    assert [(r["robot/task"], r["headline"], r["IQM [95% CI]"]) for r in rows] == [
+        ("cartpole/stay_up", "train_length_last100", "7 [7, 7]"),
+        ("cube/one_disk_walk", "greedy_length; train_length_last100", "0.55 [0.2, 0.9]")]
+    assert rows[1]["greedy_length"].startswith("0.9 ") and rows[1]["greedy_return"].startswith("1 ")
+
+
+def test_a_sweep_written_before_the_numbers_were_named_reads_the_same(tmp_path, capsys):
+    """Old job folders (summary.json with ``greedy``, ``best_rolling``, ``last_rolling``,
+    ``mean_of_100_best_episodes``, ``value``, ``score``) are compared under the new names:
+    the old keys mapped on read, the returns from metrics.csv."""
+    from runs.summary import summarize_run
+
+    fake_sweep(tmp_path, {"seed": ["0", "1"]})
+    for job in tmp_path.glob("*_cartpole_*"):
+        (job / "summary.json").write_text(json.dumps(old_summary(5)))
+    job = summarize_run(next(tmp_path.glob("0_*")))
+    assert job["status"] == "ok" and "warning" not in job
+    assert (job["greedy_length"], job["greedy"], job["train_length_best_rolling100"], job["train_length_last100"],
+            job["train_length_best100_mean"], job["judged_length"]) == (6.5, 6.5, 7.5, 7.0, 9.0, 7.0)
+    assert job["train_return_mean"] == 30.0 and job["train_return_last100"] == 30.0  # metrics.csv: 10, ..., 50
+    assert (job["headline"], job["headline_value"]) == ("train_length_last100", 7.0)
+    assert not [key for key in job if "score" in key]
+    rows, out = table(tmp_path, capsys)
+    assert [(r["headline"], r["IQM [95% CI]"], r["greedy_length"], r["train_return_last100"]) for r in rows] == [
+        ("train_length_last100", "7 [7, 7]", "6.5 +- 0", "30 +- 0")]
 
 
 def test_a_sweep_prints_its_comparison_when_it_ends(tmp_path, capsys):
@@ -324,7 +360,7 @@ def test_a_broken_comparison_is_one_line_and_never_fails_the_sweep(tmp_path, cap
     assert capsys.readouterr().err == f"comparison failed: {tmp_path} holds no run folders of train.py\n"
     fake_sweep(tmp_path, {"seed": ["0", "1"]})
 
-    def broken(folder, rows, lines):
+    def broken(folder, rows, lines, x="env_steps"):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(comparison, "write_outputs", broken)
@@ -354,9 +390,9 @@ def test_a_real_two_learner_three_seed_sweep_ends_with_its_comparison(tmp_path, 
                           cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     tail = proc.stdout.rsplit("VERDICT", 1)[1].splitlines()[2:]
-    assert tail[0].split()[:6] == ["robot/task", "learner", "swept", "measure", "score", "IQM"]
+    assert tail[0].split()[:6] == ["robot/task", "learner", "swept", "measure", "headline", "IQM"]
     assert [line.split()[:2] for line in tail[1:3]] == [["cartpole/stay_up", "n1try"], ["cartpole/stay_up", "qlearn"]]
-    assert all("training mean" in line and "] " in line for line in tail[1:3])
+    assert all("train_length_last100" in line and "] " in line for line in tail[1:3])
     assert tail[-1] == f"wrote {sweep / 'comparison.csv'}, comparison.md and comparison.png"
     first = (sweep / "comparison.csv").read_text()
     rows = list(csv.DictReader(first.splitlines()))

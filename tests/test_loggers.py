@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 
 from learners.dqn import UpdateStats
 from runs.evaluate import greedy_evaluation
-from runs.loggers import flat_config, log_hparams, make_logger
+from runs.loggers import flat_config, log_hparams, make_logger, run_scalar_names
 from runs.run import Hooks, Run
 from runs.seeding import seed_everything
 from tasks.factory import build_env
@@ -30,7 +30,8 @@ def train(run_dir: Path, learner: str, logger: str, overrides: list[str]):
     eval_env = build_env(cfg, 2, int(cfg.seed) + 10_000, learner.nsteps)
     learner.build(env.task, seed_everything(int(cfg.seed)))
     logger = make_logger(cfg.logger.kind, run_dir, exp_name="run")
-    log_hparams(logger, cfg)
+    success = env.task.success
+    log_hparams(logger, cfg, run_scalar_names(success.measure, success.window))
     hooks = Hooks(greedy_eval=lambda: greedy_evaluation(learner, eval_env, int(cfg.seed) + 10_000),
                   train_stats=learner.train_stats)
     record = Run(run_dir, env.num_envs, learner.nepisodes, env.task.success, logger=logger,
@@ -76,7 +77,11 @@ def test_dqn_logs_train_scalars_and_hparams_to_tensorboard_against_env_steps(tmp
     assert all(e.value > 0 for e in acc.Scalars("train/loss"))
     evals = list(csv.DictReader(open(tmp_path / "evals.csv")))
     assert [e.step for e in acc.Scalars("eval/length")] == [int(r["env_steps"]) for r in evals]
-    assert [e.step for e in acc.Scalars("run/score")] == [env_steps[-1]]
+    for name in run_scalar_names("length", 100):  # the summary's numbers by their summary.json names
+        assert [e.step for e in acc.Scalars(name)] == [env_steps[-1]], name
+    assert acc.Scalars("run/train_return_mean")[0].value == pytest.approx(
+        sum(float(r["reward"]) for r in rows) / len(rows), rel=1e-6)
+    assert not [tag for tag in acc.Tags()["scalars"] if "score" in tag]
     from tensorboard.plugins.hparams import plugin_data_pb2
 
     content = acc.PluginTagToContent("hparams")
@@ -92,7 +97,7 @@ def test_dqn_logs_train_scalars_and_hparams_to_tensorboard_against_env_steps(tmp
 
 def hparams_tab(logdir: Path) -> tuple[set, dict]:
     """What TensorBoard's HParams tab shows for ``logdir`` (its own backend): the settings'
-    names, and per run (session) its ``learner._target_`` and final ``run/score``."""
+    names, and per run (session) its ``learner._target_`` and final ``run/train_return_mean``."""
     from tensorboard import context
     from tensorboard.backend.event_processing.data_provider import MultiplexerDataProvider
     from tensorboard.backend.event_processing.plugin_event_multiplexer import EventMultiplexer
@@ -111,10 +116,10 @@ def hparams_tab(logdir: Path) -> tuple[set, dict]:
     request = api_pb2.ListSessionGroupsRequest(
         start_index=0, slice_size=100, allowed_statuses=statuses,
         col_params=[api_pb2.ColParams(hparam="learner._target_"),
-                    api_pb2.ColParams(metric=api_pb2.MetricName(tag="run/score"))])
+                    api_pb2.ColParams(metric=api_pb2.MetricName(tag="run/train_return_mean"))])
     groups = list_session_groups.Handler(rc, backend, "", request).run().session_groups
     runs = {g.name.split("/")[0]: (g.hparams["learner._target_"].string_value,
-                                   {m.name.tag: m.value for m in g.metric_values}.get("run/score"))
+                                   {m.name.tag: m.value for m in g.metric_values}.get("run/train_return_mean"))
             for g in groups}
     return {h.name for h in experiment.hparam_infos}, runs
 
@@ -122,20 +127,24 @@ def hparams_tab(logdir: Path) -> tuple[set, dict]:
 def test_a_sweeps_hparams_tab_shows_every_jobs_settings_and_final_measures(tmp_path):
     """Two jobs of different learners logged to TensorBoard, then the sweep's comparison: the
     HParams tab of the sweep folder lists the settings of both (qlearn's alpha, dqn's lr) and
-    each job's final score."""
+    each job's final numbers by their summary.json names."""
     pytest.importorskip("tensorboard")
-    from runs.loggers import RUN_SCALARS, finish_log
+    import json
+
+    from runs.loggers import finish_log
     from sweeps.comparison import hparams_for_tensorboard
 
-    scores = {"0_qlearn": ("qlearn", 7.5), "1_dqn": ("dqn", 12.25)}
-    for job, (learner, score) in scores.items():
+    returns = {"0_qlearn": ("qlearn", 7.5), "1_dqn": ("dqn", 12.25)}
+    names = [n.split("/", 1)[1] for n in run_scalar_names("length", 100)]
+    for job, (learner, mean_return) in returns.items():
         cfg = compose(learner=learner, overrides=["logger=tensorboard"])
         (tmp_path / job).mkdir()
         OmegaConf.save(cfg, tmp_path / job / "config.yaml", resolve=True)
+        (tmp_path / job / "success.json").write_text(json.dumps({"measure": "length", "window": 100}))
         logger = make_logger("tensorboard", tmp_path / job, exp_name=job)
-        log_hparams(logger, cfg)
-        finish_log(logger, {**dict.fromkeys(RUN_SCALARS, 1.0), "score": score, "env_steps": 100,
-                            "episodes": 5, "solved": False})
+        log_hparams(logger, cfg, run_scalar_names("length", 100))
+        finish_log(logger, {**dict.fromkeys(names, 1.0), "measure": "length", "window": 100,
+                            "train_return_mean": mean_return, "env_steps": 100, "episodes": 5, "solved": False})
     names, runs = hparams_tab(tmp_path)
     assert "learner.alpha" in names and "learner.lr" in names  # without the sweep's own: still both
     hparams_for_tensorboard(tmp_path)

@@ -100,9 +100,17 @@ def test_readme_discovery_tables_are_current():
         "README discovery tables are stale: python -m readme_tables --write"
 
 
-def test_write_fills_both_blocks_and_says_when_nothing_changed(tmp_path):
+def test_readme_names_table_is_current():
+    text = (ROOT / "README.md").read_text()
+    block = text.partition(doc.NAMES_BEGIN)[2].partition(doc.NAMES_END)[0]
+    assert block.strip() == doc.names_table().strip(), "README names table is stale: python -m readme_tables --write"
+    assert "| `train_<measure>_last<window>` | the mean `<measure>` of the last `<window>` training episodes |" in block
+
+
+def test_write_fills_every_block_and_says_when_nothing_changed(tmp_path):
     readme = tmp_path / "README.md"
-    readme.write_text(f"a\n{doc.BEGIN}\nstale text\n{doc.END}\nb\n{doc.DISCOVERY_BEGIN}\n{doc.DISCOVERY_END}\nc\n")
+    readme.write_text(f"a\n{doc.BEGIN}\nstale text\n{doc.END}\nb\n{doc.DISCOVERY_BEGIN}\n{doc.DISCOVERY_END}\n"
+                      f"{doc.NAMES_BEGIN}\n{doc.NAMES_END}\nc\n")
     assert doc.rewrite(readme) and not doc.rewrite(readme)
     text = readme.read_text()
     assert "stale text" not in text and text.startswith("a\n") and text.endswith("c\n")

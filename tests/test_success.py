@@ -83,7 +83,7 @@ def test_a_cube_that_never_moves_is_not_solved(tmp_path):
     lengths = [int(r["length"]) for r in csv.DictReader(open(tmp_path / "metrics.csv"))]
     assert lengths == [40] * 8  # it survived every step: a length rule would say solved
     assert not summary["solved"]
-    assert abs(summary["greedy"]) < 0.01 and summary["measure"] == "distance_walked"
+    assert abs(summary["greedy_distance_walked"]) < 0.01 and summary["measure"] == "distance_walked"
     v = verdict(lines)
     assert v["solved"] == "false" and v["measure"] == "distance_walked" and v["judge"] == "greedy"
     assert "not solved after 8 episodes: needs distance walked towards +y >= 1 m" in lines[0]
@@ -93,7 +93,7 @@ def test_one_tip_over_an_edge_is_not_a_walk(tmp_path):
     """Spinning the wheel up throws the cube over one edge (0.2 m); then it sits still."""
     task = lambda: OneDiskWalk(Cube(), max_episode_steps=60, win={"min_episodes": 2})  # noqa: E731
     summary, _ = judge(tmp_path, task, constant(WHEEL_FORWARD), episodes=4)
-    assert 0.1 < abs(summary["greedy"]) < 0.3
+    assert 0.1 < abs(summary["greedy_distance_walked"]) < 0.3
     assert not summary["solved"]
 
 
@@ -107,7 +107,7 @@ def test_the_walking_direction_is_the_rewarded_one():
 def test_a_turtlebot_turning_on_the_spot_is_not_solved(tmp_path):
     task = lambda: MazeTask(TurtleBot(), ring=RING, max_episode_steps=80, win={"min_episodes": 2})  # noqa: E731
     summary, lines = judge(tmp_path, task, constant(LEFT), episodes=4)
-    assert summary["greedy"] < 0.1 and not summary["solved"]
+    assert summary["greedy_laps"] < 0.1 and not summary["solved"]
     assert verdict(lines)["measure"] == "laps"
 
 
@@ -115,9 +115,9 @@ def test_a_turtlebot_that_drives_laps_is_solved_by_the_greedy_judge(tmp_path):
     task = lambda: MazeTask(TurtleBot(), ring=RING, win={"min_episodes": 2})  # noqa: E731
     summary, lines = judge(tmp_path, task, follow_the_corridor, episodes=2)
     assert summary["solved"] and summary["decided_by"] == "greedy"
-    assert summary["value"] >= 2.0  # laps, measured: about 4.4 in 500 steps
+    assert summary["judged_laps"] >= 2.0  # laps, measured: about 4.4 in 500 steps
     v = verdict(lines)
-    assert v["solved"] == "true" and v["judge"] == "greedy" and float(v["value"]) >= 2.0
+    assert v["solved"] == "true" and v["judge"] == "greedy" and float(v["judged_laps"]) >= 2.0
     assert lines[0].startswith("solved after 2 episodes: the greedy policy's mean laps round the maze")
 
 
@@ -147,7 +147,7 @@ def test_stay_up_keeps_the_seeds_rule_on_training_episodes(tmp_path):
     assert first == 175  # episodes 76-175 hold 25 short ones: (75 * 300 + 25 * 100) / 100 = 250
     assert run.solved_at == first and run.decided_by == "training"
     assert run.n_episodes == first  # the run stopped there
-    assert run.summary()["value"] == pytest.approx(np.mean(lengths[first - 100:first]))
+    assert run.summary()["judged_length"] == pytest.approx(np.mean(lengths[first - 100:first]))
     rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
     assert "length_mean100" in rows[0] and float(rows[-1]["length_mean100"]) >= 250
     run.close()
@@ -184,20 +184,23 @@ def test_a_training_verdict_needs_the_greedy_policy_to_meet_it_too(tmp_path):
     run.close()
 
 
-def test_scores_are_named_for_what_they_are(tmp_path):
-    """The headline is the best rolling mean; the seeds' "best 100" is the mean of the 100
-    best episodes, wherever they fell."""
+def test_training_numbers_are_named_for_what_they_are(tmp_path):
+    """The best rolling mean, the last window's mean and the seeds' "best 100" (the mean of
+    the 100 best episodes, wherever they fell) are three numbers with three names."""
     run = Run(tmp_path, 1, 300, Success("length", "steps", "steps balanced", math.inf), quiet=True)
     # 150 short episodes, then 100 long ones scattered among 50 short ones.
     values = [10.0] * 150 + [100.0, 10.0] * 50 + [100.0] * 50
     run.values = values
     run.lengths = [int(v) for v in values]
+    run.returns = [2.0 * v for v in values]
     run.n_episodes = len(values)
     s = run.summary()
-    assert s["mean_of_100_best_episodes"] == 100.0
+    assert s["train_length_best100_mean"] == 100.0
     windows = [np.mean(values[i:i + 100]) for i in range(len(values) - 99)]
-    assert s["best_rolling"] == pytest.approx(max(windows)) and s["best_rolling"] < 100.0
-    assert s["last_rolling"] == pytest.approx(np.mean(values[-100:]))
+    assert s["train_length_best_rolling100"] == pytest.approx(max(windows)) and max(windows) < 100.0
+    assert s["train_length_last100"] == pytest.approx(np.mean(values[-100:]))
+    assert s["train_return_mean"] == pytest.approx(2.0 * np.mean(values))
+    assert s["train_return_last100"] == pytest.approx(2.0 * np.mean(values[-100:]))
     run.close()
 
 
@@ -233,7 +236,7 @@ def test_the_default_run_is_solved_and_says_so_in_few_lines(tmp_path):
     assert lines[0] == "cartpole / stay_up / qlearn, seed 0, 8 copies, up to 4000 episodes"
     assert lines[1].startswith("tuned: conf/tuned/cartpole_qlearn.yaml changed num_envs 1 -> 8")
     v = verdict(lines)
-    assert v["solved"] == "true" and v["judge"] == "training" and float(v["value"]) >= 250
+    assert v["solved"] == "true" and v["judge"] == "training" and float(v["judged_length"]) >= 250
     assert (tmp_path / "train.log").read_text().splitlines() == proc.stdout.splitlines()
 
 
@@ -243,6 +246,6 @@ def test_the_tuned_cube_walks_a_metre_the_rewarded_way(tmp_path, weight, sign):
     course's exercise: the greedy policy walks >= 1 m that way (no code change)."""
     v = train_cli(tmp_path, "robot=cube", "learner=qlearn", "seed=0",
                   f"task.y_linear_speed_reward_weight={weight}")
-    assert v["solved"] == "true" and v["judge"] == "greedy" and float(v["greedy"]) >= 1.0
+    assert v["solved"] == "true" and v["judge"] == "greedy" and float(v["greedy_distance_walked"]) >= 1.0
     walked = json.loads((tmp_path / "eval.json").read_text())
     assert sign * np.mean(walked["info"]["y_displacement"]) >= 1.0  # along y, in that direction

@@ -50,6 +50,25 @@ def test_run_folder_and_verdict(short_run):
     assert "learner:" in (run_dir / "config.yaml").read_text()
 
 
+def test_summary_json_and_the_verdict_line_name_every_number_alike(short_run):
+    """summary.json's numbers and the VERDICT line's, by the same names (runs.summary), none a
+    bare "score"; the verdict's own lines name them too."""
+    import json
+
+    from runs.summary import measure_keys
+
+    tmp, proc = short_run
+    summary = json.loads((tmp / "run" / "summary.json").read_text())
+    k = measure_keys("length", 100)
+    assert set(k.numbers()) <= set(summary) and not [key for key in summary if "score" in key]
+    fields = verdict(proc.stdout)
+    assert {k.judged, k.train_best_rolling, k.train_last, k.greedy, k.train_return_mean, k.greedy_return} <= set(fields)
+    for name in (k.train_last, k.greedy, k.greedy_return, k.train_return_mean):
+        assert fields[name] == f"{summary[name]:.4g}", name
+    assert f"{k.train_best100_mean} " in proc.stdout and f"{k.train_return_last100} " in proc.stdout
+    assert "score" not in proc.stdout
+
+
 def test_saved_model_loads_for_eval_and_training(short_run):
     tmp, _ = short_run
     model = tmp / "run" / "model.pt"
@@ -119,7 +138,8 @@ def test_greedy_evaluations_do_not_change_training(tmp_path):
     assert [int(r["episode"]) for r in evals] == [10, 20, 30, 40]
     assert len(list(csv.DictReader(open(tmp_path / "b" / "evals.csv")))) == 1
     # The final evaluation is the one eval.json and the verdict report.
-    assert verdict(a.stdout)["greedy"] == f"{float(evals[-1]['length']):.4g}"
+    assert verdict(a.stdout)["greedy_length"] == f"{float(evals[-1]['length']):.4g}"
+    assert verdict(a.stdout)["greedy_return"] == f"{float(evals[-1]['return']):.4g}"
 
 
 def test_a_diverging_model_keeps_training_and_says_so(tmp_path):

@@ -177,6 +177,11 @@ def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(projec
     assert len(trials) == 2
     assert all(t.intermediate_values for t in trials)  # reported from inside the jobs
     assert len({t.user_attrs["worker"] for t in trials}) == 2  # two processes, one study
+    # The objective by its summary.json name: the study's metric, the console's lines.
+    assert study.metric_names == ["train_length_last100"]
+    assert "objective: train_length_last100 (mean over the seeds)" in proc.stdout
+    assert len(re.findall(r"^trial \d+: train_length_last100 \S+ \(seeds ", proc.stdout, re.M)) == 2
+    assert re.search(r"^best trial \d+: train_length_last100 ", proc.stdout, re.M)
     tuned = project_copy / "conf" / "tuned" / "cartpole_n1try.yaml"
     assert tuned.read_text().startswith("# @package _global_\n# Tuned by Optuna")
     best = OmegaConf.create(tuned.read_text())

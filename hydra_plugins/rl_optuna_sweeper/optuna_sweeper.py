@@ -5,8 +5,10 @@
 Each trial samples the learner's search space (``conf/search/<learner>.yaml``, or
 ``<robot>_<learner>.yaml`` where a robot has its own), runs one job per seed through
 Hydra's launcher (basic, joblib, submitit: Slurm) with the same budget (``budget_steps``
-env steps, training past "solved"), and scores the mean of the jobs' scores: the task's
-own measure as the comparison reads it. Jobs report their rolling measure every
+env steps, training past "solved"), and tells the study the mean over the jobs of its
+objective, the task's own measure as the comparison's headline reads it and as summary.json
+names it (``greedy_<measure>``, or ``train_<measure>_last<window>`` for a task judged on
+training episodes; the study's metric name). Jobs report their rolling measure every
 ``report_every`` episodes, and the median pruner stops hopeless trials. The study lives
 in ``storage`` (an SQLite file by default, any SQL database by URL), so sweeps started on
 several machines share it. The best trial ends as a tuned file:
