@@ -44,7 +44,7 @@ SEED_COLUMNS = ("task", "robot/task", "learner", "setting", "seed", "status", "s
                 "wall_to_solve", "error", "run_dir")
 PAIR_COLUMNS = ("task", "learner", "setting", "seeds", "success", "verdict_solved", "failed",
                 "measure", "greedy_iqm", "ci_low", "ci_high", "steps_to_success", "wall_to_success",
-                "batch_wall_s", "budget_steps", "note")
+                "batch_wall_s", "budget_steps", "tuned_file", "note")
 
 
 class BadInput(Exception):
@@ -261,6 +261,7 @@ def pair_row(job: Job, rows: list[dict], wall: float | None, note: str = "") -> 
         "steps_to_success": _median([r["steps_to_solve"] for r in won]),
         "wall_to_success": _median([r["wall_to_solve"] for r in won]),
         "batch_wall_s": wall, "budget_steps": job.budget, "note": note,
+        "tuned_file": f"{job.robot}_{job.learner}" if job.setting == "tuned" else "",
     }
 
 
@@ -295,7 +296,8 @@ def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str]) -> str:
                   "|---|---|---|---|---|---|---|---|"]
         for p in mine:
             success = f"{p['success']}/{p['seeds']}" if p["seeds"] else "-"
-            lines.append(f"| {p['learner']} | {p['setting']} | {success} | {_iqm_text(p)} | "
+            setting = f"tuned ({p['tuned_file']})" if p["tuned_file"] else p["setting"]
+            lines.append(f"| {p['learner']} | {setting} | {success} | {_iqm_text(p)} | "
                          f"{_g(p['steps_to_success'], ',.0f')} | {_g(p['wall_to_success'], '.1f')} | "
                          f"{_g(p['batch_wall_s'], '.0f')} | {p['note']} |")
         lines.append("")

@@ -48,7 +48,7 @@ def test_quick_benchmark_end_to_end(tmp_path):
     assert "old table" not in text and text.endswith("## After\n")
     table = text.split(benchmark.BEGIN)[1].split(benchmark.END)[0]
     assert "**cartpole** (cartpole/stay_up, success: greedy length >= 250" in table
-    assert "| qlearn | tuned | " in table and "| dqn | tuned | " in table
+    assert "| qlearn | tuned (cartpole_qlearn) | " in table and "| dqn | tuned (cartpole_dqn) | " in table
     assert "greedy_length IQM [95% CI]" in table
     # --solo: what training the seeds in one process saved, against the first seed alone
     assert table.count("2 seeds in one process: ") == 2 and "one seed alone" in table
