@@ -2,7 +2,7 @@
 
     cartpole / stay_up / qlearn, seed 0, 8 copies, up to 4000 episodes
     tuned: conf/tuned/cartpole_qlearn.yaml changed num_envs 1 -> 8, learner.alpha 0.1 -> 0.2, ...
-    solved when: mean steps balanced of the last 100 training episodes >= 250 steps
+    solved when: mean steps balanced of the last 100 training episodes >= 250 steps ... and the greedy policy's too
     run folder: outputs/2026-11-23/14-27-16_cartpole_qlearn_4242 (full log: train.log)
 """
 
@@ -47,7 +47,8 @@ def solved_when(success: Success) -> str:
         return (f"the greedy policy's mean {success.description} >= {success.threshold:g}{unit} "
                 f"(evaluated every eval_every episodes)")
     return (f"mean {success.description} of the last {success.window} training episodes "
-            f">= {success.threshold:g}{unit} (after >= {success.min_episodes} episodes)")
+            f">= {success.threshold:g}{unit} (after >= {success.min_episodes} episodes), and the "
+            f"greedy policy's too")
 
 
 def banner_lines(cfg: DictConfig, choices: Mapping[str, str | None], changes: Sequence[str] | None,
