@@ -86,9 +86,17 @@ def _headline(s: dict, unit: str) -> str:
         confirmed = (f", and the greedy policy's {_num(greedy)}{unit}"
                      if s["decided_by"] == "training" and greedy is not None else "")
         return f"solved after {n} episodes: {how} >= {s['threshold']:g}{unit}{confirmed}"
-    by = f"judged on {'the greedy policy' if s['judge'] == 'greedy' else 'training episodes'}"
+    if s["judge"] == "greedy":
+        by = "judged on the greedy policy"
+    else:
+        by = "judged on training episodes, and the greedy policy's too"
+    got = f"got {_num(judged)}{unit}"
+    greedy = s.get(measure_keys(s["measure"], s["window"]).greedy)
+    if s["judge"] == "training" and judged is not None and judged >= s["threshold"]:
+        got += (f" (the training rule was met, the greedy policy never: {_num(greedy)}{unit} "
+                "at the final evaluation)")
     return (f"not solved after {n} episodes: needs {s['description']} >= {s['threshold']:g}{unit} "
-            f"({by}, after at least {s['min_episodes']} episodes); got {_num(judged)}{unit}")
+            f"({by}, after at least {s['min_episodes']} episodes); {got}")
 
 
 def verdict_lines(summary: dict, run_dir: Path) -> list[str]:

@@ -249,3 +249,20 @@ def test_the_tuned_cube_walks_a_metre_the_rewarded_way(tmp_path, weight, sign):
     assert v["solved"] == "true" and v["judge"] == "greedy" and float(v["greedy_distance_walked"]) >= 1.0
     walked = json.loads((tmp_path / "eval.json").read_text())
     assert sign * np.mean(walked["info"]["y_displacement"]) >= 1.0  # along y, in that direction
+
+
+def test_a_training_rule_met_without_the_greedy_policy_says_so(tmp_path):
+    """Not solved although the training episodes met the rule: the verdict says the greedy
+    policy never did, with its final evaluation."""
+    task = StayUp(CartPole())
+    run = Run(tmp_path, 1, 150, task.success, quiet=True, hooks=Hooks(
+        greedy_eval=lambda: {"episodes": 20, "mean_length": 180.0, "mean_return": 180.0}))
+    for _ in range(150):
+        feed(run, [300])
+        run.end_step(None)
+    summary = run.close()
+    assert not summary["solved"]
+    line = verdict_lines(summary, tmp_path)[0]
+    assert line == ("not solved after 150 episodes: needs steps balanced >= 250 steps (judged on training "
+                    "episodes, and the greedy policy's too, after at least 100 episodes); got 300 steps "
+                    "(the training rule was met, the greedy policy never: 180 steps at the final evaluation)")
