@@ -272,7 +272,7 @@ def write_csv(path: Path, columns: tuple[str, ...], rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-def _g(value, spec: str = ".3g") -> str:
+def _g(value, spec: str = ".4g") -> str:
     return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else format(value, spec)
 
 
@@ -291,7 +291,7 @@ def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str]) -> str:
         mine = [p for p in pairs if p["task"] == task]
         lines += [f"**{task}** ({specs[task]}; budget {mine[0]['budget_steps']:,} env steps per seed)", "",
                   "| learner | setting | success | greedy_" + (mine[0]["measure"] or "measure")
-                  + " IQM [95% CI] | env steps to success (median) | wall s to success (median) "
+                  + " IQM [95% CI] | env steps to success (median) | wall s to success (median, the batch's clock) "
                   "| wall s, all seeds | note |",
                   "|---|---|---|---|---|---|---|---|"]
         for p in mine:
