@@ -106,16 +106,20 @@ def test_a_stopped_batch_seed_resumes_alone_to_its_uninterrupted_run(tmp_path, m
 
 
 def test_a_failing_seed_ends_alone(tmp_path, monkeypatch):
+    """A seed's own call failing (here its per-episode epsilon decay, after 10 episodes)
+    ends it alone, with its files; the other seed trains on."""
     built = []
-    real_build, real_update = QLearn.build, QLearn.update
+    real_build, real_end_episode = QLearn.build, QLearn.end_episode
     monkeypatch.setattr(QLearn, "build", lambda self, *a: built.append(self) or real_build(self, *a))
+    ended = []
 
-    def update(self, td):
-        if self is built[0] and self.policy.epsilon < 0.5:
+    def end_episode(self):
+        ended.append(self)
+        if self is built[0] and ended.count(self) > 10:
             raise FloatingPointError("the Q-table diverged")
-        real_update(self, td)
+        real_end_episode(self)
 
-    monkeypatch.setattr(QLearn, "update", update)
+    monkeypatch.setattr(QLearn, "end_episode", end_episode)
     summaries = execute_batch(jobs("qlearn", tmp_path, "batch"))
     failed, healthy = (tmp_path / f"batch{s}" for s in SEEDS)
     assert "FloatingPointError: the Q-table diverged" in (failed / "error.txt").read_text()
