@@ -323,8 +323,8 @@ def _train_stacked(slots: list[_Slot], env: RobotTaskEnv, stacked, stopped: dict
     them (:func:`learners.base.train`): act, step, learn, book the episodes (their
     ``end_episode``), the updates they owe, ``end_step`` (evaluation, checkpoint)."""
 
-    def guard(b: int, work) -> bool:
-        return _guarded(slots[b], work)
+    def guard(b: int, work) -> bool:  # a seed's own part of a stacked call (it prints nothing)
+        return _attempt(slots[b], work)
 
     def acting(live: list[_Slot]) -> list[_Slot]:  # a seed done at a step's end acts no more
         return [slot for slot in live if not slot.done]
@@ -345,12 +345,15 @@ def _train_stacked(slots: list[_Slot], env: RobotTaskEnv, stacked, stopped: dict
         nxt = td.get("next")
         reward, done, terminated = (nxt.get(key).reshape(-1).numpy() for key in ("reward", "done", "terminated"))
         _together(live, lambda: stacked.observe(td, indices(sound(live)), guard))
+        owing = []  # seeds whose episodes owe updates: their end_step after the stack's settle
         for slot in sound(live):
             rows = env.block(slot.index)
-            _guarded(slot, lambda s=slot, r=rows: _book_rows(s, reward[r], done[r], terminated[r]))
-        _together(live, lambda: stacked.settle(indices(sound(live)), guard))
-        for slot in sound(live):
-            _guarded(slot, lambda s=slot: s.run.end_step(next_td))
+            _guarded(slot, lambda s=slot, r=rows: _book_rows(s, reward[r], done[r], terminated[r], next_td,
+                                                             stacked, owing))
+        if owing:
+            _together(owing, lambda: stacked.settle(indices(sound(owing)), guard))
+            for slot in sound(owing):
+                _guarded(slot, lambda s=slot: s.run.end_step(next_td))
         td = _together(acting(live), lambda: stacked.act(next_td, indices(acting(live)), guard))
 
 
@@ -363,7 +366,7 @@ def _together(live: list[_Slot], work):
         trace = traceback.format_exc()
         for slot in live:
             if slot.failed is None:
-                _guarded(slot, lambda: _raise(RuntimeError(f"the seeds' stacked learner failed:\n{trace}")))
+                _fail(slot, f"the seeds' stacked learner failed:\n{trace}")
         return None
 
 
@@ -386,26 +389,64 @@ def _book(slot: _Slot, td: TensorDictBase, next_td: TensorDictBase) -> None:
     slot.td = run.end_step(next_td)
 
 
-def _book_rows(slot: _Slot, reward: np.ndarray, done: np.ndarray, terminated: np.ndarray) -> None:
+def _book_rows(slot: _Slot, reward: np.ndarray, done: np.ndarray, terminated: np.ndarray,
+               next_td: TensorDictBase, stacked, owing: list[_Slot]) -> None:
     """A stacked seed's episodes of the step (its block's arrays), each then its learner's
-    ``end_episode``, as ``record_step`` and :func:`learners.base.train` do alone."""
+    ``end_episode``, as ``record_step`` and :func:`learners.base.train` do alone; then its
+    ``end_step``, unless its episodes owe updates (``owing`` then takes it: its stack runs
+    them first). The seeds are independent: one's end may come before another's updates."""
     learner, run, view = slot.session.learner, slot.run, slot.session.env
     run.divergences = view.divergences
     for _ in run.record_arrays(reward, done, terminated, learner.stats, view.ended_info if done.any() else None):
         learner.end_episode()
+    if stacked.owes(slot.index):
+        owing.append(slot)
+    else:
+        run.end_step(next_td)
+
+
+def _attempt(slot: _Slot, work) -> bool:
+    """``work``, a seed's own part of a stacked call (it prints nothing), outside the seed's
+    context; a failure ends the seed alone, as in :func:`_guarded`. Whether it worked."""
+    try:
+        work()
+    except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
+        _fail(slot, traceback.format_exc())
+    return slot.failed is None
 
 
 def _guarded(slot: _Slot, work, full: bool = False) -> bool:
     """Runs ``work`` in the seed's context; an exception ends that seed alone (``error.txt``).
-    Whether the seed is still sound."""
-    with slot.active(full):
-        try:
-            work()
-        except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
-            slot.failed = traceback.format_exc()
-            print(slot.failed, file=sys.stderr)
-            (slot.job.run_dir / "error.txt").write_text(slot.failed)
+    Whether the seed is still sound. (A stacked seed's step swaps its console only: inline.)"""
+    if full or not slot.stacked:
+        with slot.active(full):
+            _run_guarded(slot, work)
+        return slot.failed is None
+    out, err = sys.stdout, sys.stderr
+    sys.stdout = sys.stderr = slot.console
+    try:
+        _run_guarded(slot, work)
+    finally:
+        sys.stdout, sys.stderr = out, err
     return slot.failed is None
+
+
+def _run_guarded(slot: _Slot, work) -> None:
+    try:
+        work()
+    except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
+        slot.failed = traceback.format_exc()
+        print(slot.failed, file=sys.stderr)
+        (slot.job.run_dir / "error.txt").write_text(slot.failed)
+
+
+def _fail(slot: _Slot, trace: str) -> None:
+    """Ends ``slot`` with ``trace`` (printed in its context, kept in its ``error.txt``)."""
+    _guarded(slot, lambda: _raise(_Failed(trace)))
+
+
+class _Failed(Exception):
+    """A failure that happened elsewhere, its trace the message."""
 
 
 def _finish(slot: _Slot, interrupted: int | None) -> None:
