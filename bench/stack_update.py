@@ -7,7 +7,7 @@ each of S seeds with its own networks and its own minibatch:
 
 - gradients (forward, loss, backward) of every seed's minibatch:
   ``loop``: each seed's own ``td_terms`` + loss + ``backward`` in turn (a run alone);
-  ``stack``: :class:`learners.stack.DQNStack`'s stacked forward/backward (``StackedLinear``);
+  ``stack``: :class:`learners.stack.DQNStack`'s stacked forward and hand-written backward;
   ``func``: ``torch.func.vmap(grad(loss))`` over ``functional_call`` on
   ``stack_module_state``'s parameters;
   ``tensordict``: ``TensorDict.from_modules`` parameters, the loss under ``to_module``,
@@ -141,11 +141,8 @@ def gradient_contestants(group: list) -> tuple[dict[str, Callable[[], list[torch
     stack = DQNStack(group, [torch.Generator() for _ in group])
 
     def ours() -> list[torch.Tensor]:
-        weights = [w.detach().requires_grad_() for w in stack.weights]
-        targets_ = weights if stack.shared_target else stack.targets
-        _, _, loss = stack._loss(weights, targets_, stacked)
-        loss.sum().backward()
-        return [w.grad for w in weights]
+        with torch.no_grad():
+            return stack._loss(stack.weights, stack.weights if stack.shared_target else stack.targets, stacked)[3]
 
     return {"loop": loop, "stack": ours, "func": func, "tensordict": tensordict}, group
 

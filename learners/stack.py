@@ -58,7 +58,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torch.optim.adam import adam
 
-from learners.dqn import DQN, _DISTANCES, Transitions
+from learners.dqn import DQN, _DISTANCES, Transitions, unpack
 from learners.qlearn import QLearn
 
 Guard = Callable[[int, Callable[[], None]], bool]
@@ -82,7 +82,8 @@ def stack(learners: Sequence, generators: Sequence[torch.Generator]):
         return None
     if all(type(learner) is QLearn for learner in learners):
         return QLearnStack(learners)
-    if all(type(learner) is DQN for learner in learners):
+    if all(type(learner) is DQN for learner in learners) and all(
+            isinstance(layer, nn.Linear) or type(layer) in _ACTIVATION_BACKWARD for layer in learners[0].net):
         return DQNStack(learners, generators)
     return None
 
@@ -232,28 +233,29 @@ def _linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.
     return torch.stack([torch.addmm(bias[b], x[b], weight[b].t()) for b in range(len(x))])
 
 
-class StackedLinear(torch.autograd.Function):
-    """:func:`_linear` with the backward ``addmm`` gets from autograd, seed by seed: the
-    weight's gradient ``g^T x`` (its weight is a transposed view), the input's ``g W``
-    and the bias's ``g`` summed over the batch."""
+def _linear_backward(grad: torch.Tensor, x: torch.Tensor, weight: torch.Tensor, input_grad: bool):
+    """The gradients autograd gives an ``nn.Linear`` (``addmm`` on a transposed weight), per
+    seed: the weight's ``g^T x``, the bias's ``g`` summed over the batch and, if asked, the
+    input's ``g W``; each product the BLAS call alone makes (seed by seed below its size)."""
+    blas = _blas_sized(x.shape[1], x.shape[2], weight.shape[1])
+    grad_t = grad.transpose(1, 2)
+    grad_w = (torch.bmm(grad_t, x) if blas else torch.stack([grad_t[b].mm(x[b]) for b in range(len(x))]))
+    grad_x = None
+    if input_grad:
+        grad_x = torch.bmm(grad, weight) if blas else torch.stack([grad[b].mm(weight[b]) for b in range(len(x))])
+    return grad_w, grad.sum(1), grad_x
 
-    @staticmethod
-    def forward(ctx, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-        ctx.save_for_backward(x, weight)
-        return _linear(x, weight, bias)
 
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor):
-        x, weight = ctx.saved_tensors
-        blas = _blas_sized(x.shape[1], x.shape[2], weight.shape[1])
-        grad_x = None
-        if ctx.needs_input_grad[0]:
-            grad_x = (torch.bmm(grad, weight) if blas else
-                      torch.stack([grad[b].mm(weight[b]) for b in range(len(x))]))
-        grad_t = grad.transpose(1, 2)
-        grad_w = (torch.bmm(grad_t, x) if blas else
-                  torch.stack([grad_t[b].mm(x[b]) for b in range(len(x))]))
-        return grad_x, grad_w, grad.sum(1)
+# Each activation's backward as autograd computes it, from its output.
+_ACTIVATION_BACKWARD = {
+    nn.ReLU: lambda grad, out: torch.ops.aten.threshold_backward(grad, out, 0),
+    nn.Tanh: lambda grad, out: torch.ops.aten.tanh_backward(grad, out),
+}
+# Each loss's backward (reduction none: the per-seed mean's 1/n comes in as the gradient).
+_LOSS_BACKWARD = {
+    "l2": lambda grad, q, target: torch.ops.aten.mse_loss_backward(grad, q, target, 0),
+    "smooth_l1": lambda grad, q, target: torch.ops.aten.smooth_l1_loss_backward(grad, q, target, 0, 1.0),
+}
 
 
 def _own_copies(module: nn.Module, state_dict: dict, prefix: str, local_metadata) -> None:
@@ -318,17 +320,36 @@ class DQNStack:
             ("exp_avg_sqs", self.exp_avg_sqs), ("steps", self.steps))}
 
     # -- acting --------------------------------------------------------------
-    def _forward(self, params: Sequence[torch.Tensor], x: torch.Tensor, grad: bool = False) -> torch.Tensor:
-        """Every seed's network on its ``x`` (``[S, m, n_obs]``) with stacked ``params``."""
-        linear = StackedLinear.apply if grad else _linear
+    def _forward(self, params: Sequence[torch.Tensor], x: torch.Tensor,
+                 kept: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """Every seed's network on its ``x`` (``[S, m, n_obs]``) with stacked ``params``;
+        ``kept`` collects each layer's input (for :meth:`_backward`)."""
         k = 0
         for layer in self.layers:
+            if kept is not None:
+                kept.append(x)
             if layer is None:
-                x = linear(x, params[k], params[k + 1])
+                x = _linear(x, params[k], params[k + 1])
                 k += 2
             else:
                 x = layer(x)
         return x
+
+    def _backward(self, grad: torch.Tensor, params: Sequence[torch.Tensor], kept: list[torch.Tensor],
+                  out: torch.Tensor) -> list[torch.Tensor]:
+        """The gradients of ``params`` from ``grad`` at the network's output ``out``, layer by
+        layer backwards (``kept``: the layers' inputs), as autograd computes them alone."""
+        grads: list[torch.Tensor] = [None] * len(params)  # type: ignore[list-item]
+        k = len(params)
+        for i in range(len(self.layers) - 1, -1, -1):
+            layer, x = self.layers[i], kept[i]
+            if layer is None:
+                k -= 2
+                grads[k], grads[k + 1], grad = _linear_backward(grad, x, params[k], input_grad=i > 0)
+            else:
+                grad = _ACTIVATION_BACKWARD[type(layer)](grad, out)
+            out = x
+        return grads
 
     def act(self, td: TensorDictBase, live: Sequence[int], guard: Guard = _unguarded) -> TensorDictBase:
         """Every seed's greedy action, then each live seed's exploration as
@@ -408,23 +429,35 @@ class DQNStack:
         if len(drawn) != len(due):  # a seed failed its draw: the minibatches move up
             keep = torch.from_numpy(np.array([due.index(b) for b in drawn]))
             self._minibatch[:len(drawn)] = self._minibatch.index_select(0, keep)
+        if len(drawn) == 1:
+            return self._alone(drawn[0])
         batch = self._unpack(self._minibatch[:len(drawn)])
         everyone = len(drawn) == self.seeds
         index = None if everyone else torch.from_numpy(np.array(drawn)).to(self.weights[0].device)
-        weights = [w.detach().requires_grad_() if everyone else w.index_select(0, index).requires_grad_()
-                   for w in self.weights]
+        weights = self.weights if everyone else [w.index_select(0, index) for w in self.weights]
         targets = weights if self.shared_target else (
             self.targets if everyone else [t.index_select(0, index) for t in self.targets])
-        q, target, loss = self._loss(weights, targets, batch)
-        loss.sum().backward()
-        grads = [w.grad for w in weights]
         with torch.no_grad():
+            q, target, loss, grads = self._loss(weights, targets, batch)
             norms = self._clip(grads, len(drawn))
             self._adam(drawn, grads)
             self._after_step(drawn, grads, index)
-        losses, qs, ts = loss.detach().unbind(0), q.detach().unbind(0), target.unbind(0)
+        losses, qs, ts = loss.unbind(0), q.unbind(0), target.unbind(0)
         for j, b in enumerate(drawn):
             self.learners[b].tracker.add(losses[j], qs[j], ts[j], None if norms is None else norms[j])
+
+    def _alone(self, b: int) -> None:
+        """A round of one seed: its own :meth:`learners.dqn.DQN._update` of its minibatch (the
+        path of its run alone, on its views of the stacked tensors: cheaper than the stacked
+        path's for one seed)."""
+        learner = self.learners[b]
+        if not self.started[b]:
+            self._start(b)
+        learner._update(unpack(self._minibatch[0]))
+        if self.kept_grads is not None:  # its new gradients, where train_stats reads them
+            for kept, p in zip(self.kept_grads, learner._params):
+                kept[b].copy_(p.grad)
+                p.grad = kept[b]
 
     @staticmethod
     def _unpack(rows: torch.Tensor) -> Transitions:
@@ -434,20 +467,25 @@ class DQNStack:
                            rows[..., n:2 * n], rows[..., 2 * n + 2:] != 0)
 
     def _loss(self, weights, targets, batch):
-        """:func:`learners.dqn.td_terms` and the loss of every seed, stacked: ``q`` and
-        ``target`` ``[S, batch, 1]``, the per-seed mean loss ``[S]``."""
+        """:func:`learners.dqn.td_terms`, the loss and its gradients of every seed, stacked:
+        ``q`` and ``target`` ``[S, batch, 1]``, the per-seed mean loss ``[S]`` and the
+        gradients of ``weights``, by hand: the very kernels autograd runs for the loss alone
+        (its mean's ``1/n``, the loss's backward, the gather's scatter, each layer's)."""
         first = self.learners[0]
-        q = self._forward(weights, batch.observation, grad=True).gather(-1, batch.action)
-        with torch.no_grad():
-            next_q = self._forward(targets, batch.next_observation)
-            if first.double_dqn:
-                best = self._forward(weights, batch.next_observation).argmax(-1, keepdim=True)
-                next_value = next_q.gather(-1, best)
-            else:
-                next_value = next_q.amax(-1, keepdim=True)
-            target = batch.reward + first.gamma * next_value * ~batch.terminated
+        kept: list[torch.Tensor] = []
+        out = self._forward(weights, batch.observation, kept)
+        q = out.gather(-1, batch.action)
+        next_q = self._forward(targets, batch.next_observation)
+        if first.double_dqn:
+            next_value = next_q.gather(-1, self._forward(weights, batch.next_observation).argmax(-1, keepdim=True))
+        else:
+            next_value = next_q.amax(-1, keepdim=True)
+        target = batch.reward + first.gamma * next_value * ~batch.terminated
         loss = _DISTANCES[first.loss_function](q, target, reduction="none").mean((1, 2))
-        return q, target, loss
+        grad = torch.ones(q.shape, device=q.device).div_(q.shape[1] * q.shape[2])
+        grad = _LOSS_BACKWARD[first.loss_function](grad, q, target)
+        grad = out.new_zeros(out.shape).scatter_add_(-1, batch.action, grad)
+        return q, target, loss, self._backward(grad, weights, kept, out)
 
     def _clip(self, grads: list[torch.Tensor], seeds: int) -> torch.Tensor | None:
         """:meth:`learners.dqn.DQN._clip` of each seed (its tensors' norms one by one, as
@@ -525,4 +563,4 @@ class DQNStack:
                     kept.index_copy_(0, index, g)
 
 
-__all__ = ["stack", "QLearnStack", "DQNStack", "StackedLinear"]
+__all__ = ["stack", "QLearnStack", "DQNStack"]
