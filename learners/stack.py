@@ -22,26 +22,30 @@ there ends that seed alone; it returns False when ``work`` failed.
   one discretisation, one action choice and one table update for all seeds per step.
   Each seed's random numbers come from its own generator, one call per seed per step
   drawing what its separate calls draw alone (torch's CPU ``rand`` fills serially).
-- :class:`DQNStack`: the seeds' Q-networks, target networks and Adam moments are
-  stacked ``[seeds, ...]`` tensors, each seed's parameters and optimizer state views of
-  its slice: one forward gives every seed's action values; the minibatch updates of the
-  seeds due at a step run as one forward/backward over the stacked parameters
-  (:class:`StackedLinear`) and one fused Adam call. Each seed keeps its own replay
-  buffer, epsilon schedule, update credit, counters, learning-rate schedule, statistics
-  and random stream (its ``generators`` entry: the exploration draws and minibatch
-  indices that torch's global generator gives it alone). With ``train_every=episode``
-  seeds are due at different steps: an update round takes the seeds that still owe one,
-  the others' parameters and optimizer state are not touched.
+- :class:`DQNStack`: the seeds' Q-networks, target networks and Adam moments and steps
+  are stacked ``[seeds, ...]`` tensors, each seed's parameters and optimizer state views
+  of its slice: one forward gives every seed's action values; the minibatch updates of
+  the seeds due at a step run as one stacked forward and backward (a batched matrix
+  product per layer) and one fused Adam call. Each seed keeps its own replay buffer,
+  epsilon schedule, update credit, counters, learning-rate schedule, statistics and
+  random stream (its ``generators`` entry: the exploration draws and minibatch indices
+  that torch's global generator gives it alone). With ``train_every=step`` the seeds
+  update in lockstep; with ``train_every=episode`` they are due at different steps: an
+  update round takes the seeds that still owe one and leaves the others' parameters and
+  optimizer state untouched (a round of one seed runs that seed's own update).
 
 Bit for bit: a seed's actions, updates, parameters, optimizer state and statistics are
-those of its run alone (``tests/test_seed_batch.py``). The arithmetic is the same per
-seed: the stacked matrix products call the same BLAS product per seed as ``nn.Linear``
-(products too small for it, which ATen's batched product computes in a loop of its own,
-run seed by seed), each backward product has the form autograd gives ``addmm``, the
-loss is reduced per seed, and norms, Adam and the target update take each seed's tensors
-as separate tensors, as alone. (``torch.func.vmap`` over ``functional_call`` batches the
-weight gradient of the first layer as ``x^T g`` and differs in the last bits; it is also
-slower here: ``bench/stack_update.py``.)
+those of its run alone (``tests/test_seed_stack.py``, ``tests/test_seed_batch.py``). The
+arithmetic is the same per seed: a stacked matrix product is the BLAS product
+``nn.Linear`` makes for each seed (products too small for it, which ATen's batched
+product computes in a loop of its own, run seed by seed); the backward is written out
+as the kernels autograd runs for the loss alone (the per-seed mean's ``1/n``, the loss's
+and the gather's backward, each layer's ``g^T x``, ``g W`` and bias sum, the activation's
+backward), which also spares autograd's graph (~170 us a round); norms, Adam and target
+copies take each seed's tensors as separate tensors, as alone. ``bench/stack_update.py``
+measures it against ``torch.func.vmap(grad(...))`` over ``functional_call`` and against
+tensordict's ``from_modules``: on this CPU (torch 2.13) both gave the same gradients at
+the tuned batch of 128 but took about 3 (ten seeds) to 7 (one seed) times as long.
 
 The seeds' saved states stay their own: a module's or optimizer's ``state_dict`` of a
 stacked seed holds copies of its slices (a hook), never the stacked tensors.
@@ -396,13 +400,12 @@ class DQNStack:
         self.owed = [0] * self.seeds
         if not owed:
             return
-        stored = {}
-        for b in owed:
-            if guard(b, lambda b=b: stored.__setitem__(b, len(self.learners[b].buffer))):
-                continue
+        stored: dict[int, int] = {}  # each seed's buffer length (a seed that fails leaves)
+        for b in sorted(owed):
+            guard(b, lambda b=b: stored.__setitem__(b, len(self.learners[b].buffer)))
         done = 0
         while True:
-            due = [b for b in sorted(owed) if b in stored and owed[b] > done]
+            due = [b for b in stored if owed[b] > done]
             if not due:
                 return
             self._round(due, stored, guard)
@@ -419,6 +422,8 @@ class DQNStack:
                 torch.index_select(rows, 0, index.to(rows.device), out=self._minibatch[j])
             if guard(b, draw):
                 drawn.append(b)
+            else:
+                del stored[b]
         return drawn
 
     def _round(self, due: list[int], stored: dict[int, int], guard: Guard) -> None:
@@ -430,7 +435,9 @@ class DQNStack:
             keep = torch.from_numpy(np.array([due.index(b) for b in drawn]))
             self._minibatch[:len(drawn)] = self._minibatch.index_select(0, keep)
         if len(drawn) == 1:
-            return self._alone(drawn[0])
+            if not guard(drawn[0], lambda: self._alone(drawn[0])):
+                del stored[drawn[0]]
+            return None
         batch = self._unpack(self._minibatch[:len(drawn)])
         everyone = len(drawn) == self.seeds
         index = None if everyone else torch.from_numpy(np.array(drawn)).to(self.weights[0].device)

@@ -5,16 +5,29 @@
 One env holds every seed's copies as seed blocks (``RobotTaskEnv(seed=[...])``):
 each block starts its episodes as that seed's env alone would, and the physics of
 all of them is one step. Each seed keeps its own learner, its own :class:`Run`
-with its own folder, files, checkpoints and verdict, and its own random streams:
-the global torch, numpy and ``random`` states are swapped in around everything
-a seed does, so a seed draws exactly what it would draw alone. A seed's run is
-therefore the run ``python train.py seed=<s>`` makes, file for file (wall-clock
+with its own folder, files, checkpoints and verdict, and its own random streams, so a
+seed's run is the run ``python train.py seed=<s>`` makes, file for file (wall-clock
 numbers aside), and each folder resumes alone (``resume=<folder>``).
 
+The seeds' learners are stacked (:func:`learners.stack.stack`: qlearn and the DQN
+family): a step is one stacked call per phase for every seed (act, learn from the
+step, the updates their episodes owed), and between them one visit to each seed's
+context, where its run books its block of the step (``Run.record_arrays`` on its
+block of the step's arrays), its learner ends its episodes and its run ends the step
+(evaluation, checkpoint); in the order a run alone does them
+(:func:`learners.base.train`). A stacked seed's draws come from its own generators
+(its torch stream is a generator object, ``_Slot.streams[0]``), so no global random
+state is swapped per step; a checkpoint and a seed's end swap its torch, numpy and
+``random`` states in (a checkpoint holds them). Learners without a stack train seed by
+seed: each seed's step is one visit to its context, torch's global stream swapped in.
+
 A seed that is done (solved, out of budget, stopped) ends there, as alone, and its
-copies stop stepping (``BatchedPhysics.hold``) while the others go on; a seed whose learner fails ends alone, its trace in its ``error.txt``.
-Each seed's console goes to its ``train.log`` and, its lines prefixed with
-``[seed N]``, to the terminal.
+copies stop stepping (``BatchedPhysics.hold``) while the others go on. A seed whose own
+work fails (its booking, its learner's episode end, its evaluation or checkpoint, its
+part of a stacked call: its draws, its replay buffer) ends alone, its trace in its
+``error.txt``; a stacked call that fails as a whole ends every seed still training with
+the trace (they share its state). Each seed's console goes to its ``train.log`` and,
+its lines prefixed with ``[seed N]``, to the terminal.
 """
 
 from __future__ import annotations
