@@ -1,25 +1,44 @@
-"""Seeds in one process against one seed alone: wall time and peak memory (run by hand).
+"""Seeds in one process against one seed alone: wall time, CPU time and peak memory (run by hand).
 
-    python bench/seed_batch.py [--seeds 10] [--learners qlearn dqn] [--qlearn-steps 150000]
-                               [--dqn-steps 30000]
+    python bench/seed_batch.py [--seeds 10] [--learners qlearn dqn] [--num-envs tuned 1]
+                               [--qlearn-steps 150000] [--dqn-steps 30000]
 
-Per learner, side by side in this run: one plain process ``train.py seed=0`` and one
-``train.py -m seed='range(N)'`` (the ``seeds`` launcher: one batch of N seeds), each
-with the same per-seed budget of env steps (``max_env_steps``; an episode budget
-would let the batch wait for its slowest seed), training past "solved" so every seed spends the whole budget. Timed from
-outside, start to exit; the peak memory is the largest resident set of the process.
+Per learner and number of copies a seed (``tuned``: the tuned file's, 8 for qlearn and
+16 for dqn; a number: ``num_envs=<n>``), side by side in this run: one plain process
+``train.py seed=0`` and one ``train.py -m seed='range(N)'`` (the ``seeds`` launcher: one
+batch of N seeds), each with the same per-seed budget of env steps (``max_env_steps``; an
+episode budget would let the batch wait for its slowest seed), training past "solved" so
+every seed spends the whole budget. Timed from outside, start to exit; the CPU time is
+the process's user + system seconds (its physics thread pool's included: on a shared
+machine the wall time also counts the other jobs' turns); the peak memory is the largest
+resident set of the process. The load average is printed at the start and the end.
 
-Measured 2026-11-26 (2 cores, one busy with another job; seeds 10, the defaults):
-``BATCH qlearn seeds=10 one_s=38.9 batch_s=378.4 ratio=9.72 per_seed_ratio=0.972 peak_rss_mb=601``,
-``BATCH dqn seeds=10 one_s=10.4 batch_s=72.8 ratio=6.99 per_seed_ratio=0.699 peak_rss_mb=622``.
+Measured 2026-11-26 (2 cores shared with other engineers' jobs: load average 3.6-6.1
+during the runs; seeds 10, the default budgets: qlearn 150,000 and dqn 30,000 env steps a
+seed), one run each, interleaved per row with the same bench on the code before the
+stacked learners (commit 65a91b9, "before"):
 
-Last lines, per learner: ``BATCH <learner> seeds=<N> one_s=<v> batch_s=<v>
-ratio=<batch/one> per_seed_ratio=<batch/(N*one)> peak_rss_mb=<batch>``.
+    learner copies  one_s  batch_s  ratio  cpu_ratio  | before: one_s  batch_s  ratio  cpu_ratio
+    qlearn  8        37.9    194.5   5.13   5.56      |         32.0    305.7   9.56   8.61
+    qlearn  1        83.9    282.2   3.36   3.47      |         85.3    863.3  10.12  10.20
+    dqn     16       10.9     69.3   6.37   6.43      |         10.6     85.0   8.04   8.13
+    dqn     1        20.5    115.7   5.63   5.74      |         20.3    195.4   9.61   9.50
+
+Peak memory of the batches 591-626 MB (one seed 471-479 MB). The targets (qlearn 2x, dqn
+3x) are not met: per seed the batch still pays its physics (80 or 160 copies cost ~5x 8
+or 16 on this machine), its greedy evaluations (every 100 episodes, 20 episodes each: a
+third of the dqn batch's time) and its checkpoints, and a per-episode DQN's update rounds
+(2.3 seeds a round at 16 copies). README "Seeds in one process" has the profile.
+
+Last lines, per learner and copies: ``BATCH <learner> num_envs=<n> seeds=<N> one_s=<v>
+batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)> one_cpu_s=<v>
+batch_cpu_s=<v> cpu_ratio=<v> peak_rss_mb=<batch>``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import time
@@ -28,20 +47,25 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-# Runs the command it is given and prints its peak RSS (kB): a fresh parent per measurement.
+# Runs the command it is given and prints its peak RSS (kB) and CPU seconds (user + system):
+# a fresh parent per measurement.
 WRAP = ("import resource, subprocess, sys; code = subprocess.call(sys.argv[1:], stdout=subprocess.DEVNULL); "
-        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); sys.exit(code)")
+        "r = resource.getrusage(resource.RUSAGE_CHILDREN); "
+        "print(r.ru_maxrss, r.ru_utime + r.ru_stime, file=sys.stderr); sys.exit(code)")
+TUNED = {"qlearn": 8, "dqn": 16}  # conf/tuned/cartpole_<learner>.yaml's num_envs
 
 
-def timed(cmd: list[str]) -> tuple[float, float]:
-    """Runs ``cmd`` in the project folder; (seconds start to exit, its peak RSS in MB)."""
+def timed(cmd: list[str]) -> tuple[float, float, float]:
+    """Runs ``cmd`` in the project folder; (seconds start to exit, its CPU seconds, its peak
+    RSS in MB)."""
     print("running:", " ".join(cmd), flush=True)
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", WRAP, *cmd], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     seconds = time.perf_counter() - t0
     if proc.returncode:
         sys.exit(f"error: {' '.join(cmd)} exited {proc.returncode}: {proc.stderr[-500:]}")
-    return seconds, int(proc.stderr.split()[-1]) / 1024
+    rss, cpu = proc.stderr.split()[-2:]
+    return seconds, float(cpu), int(rss) / 1024
 
 
 def budget(learner: str, args) -> list[str]:
@@ -50,27 +74,46 @@ def budget(learner: str, args) -> list[str]:
     return [f"max_env_steps={steps}", "learner.nepisodes=100000000", "stop_when_solved=false"]
 
 
+def copies(value: str) -> str:
+    """``--num-envs`` entries: ``tuned`` or a positive number."""
+    if value != "tuned" and not (value.isdigit() and int(value) >= 1):
+        raise argparse.ArgumentTypeError(f"must be 'tuned' or a number >= 1; got {value!r}")
+    return value
+
+
+def load() -> str:
+    return "/".join(f"{x:.2f}" for x in os.getloadavg())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--learners", nargs="+", default=["qlearn", "dqn"])
+    parser.add_argument("--num-envs", nargs="+", type=copies, default=["tuned", "1"],
+                        help="copies a seed: 'tuned' (the tuned file's) and/or numbers")
     parser.add_argument("--qlearn-steps", type=int, default=150000)
     parser.add_argument("--dqn-steps", type=int, default=30000)
     args = parser.parse_args()
     if args.seeds < 1:
         sys.exit("error: --seeds must be >= 1")
     out = ROOT / "multirun" / f"bench_seed_batch_{time.strftime('%Y%m%d-%H%M%S')}"
+    print(f"load average (1/5/15 min) at the start: {load()} on {os.cpu_count()} cores", flush=True)
     rows = []
     for learner in args.learners:
-        common = [f"learner={learner}", "quiet=true", *budget(learner, args)]
-        one_s, one_mb = timed([sys.executable, "train.py", *common, "seed=0",
-                               f"hydra.run.dir={out / learner / 'one'}"])
-        batch_s, batch_mb = timed([sys.executable, "train.py", "-m", *common, f"seed=range({args.seeds})",
-                                   f"hydra.sweep.dir={out / learner / 'batch'}"])
-        rows.append((learner, one_s, batch_s, one_mb, batch_mb))
-    for learner, one_s, batch_s, one_mb, batch_mb in rows:
-        print(f"BATCH {learner} seeds={args.seeds} one_s={one_s:.1f} batch_s={batch_s:.1f} "
+        for n in args.num_envs:
+            label = f"{TUNED.get(learner, 'tuned')}" if n == "tuned" else n
+            common = [f"learner={learner}", "quiet=true", *budget(learner, args),
+                      *([] if n == "tuned" else [f"num_envs={n}"])]
+            where = out / learner / f"n{label}"
+            one = timed([sys.executable, "train.py", *common, "seed=0", f"hydra.run.dir={where / 'one'}"])
+            batch = timed([sys.executable, "train.py", "-m", *common, f"seed=range({args.seeds})",
+                           f"hydra.sweep.dir={where / 'batch'}"])
+            rows.append((learner, label, one, batch))
+    print(f"load average (1/5/15 min) at the end: {load()}")
+    for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb) in rows:
+        print(f"BATCH {learner} num_envs={label} seeds={args.seeds} one_s={one_s:.1f} batch_s={batch_s:.1f} "
               f"ratio={batch_s / one_s:.2f} per_seed_ratio={batch_s / (args.seeds * one_s):.3f} "
+              f"one_cpu_s={one_cpu:.1f} batch_cpu_s={batch_cpu:.1f} cpu_ratio={batch_cpu / one_cpu:.2f} "
               f"peak_rss_mb={batch_mb:.0f} (one seed: {one_mb:.0f})")
 
 

@@ -377,6 +377,9 @@ class DQN:
         self._credit = 0.0
         self._greedy = False
         self.tracker = UpdateStats()
+        # Where the whole updates ``learn`` owes go instead of ``optimize`` (a seed stack,
+        # :class:`learners.stack.DQNStack`, runs those of all its seeds together); None: run here.
+        self.updates_sink: Callable[[int], None] | None = None
 
     # -- building ------------------------------------------------------------
     def _arch(self) -> dict:
@@ -447,11 +450,16 @@ class DQN:
     # -- learning ------------------------------------------------------------
     def store(self, tensordict: TensorDictBase) -> None:
         """Adds the batched transitions of ``tensordict`` (holding ``next``) to the buffer."""
+        self.buffer.put(self.rows_of(tensordict))
+
+    def rows_of(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """The buffer's rows (:func:`pack`) of the transitions of ``tensordict``, the
+        terminating rewards replaced if ``done_episode_reward`` says so, on ``device``."""
         batch = Transitions.of(tensordict)
         if self.done_episode_reward is not None:
             batch = batch._replace(reward=torch.where(
                 batch.terminated, float(self.done_episode_reward), batch.reward))
-        self.buffer.put(pack(batch).to(self.device))
+        return pack(batch).to(self.device)
 
     def optimize(self, n: int) -> None:
         """``n`` gradient steps on minibatches from the replay buffer."""
@@ -516,7 +524,7 @@ class DQN:
         self._credit += updates
         whole = int(self._credit)
         self._credit -= whole
-        self.optimize(whole)
+        (self.updates_sink or self.optimize)(whole)
 
     def _sync_epsilon(self) -> None:
         """The exploring policy acts with the schedule's current epsilon."""
@@ -533,10 +541,14 @@ class DQN:
 
     def observe(self, tensordict: TensorDictBase) -> None:
         """Stores the batch of transitions and, per transition, learns as ``train_every`` says."""
-        self.store(tensordict)
-        self.schedule.step(tensordict.numel())
+        self.observe_rows(self.rows_of(tensordict))
+
+    def observe_rows(self, rows: torch.Tensor) -> None:
+        """:meth:`observe` of transitions already packed (:meth:`rows_of`), one row each."""
+        self.buffer.put(rows)
+        self.schedule.step(len(rows))
         if self.train_every == "step":
-            self.learn(self.updates * tensordict.numel())
+            self.learn(self.updates * len(rows))
         self._sync_epsilon()
 
     def end_episode(self) -> None:

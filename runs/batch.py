@@ -5,16 +5,29 @@
 One env holds every seed's copies as seed blocks (``RobotTaskEnv(seed=[...])``):
 each block starts its episodes as that seed's env alone would, and the physics of
 all of them is one step. Each seed keeps its own learner, its own :class:`Run`
-with its own folder, files, checkpoints and verdict, and its own random streams:
-the global torch, numpy and ``random`` states are swapped in around everything
-a seed does, so a seed draws exactly what it would draw alone. A seed's run is
-therefore the run ``python train.py seed=<s>`` makes, file for file (wall-clock
+with its own folder, files, checkpoints and verdict, and its own random streams, so a
+seed's run is the run ``python train.py seed=<s>`` makes, file for file (wall-clock
 numbers aside), and each folder resumes alone (``resume=<folder>``).
 
+The seeds' learners are stacked (:func:`learners.stack.stack`: qlearn and the DQN
+family): a step is one stacked call per phase for every seed (act, learn from the
+step, the updates their episodes owed), and between them one visit to each seed's
+context, where its run books its block of the step (``Run.record_arrays`` on its
+block of the step's arrays), its learner ends its episodes and its run ends the step
+(evaluation, checkpoint); in the order a run alone does them
+(:func:`learners.base.train`). A stacked seed's draws come from its own generators
+(its torch stream is a generator object, ``_Slot.streams[0]``), so no global random
+state is swapped per step; a checkpoint and a seed's end swap its torch, numpy and
+``random`` states in (a checkpoint holds them). Learners without a stack train seed by
+seed: each seed's step is one visit to its context, torch's global stream swapped in.
+
 A seed that is done (solved, out of budget, stopped) ends there, as alone, and its
-copies stop stepping (``BatchedPhysics.hold``) while the others go on; a seed whose learner fails ends alone, its trace in its ``error.txt``.
-Each seed's console goes to its ``train.log`` and, its lines prefixed with
-``[seed N]``, to the terminal.
+copies stop stepping (``BatchedPhysics.hold``) while the others go on. A seed whose own
+work fails (its booking, its learner's episode end, its evaluation or checkpoint, its
+part of a stacked call: its draws, its replay buffer) ends alone, its trace in its
+``error.txt``; a stacked call that fails as a whole ends every seed still training with
+the trace (they share its state). Each seed's console goes to its ``train.log`` and,
+its lines prefixed with ``[seed N]``, to the terminal.
 """
 
 from __future__ import annotations
@@ -34,6 +47,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 
+from learners.stack import stack
 from params import ConfigError
 from runs import session as solo
 from runs.banner import banner_lines
@@ -100,10 +114,14 @@ class _Slot:
     run: Run | None = None
     td: TensorDictBase | None = None
     log: IO[str] | None = None
+    # The seed's random streams: a torch generator holding its stream of torch's global
+    # generator, and numpy's and ``random``'s global states.
     streams: tuple = ()
+    stacked: bool = False  # its learner is in a stack, which draws from streams[0] itself
     failed: str | None = None
     result: dict | None = None  # the final greedy evaluation
     summary: dict = field(default_factory=dict)
+    console: IO[str] | None = None
 
     @property
     def seed(self) -> int:
@@ -119,32 +137,42 @@ class _Slot:
         ``random`` streams too); the others' kept outside. Nothing here draws from numpy's
         or ``random``'s global streams while training (their states, ~0.3 ms to swap, are
         only seeded and saved), so a step swaps torch's alone and a checkpoint all three
-        (:meth:`save`)."""
-        torch.set_rng_state(self.streams[0])
+        (:meth:`save`). A stacked seed's step swaps none: its stack draws from its
+        generator (``streams[0]``) itself, and nothing else it does draws."""
+        swap = full or not self.stacked
+        if swap:
+            torch.set_rng_state(self.streams[0].get_state())
         if full:
             np.random.set_state(self.streams[1])
             random.setstate(self.streams[2])
         out, err = sys.stdout, sys.stderr
-        prefixed = _Prefixed(self.terminal, f"[seed {self.seed}] ")
-        sys.stdout = sys.stderr = Tee(prefixed, self.log)
+        sys.stdout = sys.stderr = self.console
         try:
             yield
         finally:
             sys.stdout, sys.stderr = out, err
-            self.streams = (torch.get_rng_state(),
-                            *((np.random.get_state(), random.getstate()) if full else self.streams[1:]))
+            if swap:
+                self.streams[0].set_state(torch.get_rng_state())
+            if full:
+                self.streams = (self.streams[0], np.random.get_state(), random.getstate())
 
-    def save(self, *args) -> None:
-        """:func:`runs.resume.save_training_state` with this seed's numpy and ``random``
-        states in place (a checkpoint holds them)."""
-        outside = np.random.get_state(), random.getstate()
+    def save(self, path, learner, env, run, td: TensorDictBase) -> None:
+        """:func:`runs.resume.save_training_state` with this seed's random states in place
+        (a checkpoint holds them) and ``td`` its block (a stacked step hands the batch's)."""
+        if td.batch_size[0] != env.num_envs:
+            td = td[env.rows]
+        outside = torch.get_rng_state(), np.random.get_state(), random.getstate()
+        if self.stacked:
+            torch.set_rng_state(self.streams[0].get_state())
         np.random.set_state(self.streams[1])
         random.setstate(self.streams[2])
         try:
-            save_training_state(*args)
+            save_training_state(path, learner, env, run, td)
         finally:
-            np.random.set_state(outside[0])
-            random.setstate(outside[1])
+            if self.stacked:
+                torch.set_rng_state(outside[0])
+            np.random.set_state(outside[1])
+            random.setstate(outside[2])
 
 
 class _Prefixed:
@@ -178,10 +206,11 @@ def execute_batch(jobs: Sequence[BatchJob]) -> list[dict]:
             slot.job.run_dir.mkdir(parents=True, exist_ok=True)
             stack.enter_context(run_lock(slot.job.run_dir))
             slot.log = stack.enter_context(open(slot.job.run_dir / "train.log", "a", encoding="utf-8"))
+            slot.console = Tee(_Prefixed(slot.terminal, f"[seed {slot.seed}] "), slot.log)
         env = _build(slots)
         try:
             _start(slots, env)
-            _train(slots, env)
+            _train(slots, env, _stack(slots))
         finally:
             env.close()
     return [slot.summary for slot in slots]
@@ -193,7 +222,9 @@ def _build(slots: list[_Slot]) -> RobotTaskEnv:
     for slot in slots:
         generator = seed_everything(slot.seed)
         learners.append((instantiate(slot.job.cfg.learner, _convert_="all"), generator))
-        slot.streams = (torch.get_rng_state(), np.random.get_state(), random.getstate())
+        stream = torch.Generator()
+        stream.set_state(torch.get_rng_state())
+        slot.streams = (stream, np.random.get_state(), random.getstate())
     cfg = slots[0].job.cfg
     env = build_env(cfg, len(slots) * int(cfg.num_envs), [s.seed for s in slots], learners[0][0].nsteps)
     for slot, (learner, generator) in zip(slots, learners):
@@ -256,27 +287,104 @@ def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
             slot.td = slot.run.start(session.env)
 
 
-def _train(slots: list[_Slot], env: RobotTaskEnv) -> None:
+def _stack(slots: list[_Slot]):
+    """The seeds' learners as one stack (:func:`learners.stack.stack`), or None."""
+    stacked = stack([slot.session.learner for slot in slots], [slot.streams[0] for slot in slots])
+    for slot in slots:
+        slot.stacked = stacked is not None
+    return stacked
+
+
+def _train(slots: list[_Slot], env: RobotTaskEnv, stacked) -> None:
     """Steps every seed's copies together until each run is done; a seed ends (its final
-    evaluation, checkpoint, model and verdict) at the step its run is done, as alone. A
-    seed's step is one visit to its context: it books its block of the step, then picks
-    its block's next actions."""
+    evaluation, checkpoint, model and verdict) at the step its run is done, as alone."""
     with solo.stop_on_signals(*(slot.run for slot in slots if slot.run)) as stopped:
-        for slot in slots:
-            _guarded(slot, lambda s=slot: _act(s))
-        live = slots
-        while live:
-            ended = [slot for slot in live if slot.done]
-            for slot in ended:
-                _finish(slot, stopped["signal"])
-                env.physics.hold(env.block_mask(slot.index))
-            live = [slot for slot in live if slot not in ended]
-            if not live:
-                break
-            td, next_td = env.step_and_maybe_reset(torch.cat([slot.td for slot in slots]))
-            for slot in live:
-                rows = env.block(slot.index)
-                _guarded(slot, lambda s=slot: _book(s, td[rows], next_td[rows]) or _act(s))
+        if stacked is None:
+            _train_seed_by_seed(slots, env, stopped)
+        else:
+            _train_stacked(slots, env, stacked, stopped)
+
+
+def _end_done(live: list[_Slot], env: RobotTaskEnv, stopped: dict) -> list[_Slot]:
+    """Ends the seeds of ``live`` that are done, their copies held; the others."""
+    for slot in live:
+        if slot.done:
+            _finish(slot, stopped["signal"])
+            env.physics.hold(env.block_mask(slot.index))
+    return [slot for slot in live if not slot.done]
+
+
+def _train_seed_by_seed(slots: list[_Slot], env: RobotTaskEnv, stopped: dict) -> None:
+    """Learners without a stack: a seed's step is one visit to its context: it books its
+    block of the step, then picks its block's next actions."""
+    for slot in slots:
+        _guarded(slot, lambda s=slot: _act(s))
+    live = slots
+    while True:
+        live = _end_done(live, env, stopped)
+        if not live:
+            break
+        td, next_td = env.step_and_maybe_reset(torch.cat([slot.td for slot in slots]))
+        for slot in live:
+            rows = env.block(slot.index)
+            _guarded(slot, lambda s=slot: _book(s, td[rows], next_td[rows]) or _act(s))
+
+
+def _train_stacked(slots: list[_Slot], env: RobotTaskEnv, stacked, stopped: dict) -> None:
+    """One call of the stack per phase of a step (act, observe, settle) for every seed,
+    each seed's booking in its own context between them, in the order a run alone does
+    them (:func:`learners.base.train`): act, step, learn, book the episodes (their
+    ``end_episode``), the updates they owe, ``end_step`` (evaluation, checkpoint)."""
+
+    def guard(b: int, work) -> bool:  # a seed's own part of a stacked call (it prints nothing)
+        return _attempt(slots[b], work)
+
+    def acting(live: list[_Slot]) -> list[_Slot]:  # a seed done at a step's end acts no more
+        return [slot for slot in live if not slot.done]
+
+    def sound(live: list[_Slot]) -> list[_Slot]:  # a seed stopped mid-step still ends it, as alone
+        return [slot for slot in live if slot.failed is None]
+
+    def indices(chosen: list[_Slot]) -> list[int]:
+        return [slot.index for slot in chosen]
+
+    live = acting(slots)
+    td = _together(live, lambda: stacked.act(torch.cat([slot.td for slot in slots]), indices(live), guard))
+    while True:
+        live = _end_done(live, env, stopped)
+        if not live:
+            break
+        td, next_td = env.step_and_maybe_reset(td)
+        nxt = td.get("next")
+        reward, done, terminated = (nxt.get(key).reshape(-1).numpy() for key in ("reward", "done", "terminated"))
+        _together(live, lambda: stacked.observe(td, indices(sound(live)), guard))
+        owing = []  # seeds whose episodes owe updates: their end_step after the stack's settle
+        for slot in sound(live):
+            rows = env.block(slot.index)
+            _guarded(slot, lambda s=slot, r=rows: _book_rows(s, reward[r], done[r], terminated[r], next_td,
+                                                             stacked, owing))
+        if owing:
+            _together(owing, lambda: stacked.settle(indices(sound(owing)), guard))
+            for slot in sound(owing):
+                _guarded(slot, lambda s=slot: s.run.end_step(next_td))
+        td = _together(acting(live), lambda: stacked.act(next_td, indices(acting(live)), guard))
+
+
+def _together(live: list[_Slot], work):
+    """A stacked call for the ``live`` seeds; if it fails (not in a seed's own part, which
+    its guard ends alone), every one of them ends with its trace: they share its state."""
+    try:
+        return work()
+    except Exception:  # noqa: BLE001 - reported in every seed's folder
+        trace = traceback.format_exc()
+        for slot in live:
+            if slot.failed is None:
+                _fail(slot, f"the seeds' stacked learner failed:\n{trace}")
+        return None
+
+
+def _raise(error: Exception) -> None:
+    raise error
 
 
 def _act(slot: _Slot) -> None:
@@ -294,15 +402,64 @@ def _book(slot: _Slot, td: TensorDictBase, next_td: TensorDictBase) -> None:
     slot.td = run.end_step(next_td)
 
 
-def _guarded(slot: _Slot, work) -> None:
-    """Runs ``work`` in the seed's context; an exception ends that seed alone (``error.txt``)."""
-    with slot.active():
-        try:
-            work()
-        except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
-            slot.failed = traceback.format_exc()
-            print(slot.failed, file=sys.stderr)
-            (slot.job.run_dir / "error.txt").write_text(slot.failed)
+def _book_rows(slot: _Slot, reward: np.ndarray, done: np.ndarray, terminated: np.ndarray,
+               next_td: TensorDictBase, stacked, owing: list[_Slot]) -> None:
+    """A stacked seed's episodes of the step (its block's arrays), each then its learner's
+    ``end_episode``, as ``record_step`` and :func:`learners.base.train` do alone; then its
+    ``end_step``, unless its episodes owe updates (``owing`` then takes it: its stack runs
+    them first). The seeds are independent: one's end may come before another's updates."""
+    learner, run, view = slot.session.learner, slot.run, slot.session.env
+    run.divergences = view.divergences
+    for _ in run.record_arrays(reward, done, terminated, learner.stats, view.ended_info if done.any() else None):
+        learner.end_episode()
+    if stacked.owes(slot.index):
+        owing.append(slot)
+    else:
+        run.end_step(next_td)
+
+
+def _attempt(slot: _Slot, work) -> bool:
+    """``work``, a seed's own part of a stacked call (it prints nothing), outside the seed's
+    context; a failure ends the seed alone, as in :func:`_guarded`. Whether it worked."""
+    try:
+        work()
+    except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
+        _fail(slot, traceback.format_exc())
+    return slot.failed is None
+
+
+def _guarded(slot: _Slot, work, full: bool = False) -> bool:
+    """Runs ``work`` in the seed's context; an exception ends that seed alone (``error.txt``).
+    Whether the seed is still sound. (A stacked seed's step swaps its console only: inline.)"""
+    if full or not slot.stacked:
+        with slot.active(full):
+            _run_guarded(slot, work)
+        return slot.failed is None
+    out, err = sys.stdout, sys.stderr
+    sys.stdout = sys.stderr = slot.console
+    try:
+        _run_guarded(slot, work)
+    finally:
+        sys.stdout, sys.stderr = out, err
+    return slot.failed is None
+
+
+def _run_guarded(slot: _Slot, work) -> None:
+    try:
+        work()
+    except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
+        slot.failed = traceback.format_exc()
+        print(slot.failed, file=sys.stderr)
+        (slot.job.run_dir / "error.txt").write_text(slot.failed)
+
+
+def _fail(slot: _Slot, trace: str) -> None:
+    """Ends ``slot`` with ``trace`` (printed in its context, kept in its ``error.txt``)."""
+    _guarded(slot, lambda: _raise(_Failed(trace)))
+
+
+class _Failed(Exception):
+    """A failure that happened elsewhere, its trace the message."""
 
 
 def _finish(slot: _Slot, interrupted: int | None) -> None:
@@ -311,7 +468,7 @@ def _finish(slot: _Slot, interrupted: int | None) -> None:
         return
     session, run = slot.session, slot.run
     if slot.failed is None:
-        _guarded(slot, lambda: setattr(slot, "result", solo.final_evaluation(session, run)))
+        _guarded(slot, lambda: setattr(slot, "result", solo.final_evaluation(session, run)), full=True)
     with slot.active(full=True):
         summary = solo.close_run(session, run, finished=slot.failed is None)
         if slot.failed is not None:

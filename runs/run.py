@@ -250,14 +250,23 @@ class Run:
         ``episode_info`` of each copy whose episode just ended), where the
         task's measure is read unless it is the episode length.
         """
-        reward = next_td.get("reward").reshape(self.num_envs).numpy()
-        done = next_td.get("done").reshape(self.num_envs).numpy()
-        terminated = next_td.get("terminated").reshape(self.num_envs).numpy()
+        n = self.num_envs
+        return self.record_arrays(next_td.get("reward").reshape(n).numpy(), next_td.get("done").reshape(n).numpy(),
+                                  next_td.get("terminated").reshape(n).numpy(), stats, ended_info)
+
+    def record_arrays(self, reward: np.ndarray, done: np.ndarray, terminated: np.ndarray,
+                      stats: Mapping[str, float] | None = None,
+                      ended_info: Mapping[str, np.ndarray] | None = None) -> list[Episode]:
+        """:meth:`record` of the step's ``reward``, ``done`` and ``terminated`` arrays
+        (``(num_envs,)`` each; a seed batch hands each run its block's)."""
         self._ret += reward
         self._len += 1
         self.env_steps += self.num_envs
+        ended = np.flatnonzero(done)
+        if not len(ended):  # most steps: no episode ended
+            return []
         finished = []
-        for i in np.flatnonzero(done):
+        for i in ended:
             if self._closed:
                 break
             finished.append(self._finish(int(i), bool(terminated[i]), stats, ended_info))
