@@ -94,7 +94,7 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
     logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name,
                          **{k: v for k, v in cfg.logger.items() if k != "kind"})
     hooks = Hooks(checkpoint=partial(save or save_training_state, session.state_path, learner, env),
-                  greedy_eval=partial(session.evaluator, int(cfg.eval_episodes)),
+                  greedy_eval=partial(session.evaluator, int(cfg.eval_episodes)) if cfg.eval_episodes else None,
                   train_stats=learner.train_stats, progress=progress)
     run = Run(session.run_dir, env.num_envs, learner.nepisodes, session.success, logger=logger,
               extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
