@@ -261,7 +261,7 @@ def pair_row(job: Job, rows: list[dict], wall: float | None, note: str = "") -> 
         "steps_to_success": _median([r["steps_to_solve"] for r in won]),
         "wall_to_success": _median([r["wall_to_solve"] for r in won]),
         "batch_wall_s": wall, "budget_steps": job.budget, "note": note,
-        "tuned_file": f"{job.robot}_{job.learner}" if job.setting == "tuned" else "",
+        "tuned_file": f"{job.robot}_{job.learner}" if job.setting == "tuned" and rows else "",
     }
 
 
@@ -412,12 +412,15 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         record = job_record(job, out)
         rows = seed_rows(job, out / job.folder)
         all_seeds += rows
-        note = "" if rows or not record else f"exit {record.get('returncode')}: {record.get('last_line', '')}"
+        if not record:
+            note = "unfinished: its multirun did not end (stopped, or still running)" if rows else "not run"
+        else:
+            note = "" if rows else f"exit {record.get('returncode')}: {record.get('last_line', '')}"
         solo = record.get("solo_wall_s")
         if solo and rows and not note:
             note = (f"{len(rows)} seeds in one process: {record['wall_s']:.0f} s; one seed alone "
                     f"{solo:.0f} s ({record['wall_s'] / (len(rows) * solo):.2f} of {len(rows)} runs alone)")
-        pairs.append(pair_row(job, rows, record.get("wall_s"), note if record else "not run"))
+        pairs.append(pair_row(job, rows, record.get("wall_s"), note))
     write_csv(out / "seeds.csv", SEED_COLUMNS, all_seeds)
     write_csv(out / "benchmark.csv", PAIR_COLUMNS, pairs)
     return pairs, all_seeds
