@@ -81,13 +81,16 @@ def _unguarded(b: int, work: Callable[[], None]) -> bool:
 def stack(learners: Sequence, generators: Sequence[torch.Generator]):
     """A stack of ``learners`` (built from one config, one per seed block, in block order),
     or None for a learner kind without one. ``generators``: each seed's stand-in for
-    torch's global generator (what the DQN family draws from alone)."""
+    torch's global generator (what the DQN family draws from alone). The DQN family
+    stacks on the CPU only, where its arithmetic is known to be each seed's alone (a
+    GPU's batched products are other kernels, untested here)."""
     if len(learners) < 2:
         return None
     if all(type(learner) is QLearn for learner in learners):
         return QLearnStack(learners)
-    if all(type(learner) is DQN for learner in learners) and all(
-            isinstance(layer, nn.Linear) or type(layer) in _ACTIVATION_BACKWARD for layer in learners[0].net):
+    if (all(type(learner) is DQN for learner in learners) and torch.device(learners[0].device).type == "cpu"
+            and all(isinstance(layer, nn.Linear) or type(layer) in _ACTIVATION_BACKWARD
+                    for layer in learners[0].net)):
         return DQNStack(learners, generators)
     return None
 

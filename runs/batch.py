@@ -383,10 +383,6 @@ def _together(live: list[_Slot], work):
         return None
 
 
-def _raise(error: Exception) -> None:
-    raise error
-
-
 def _act(slot: _Slot) -> None:
     """The seed's next actions, unless its run is done."""
     if not slot.run.done:
@@ -448,18 +444,19 @@ def _run_guarded(slot: _Slot, work) -> None:
     try:
         work()
     except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
-        slot.failed = traceback.format_exc()
-        print(slot.failed, file=sys.stderr)
-        (slot.job.run_dir / "error.txt").write_text(slot.failed)
+        _failed(slot, traceback.format_exc())
+
+
+def _failed(slot: _Slot, trace: str) -> None:
+    """Ends ``slot`` with ``trace``, printed (in its context) and kept in its ``error.txt``."""
+    slot.failed = trace
+    print(trace, file=sys.stderr)
+    (slot.job.run_dir / "error.txt").write_text(trace)
 
 
 def _fail(slot: _Slot, trace: str) -> None:
-    """Ends ``slot`` with ``trace`` (printed in its context, kept in its ``error.txt``)."""
-    _guarded(slot, lambda: _raise(_Failed(trace)))
-
-
-class _Failed(Exception):
-    """A failure that happened elsewhere, its trace the message."""
+    """:func:`_failed` from outside the seed's context."""
+    _guarded(slot, lambda: _failed(slot, trace))
 
 
 def _finish(slot: _Slot, interrupted: int | None) -> None:
