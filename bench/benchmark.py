@@ -217,13 +217,10 @@ def job_record(job: Job, out: Path) -> dict:
 
 def seed_rows(job: Job, sweep: Path) -> list[dict]:
     """One row per job folder of the sweep: its verdict, greedy measure and costs."""
-    from runs.summary import summarize_run
+    from bench.sweep import job_summaries
 
     rows = []
-    folders = sorted((p for p in sweep.iterdir() if p.is_dir() and p.name.split("_")[0].isdigit()),
-                     key=lambda p: int(p.name.split("_")[0])) if sweep.is_dir() else []
-    for folder in folders:
-        s = summarize_run(folder)
+    for s in job_summaries(sweep) if sweep.is_dir() else []:
         greedy, threshold = s.get("greedy"), s.get("threshold")
         ok = s["status"] == "ok"
         rows.append({
@@ -233,7 +230,7 @@ def seed_rows(job: Job, sweep: Path) -> list[dict]:
             "verdict": bool(ok and s.get("solved")), "measure": s.get("measure"),
             "threshold": threshold, "greedy": greedy, "env_steps": s.get("env_steps"),
             "wall_s": s.get("wall_s"), "steps_to_solve": s.get("steps_to_solve"),
-            "wall_to_solve": s.get("wall_to_solve"), "error": s.get("error", ""), "run_dir": str(folder),
+            "wall_to_solve": s.get("wall_to_solve"), "error": s.get("error", ""), "run_dir": s["run_dir"],
         })
     return rows
 
