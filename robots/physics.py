@@ -186,30 +186,29 @@ class BatchedPhysics:
         substep. Sensors do not act on the dynamics; the last substep starts its constraint
         solver cold (as every step already does), which can move the state by the solver's
         tolerance."""
-        n, models = len(initial), self._models[:len(initial)]
+        models = self._models[:len(initial)]
         if self._nsensordata and nsubsteps > 1:
             flags = self._opt.disableflags
             self._opt.disableflags = flags | _NO_SENSORS
             try:
-                initial = self._substeps(models, initial, ctrl, nsubsteps - 1, warmstart)[:, -1]
+                initial = self._substeps(models, initial, ctrl, nsubsteps - 1, warmstart)[0][:, -1]
             finally:
                 self._opt.disableflags = flags
             nsubsteps = 1
-        states = self._substeps(models, np.ascontiguousarray(initial), ctrl, nsubsteps, warmstart)
-        sensor = self._buffers(n, nsubsteps)[1][:, -1] if self._nsensordata else None
-        return states[:, -1], sensor
+        states, sensors = self._substeps(models, np.ascontiguousarray(initial), ctrl, nsubsteps, warmstart)
+        return states[:, -1], sensors[:, -1] if self._nsensordata else None
 
     def _substeps(self, models: list, initial: np.ndarray, ctrl: np.ndarray, nsubsteps: int,
-                  warmstart: np.ndarray) -> np.ndarray:
-        """One ``mujoco.rollout`` call: every substep's state (the buffer's, overwritten by
-        the next call of this shape); sensor readings in the matching buffer."""
+                  warmstart: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One ``mujoco.rollout`` call: every substep's states and sensor readings (the
+        buffers', overwritten by the next call of this shape)."""
         out_state, out_sensor, control = self._buffers(len(initial), nsubsteps)
         control[:] = ctrl[:, None, :]
         # Arguments are already in rollout's final form, so its checks are skipped.
         self._pool.rollout(models, self._datas, initial, control, nstep=nsubsteps,
                            initial_warmstart=warmstart, state=out_state, sensordata=out_sensor,
                            skip_checks=True)
-        return out_state
+        return out_state, out_sensor
 
     def _buffers(self, copies: int, nsubsteps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``mujoco.rollout``'s output (states, sensor readings) and control arrays for

@@ -122,7 +122,7 @@ class Run:
 
     A run called solved leaves a solved policy: when the training episodes meet the
     rule, the greedy policy is evaluated at once and the run is solved only if it meets
-    the threshold too (``confirmed``); otherwise training goes on and the next try waits
+    the threshold too (that evaluation is its row in ``evals``); otherwise training goes on and the next try waits
     ``window`` episodes. Without ``greedy_eval`` the training rule alone decides.
     """
 
@@ -158,7 +158,6 @@ class Run:
         self.solved_at: int | None = None
         self.decided_by: str | None = None  # "training" or "greedy", once solved
         self.solved_value: float | None = None  # the judged mean that solved it
-        self.confirmed: float | None = None  # the greedy measure that confirmed a training verdict
         self._confirm: float | None = None  # a training mean that met the rule, to confirm greedily
         self._next_confirm = 0  # the episode count from which a training verdict may be tried again
         self.stop_requested = False
@@ -305,7 +304,6 @@ class Run:
         value = self.evals[-1]["value"]
         if self.success.met(value, self.n_episodes):
             self._solve("training", rolling)
-            self.confirmed = value
         else:
             self._next_confirm = self.n_episodes + self.success.window
 
@@ -369,7 +367,7 @@ class Run:
                 "evals": [dict(r) for r in self.evals],
                 "env_steps": self.env_steps, "solved_at": self.solved_at,
                 "decided_by": self.decided_by, "solved_value": self.solved_value,
-                "confirmed": self.confirmed, "next_confirm": self._next_confirm,
+                "next_confirm": self._next_confirm,
                 "wall_s": self.wall_s, "last_eval": self.last_eval, "log_sizes": csv_sizes(self.run_dir),
                 "train_logged": self._train_logged, "train_due": self._train_due,
                 "ret": torch.from_numpy(self._ret.copy()), "len": torch.from_numpy(self._len.copy())}
@@ -389,7 +387,6 @@ class Run:
         self.solved_at = state["solved_at"]
         self.decided_by = state["decided_by"]
         self.solved_value = state["solved_value"]
-        self.confirmed = state.get("confirmed")
         self._next_confirm = int(state.get("next_confirm", 0))
         self.last_eval = state.get("last_eval")  # the final evaluation's, once it ran
         self._log_sizes = state.get("log_sizes")

@@ -74,7 +74,8 @@ def _num(v) -> str:
 def _headline(s: dict, unit: str) -> str:
     """``solved after N episodes: <how> >= T`` or ``not solved after N episodes: needs ...``."""
     n = s["solved_at"] if s["solved"] else s["episodes"]
-    judged = s[measure_keys(s["measure"], s["window"]).judged]
+    keys = measure_keys(s["measure"], s["window"])
+    judged, greedy = s[keys.judged], s.get(keys.greedy)
     if s["decided_by"] == "greedy":
         how = (f"the greedy policy's mean {s['description']}, "
                f"{_num(judged)}{unit} (greedy evaluation at episode {n})")
@@ -82,7 +83,6 @@ def _headline(s: dict, unit: str) -> str:
         how = (f"the mean {s['description']} of the last {s['window']} training episodes, "
                f"{_num(judged)}{unit}")
     if s["solved"]:
-        greedy = s.get(measure_keys(s["measure"], s["window"]).greedy)
         confirmed = (f", and the greedy policy's {_num(greedy)}{unit}"
                      if s["decided_by"] == "training" and greedy is not None else "")
         return f"solved after {n} episodes: {how} >= {s['threshold']:g}{unit}{confirmed}"
@@ -91,7 +91,6 @@ def _headline(s: dict, unit: str) -> str:
     else:
         by = "judged on training episodes, and the greedy policy's too"
     got = f"got {_num(judged)}{unit}"
-    greedy = s.get(measure_keys(s["measure"], s["window"]).greedy)
     if s["judge"] == "training" and judged is not None and judged >= s["threshold"]:
         got += (f" (the training rule was met, the greedy policy never: {_num(greedy)}{unit} "
                 "at the final evaluation)")
