@@ -62,7 +62,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torch.optim.adam import adam
 
-from learners.dqn import DQN, _DISTANCES, Transitions, unpack
+from learners.dqn import DQN, _DISTANCES, ObsScale, Transitions, unpack
 from learners.qlearn import QLearn
 
 Guard = Callable[[int, Callable[[], None]], bool]
@@ -89,10 +89,18 @@ def stack(learners: Sequence, generators: Sequence[torch.Generator]):
     if all(type(learner) is QLearn for learner in learners):
         return QLearnStack(learners)
     if (all(type(learner) is DQN for learner in learners) and torch.device(learners[0].device).type == "cpu"
-            and all(isinstance(layer, nn.Linear) or type(layer) in _ACTIVATION_BACKWARD
-                    for layer in learners[0].net)):
+            and _stackable(list(learners[0].net))):
         return DQNStack(learners, generators)
     return None
+
+
+def _stackable(layers: list[nn.Module]) -> bool:
+    """Whether :class:`DQNStack` knows every layer: linear layers and the activations it has
+    a backward for, after an optional :class:`~learners.dqn.ObsScale` (a fixed input factor,
+    the same for every seed of one config: nothing to learn, nothing to backpropagate)."""
+    if layers and type(layers[0]) is ObsScale:
+        layers = layers[1:]
+    return all(isinstance(layer, nn.Linear) or type(layer) in _ACTIVATION_BACKWARD for layer in layers)
 
 
 def _with(td: TensorDictBase, **entries: torch.Tensor) -> TensorDictBase:
@@ -348,11 +356,12 @@ class DQNStack:
         layer backwards (``kept``: the layers' inputs), as autograd computes them alone."""
         grads: list[torch.Tensor] = [None] * len(params)  # type: ignore[list-item]
         k = len(params)
-        for i in range(len(self.layers) - 1, -1, -1):
+        first = self.layers.index(None)  # the first linear layer: nothing before it learns
+        for i in range(len(self.layers) - 1, first - 1, -1):
             layer, x = self.layers[i], kept[i]
             if layer is None:
                 k -= 2
-                grads[k], grads[k + 1], grad = _linear_backward(grad, x, params[k], input_grad=i > 0)
+                grads[k], grads[k + 1], grad = _linear_backward(grad, x, params[k], input_grad=i > first)
             else:
                 grad = _ACTIVATION_BACKWARD[type(layer)](grad, out)
             out = x
