@@ -37,6 +37,7 @@ import signal
 import sys
 import traceback
 from contextlib import ExitStack, contextmanager
+from functools import partial
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Iterator, Mapping, Sequence
@@ -52,7 +53,7 @@ from params import ConfigError
 from runs import session as solo
 from runs.banner import banner_lines
 from runs.console import Tee
-from runs.evaluate import GreedyEvaluator
+from runs.evaluate import GreedyEvaluator, greedy_evaluations
 from runs.folder import run_lock, start_run
 from runs.resume import save_training_state
 from runs.run import Run
@@ -208,10 +209,12 @@ def execute_batch(jobs: Sequence[BatchJob]) -> list[dict]:
             slot.log = stack.enter_context(open(slot.job.run_dir / "train.log", "a", encoding="utf-8"))
             slot.console = Tee(_Prefixed(slot.terminal, f"[seed {slot.seed}] "), slot.log)
         env = _build(slots)
+        finals = _FinalEvaluations(cfg)
         try:
             _start(slots, env)
-            _train(slots, env, _stack(slots))
+            _train(slots, env, _stack(slots), finals)
         finally:
+            finals.close()
             env.close()
     return [slot.summary for slot in slots]
 
@@ -295,33 +298,69 @@ def _stack(slots: list[_Slot]):
     return stacked
 
 
-def _train(slots: list[_Slot], env: RobotTaskEnv, stacked) -> None:
+def _train(slots: list[_Slot], env: RobotTaskEnv, stacked, finals: _FinalEvaluations) -> None:
     """Steps every seed's copies together until each run is done; a seed ends (its final
     evaluation, checkpoint, model and verdict) at the step its run is done, as alone."""
     with solo.stop_on_signals(*(slot.run for slot in slots if slot.run)) as stopped:
+        end = partial(_end_done, env=env, stopped=stopped, finals=finals)
         if stacked is None:
-            _train_seed_by_seed(slots, env, stopped)
+            _train_seed_by_seed(slots, env, end)
         else:
-            _train_stacked(slots, env, stacked, stopped)
+            _train_stacked(slots, env, stacked, end)
 
 
-def _end_done(live: list[_Slot], env: RobotTaskEnv, stopped: dict) -> list[_Slot]:
-    """Ends the seeds of ``live`` that are done, their copies held; the others."""
-    for slot in live:
-        if slot.done:
-            _finish(slot, stopped["signal"])
-            env.physics.hold(env.block_mask(slot.index))
+def _end_done(live: list[_Slot], env: RobotTaskEnv, stopped: dict, finals: _FinalEvaluations) -> list[_Slot]:
+    """Ends the seeds of ``live`` that are done, their copies held (the final evaluations of
+    those that end at this step made together); the others."""
+    done = [slot for slot in live if slot.done]
+    results = finals(done)
+    for slot in done:
+        _finish(slot, stopped["signal"], results.get(slot.index))
+        env.physics.hold(env.block_mask(slot.index))
     return [slot for slot in live if not slot.done]
 
 
-def _train_seed_by_seed(slots: list[_Slot], env: RobotTaskEnv, stopped: dict) -> None:
+class _FinalEvaluations:
+    """The final greedy evaluations of the seeds that end at the same step (all of a
+    budget's seeds, at its last step), made in one env of their seed blocks, stepped
+    together (:func:`runs.evaluate.greedy_evaluations`): each seed's result is the one its
+    own evaluator gives alone. Envs are kept per number of seeds."""
+
+    def __init__(self, cfg: DictConfig) -> None:
+        self.cfg = cfg
+        self.envs: dict[int, RobotTaskEnv] = {}
+
+    def __call__(self, done: list[_Slot]) -> dict[int, dict]:
+        """Each seed's evaluation by its index, for the seeds of ``done`` that owe one, when
+        two or more do (one alone evaluates in its own env, as before)."""
+        owing = [slot for slot in done if slot.failed is None and slot.run is not None
+                 and solo.owes_final_evaluation(slot.session, slot.run)]
+        if len(owing) < 2:
+            return {}
+        seeds = [slot.session.evaluator.seed for slot in owing]
+        if len(owing) not in self.envs:
+            copies = owing[0].session.final_episodes
+            self.envs[len(owing)] = build_env(self.cfg, len(owing) * copies, seeds,
+                                              owing[0].session.learner.nsteps)
+        try:
+            results = greedy_evaluations([slot.session.learner for slot in owing], self.envs[len(owing)], seeds)
+        except Exception:  # noqa: BLE001 - each seed then evaluates alone, a failure its own
+            return {}
+        return {slot.index: result for slot, result in zip(owing, results)}
+
+    def close(self) -> None:
+        for env in self.envs.values():
+            env.close()
+
+
+def _train_seed_by_seed(slots: list[_Slot], env: RobotTaskEnv, end_done) -> None:
     """Learners without a stack: a seed's step is one visit to its context: it books its
     block of the step, then picks its block's next actions."""
     for slot in slots:
         _guarded(slot, lambda s=slot: _act(s))
     live = slots
     while True:
-        live = _end_done(live, env, stopped)
+        live = end_done(live)
         if not live:
             break
         td, next_td = env.step_and_maybe_reset(torch.cat([slot.td for slot in slots]))
@@ -330,7 +369,7 @@ def _train_seed_by_seed(slots: list[_Slot], env: RobotTaskEnv, stopped: dict) ->
             _guarded(slot, lambda s=slot: _book(s, td[rows], next_td[rows]) or _act(s))
 
 
-def _train_stacked(slots: list[_Slot], env: RobotTaskEnv, stacked, stopped: dict) -> None:
+def _train_stacked(slots: list[_Slot], env: RobotTaskEnv, stacked, end_done) -> None:
     """One call of the stack per phase of a step (act, observe, settle) for every seed,
     each seed's booking in its own context between them, in the order a run alone does
     them (:func:`learners.base.train`): act, step, learn, book the episodes (their
@@ -351,7 +390,7 @@ def _train_stacked(slots: list[_Slot], env: RobotTaskEnv, stacked, stopped: dict
     live = acting(slots)
     td = _together(live, lambda: stacked.act(torch.cat([slot.td for slot in slots]), indices(live), guard))
     while True:
-        live = _end_done(live, env, stopped)
+        live = end_done(live)
         if not live:
             break
         td, next_td = env.step_and_maybe_reset(td)
@@ -459,13 +498,14 @@ def _fail(slot: _Slot, trace: str) -> None:
     _guarded(slot, lambda: _failed(slot, trace))
 
 
-def _finish(slot: _Slot, interrupted: int | None) -> None:
-    """A seed's end, as its run alone ends: final evaluation, checkpoint, model, report."""
+def _finish(slot: _Slot, interrupted: int | None, evaluation: dict | None = None) -> None:
+    """A seed's end, as its run alone ends: final evaluation (``evaluation``, if made
+    already), checkpoint, model, report."""
     if slot.run is None:
         return
     session, run = slot.session, slot.run
     if slot.failed is None:
-        _guarded(slot, lambda: setattr(slot, "result", solo.final_evaluation(session, run)), full=True)
+        _guarded(slot, lambda: setattr(slot, "result", solo.final_evaluation(session, run, evaluation)), full=True)
     with slot.active(full=True):
         summary = solo.close_run(session, run, finished=slot.failed is None)
         if slot.failed is not None:

@@ -3,14 +3,17 @@ what it measured.
 
 :func:`evaluate` runs any policy; :func:`greedy_evaluation` runs a learner's
 greedy policy from the same starts every time (:class:`GreedyEvaluator` keeps a
-run's evaluation envs); :func:`measure_of` reads the
+run's evaluation envs); :func:`greedy_evaluations` runs several learners' at once,
+each on its seed block of one env (a seed batch's seeds, each as alone);
+:func:`measure_of` reads the
 task's success measure from the result and :func:`describe_evaluation` puts it
 in one line.
 """
 
 from __future__ import annotations
 
-from typing import Mapping
+from contextlib import ExitStack
+from typing import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -36,6 +39,26 @@ def evaluate(env, policy, max_steps: int | None = None) -> dict:
     per copy), each copy's values at its episode end are reported too, with
     their mean under ``info_mean``.
     """
+    return _summary(*_episodes(env, policy, max_steps))
+
+
+def evaluate_blocks(env: RobotTaskEnv, policies: Sequence, max_steps: int | None = None) -> list[dict]:
+    """:func:`evaluate` of ``policies[b]`` on seed block ``b`` of ``env``, every block in the
+    same steps (one physics call a step for all of them); one result per block, each what
+    :func:`evaluate` gives on that block's env alone (a copy's episode depends on its own
+    start, policy and physics only)."""
+    blocks = [env.block(b) for b in range(len(policies))]
+
+    def policy(td):
+        return torch.cat([p(td[rows]) for p, rows in zip(policies, blocks)])
+
+    ret, length, info = _episodes(env, policy, max_steps)
+    return [_summary(ret[rows], length[rows], {k: v[rows] for k, v in info.items()}) for rows in blocks]
+
+
+def _episodes(env, policy, max_steps: int | None) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """One episode in each copy of ``env``: per copy its return, its length and its task's
+    ``episode_info`` values (see :func:`evaluate`)."""
     n = env.num_envs
     ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
     alive = np.ones(n, dtype=bool)
@@ -62,8 +85,13 @@ def evaluate(env, policy, max_steps: int | None = None) -> dict:
         env.physics.release()
     if info_fn is not None and alive.any():  # cut off by max_steps
         _keep_info(info, info_fn, env.physics, alive)
+    return ret, length, info
+
+
+def _summary(ret: np.ndarray, length: np.ndarray, info: dict[str, np.ndarray]) -> dict:
+    """An evaluation's result from its copies' returns, lengths and episode infos."""
     return {
-        "episodes": n,
+        "episodes": len(ret),
         "mean_length": float(length.mean()), "std_length": float(length.std()),
         "mean_return": float(ret.mean()), "std_return": float(ret.std()),
         "lengths": length.tolist(), "returns": ret.tolist(),
@@ -82,6 +110,16 @@ def greedy_evaluation(learner, env, seed: int) -> dict:
     env.set_seed(seed)
     with learner.greedy():
         return evaluate(env, learner.policy)
+
+
+def greedy_evaluations(learners: Sequence, env: RobotTaskEnv, seeds: Sequence[int]) -> list[dict]:
+    """:func:`greedy_evaluation` of ``learners[b]`` from ``seeds[b]``'s starts on seed block
+    ``b`` of ``env``, all blocks stepped together (:func:`evaluate_blocks`)."""
+    env.set_seed([int(s) for s in seeds])
+    with ExitStack() as stack:
+        for learner in learners:
+            stack.enter_context(learner.greedy())
+        return evaluate_blocks(env, [learner.policy for learner in learners])
 
 
 class GreedyEvaluator:

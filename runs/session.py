@@ -159,18 +159,26 @@ def _train(session: Session, run: Run) -> tuple[dict, dict | None]:
     return summary, result
 
 
-def final_evaluation(session: Session, run: Run) -> dict | None:
+def final_evaluation(session: Session, run: Run, result: dict | None = None) -> dict | None:
     """The trained policy, judged like the evaluations during training (an evaluation of this
     very policy is reused); at the budget's end it may still solve a greedily judged task.
-    None when the run was stopped or evaluates nothing."""
+    None when the run was stopped or evaluates nothing. ``result``: that evaluation, made
+    already (a seed batch evaluates the seeds that end at one step together)."""
+    if not owes_final_evaluation(session, run):
+        return None if session.final_episodes <= 0 or run.stop_requested else run.last_eval
+    evaluation = partial(session.evaluator, session.final_episodes) if result is None else lambda: result
+    return run.evaluate_greedy(evaluation)
+
+
+def owes_final_evaluation(session: Session, run: Run) -> bool:
+    """Whether :func:`final_evaluation` runs a new evaluation: not when the run was stopped
+    or evaluates nothing, nor when its last evaluation was of this very policy (also a
+    resumed run killed after its final evaluation was saved: never a second row)."""
     n_eval = session.final_episodes
     if n_eval <= 0 or run.stop_requested:
-        return None
+        return False
     last = run.last_eval
-    # Also a resumed run killed after its final evaluation was saved: never a second row.
-    if last is not None and run.evals[-1]["episode"] == run.n_episodes and last["episodes"] == n_eval:
-        return last
-    return run.evaluate_greedy(partial(session.evaluator, n_eval))
+    return not (last is not None and run.evals[-1]["episode"] == run.n_episodes and last["episodes"] == n_eval)
 
 
 def close_run(session: Session, run: Run, finished: bool) -> dict:

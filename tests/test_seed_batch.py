@@ -21,7 +21,7 @@ from runs.batch import BatchJob, check_batch, execute_batch
 from runs.catalog import compose
 from runs.resume import load_run_config, read_run_json
 from runs.run import Run
-from runs.session import execute
+from runs.session import EVAL_SEED_OFFSET, execute
 from runs.settings import check_run_config
 from params import ConfigError
 
@@ -72,6 +72,22 @@ def test_a_seed_in_a_batch_is_its_run_alone(tmp_path, monkeypatch, learner, stac
         monkeypatch.setattr(batch_module, "stack", lambda *a: None)
     batch = jobs(learner, tmp_path, "batch")
     execute_batch(batch)
+    run_alone(learner, tmp_path)
+    same_files(tmp_path, SEEDS)
+
+
+@pytest.mark.parametrize("learner", ["qlearn", "dqn"])
+def test_seeds_that_end_at_one_step_are_evaluated_together_as_each_alone(tmp_path, monkeypatch, learner):
+    """An env-step budget ends every seed at one step: their final greedy evaluations run in
+    one env of their seed blocks, and each seed's files are still its run's alone."""
+    budget = ["max_env_steps=1200", "learner.nepisodes=100000", "stop_when_solved=false",
+              "eval_every=20", "eval_episodes=4", "checkpoint_every=20"]
+    monkeypatch.setitem(BUDGETS, learner, budget)
+    together, real = [], batch_module.greedy_evaluations
+    monkeypatch.setattr(batch_module, "greedy_evaluations",
+                        lambda learners, env, seeds: together.append(list(seeds)) or real(learners, env, seeds))
+    execute_batch(jobs(learner, tmp_path, "batch"))
+    assert together == [[seed + EVAL_SEED_OFFSET for seed in SEEDS]]
     run_alone(learner, tmp_path)
     same_files(tmp_path, SEEDS)
 
