@@ -38,6 +38,8 @@ batch_cpu_s=<v> cpu_ratio=<v> peak_rss_mb=<batch>``.
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import os
 import subprocess
 import sys
@@ -81,6 +83,47 @@ def copies(value: str) -> str:
     return value
 
 
+def copy_steps(folder: Path) -> tuple[int, int, int]:
+    """The training copy-steps (env steps), the greedy evaluations' copy-steps (episodes x
+    mean length, per evaluation) and the evaluations' copies (the largest) of the job
+    folders under ``folder``."""
+    train = evals = width = 0
+    for summary in folder.rglob("summary.json"):
+        train += int(json.loads(summary.read_text())["env_steps"])
+        with open(summary.parent / "evals.csv", newline="") as f:
+            for row in csv.DictReader(f):
+                evals += round(int(row["episodes"]) * float(row["length"]))
+                width = max(width, int(row["episodes"]))
+    return train, evals, width
+
+
+def physics_floor(learner: str, n: str, seeds: int, folder: Path) -> float:
+    """Seconds the batch under ``folder`` needs for its physics alone: its copy-steps, each
+    priced at this machine's cost per copy-step of a ``mujoco.rollout`` call as wide as its
+    steps are (training: ``seeds`` x the copies a seed; evaluations: their copies), the
+    rollout pool's threads as the env uses them. Below this no batch can go here."""
+    sys.path.insert(0, str(ROOT))
+    from robots.physics import BatchedPhysics
+    from runs import catalog
+
+    env = catalog.make_env("cartpole")
+    model, substeps = env.physics.model, env.task.n_substeps
+    env.close()
+    copies_a_seed = TUNED[learner] if n == "tuned" else int(n)
+    train, evals, width = copy_steps(folder)
+
+    def per_copy_step(copies: int) -> float:
+        physics = BatchedPhysics(model, copies)
+        physics.step(substeps)
+        calls, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < 2.0:
+            physics.step(substeps)
+            calls += 1
+        return (time.perf_counter() - t0) / (calls * copies)
+
+    return train * per_copy_step(seeds * copies_a_seed) + evals * per_copy_step(max(width, 1))
+
+
 def load() -> str:
     return "/".join(f"{x:.2f}" for x in os.getloadavg())
 
@@ -108,11 +151,12 @@ def main() -> None:
             one = timed([sys.executable, "train.py", *common, "seed=0", f"hydra.run.dir={where / 'one'}"])
             batch = timed([sys.executable, "train.py", "-m", *common, f"seed=range({args.seeds})",
                            f"hydra.sweep.dir={where / 'batch'}"])
-            rows.append((learner, label, one, batch))
+            rows.append((learner, label, one, batch, physics_floor(learner, n, args.seeds, where / "batch")))
     print(f"load average (1/5/15 min) at the end: {load()}")
-    for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb) in rows:
+    for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb), floor_s in rows:
         print(f"BATCH {learner} num_envs={label} seeds={args.seeds} one_s={one_s:.1f} batch_s={batch_s:.1f} "
               f"ratio={batch_s / one_s:.2f} per_seed_ratio={batch_s / (args.seeds * one_s):.3f} "
+              f"physics_floor_s={floor_s:.1f} floor_ratio={floor_s / one_s:.2f} "
               f"one_cpu_s={one_cpu:.1f} batch_cpu_s={batch_cpu:.1f} cpu_ratio={batch_cpu / one_cpu:.2f} "
               f"peak_rss_mb={batch_mb:.0f} (one seed: {one_mb:.0f})")
 

@@ -67,29 +67,44 @@ def group_jobs(job_overrides: Sequence[Sequence[str]]) -> list[list[int]]:
     return list(groups.values())
 
 
+def batches(job_overrides: Sequence[Sequence[str]], initial_job_idx: int,
+            max_seeds: int) -> list[list[tuple[int, list[str]]]]:
+    """The sweep's jobs (job index, overrides) in batches: each group of :func:`group_jobs`
+    cut into batches of ``max_seeds`` at most."""
+    return [[(initial_job_idx + i, list(job_overrides[i])) for i in members[start:start + max_seeds]]
+            for members in group_jobs(job_overrides) for start in range(0, len(members), max_seeds)]
+
+
+def check_max_seeds(max_seeds) -> None:
+    """One line unless ``max_seeds`` (seeds a batch at most) is an integer >= 1."""
+    if type(max_seeds) is not int or max_seeds < 1:
+        raise ConfigError(f"hydra.launcher.max_seeds must be an integer >= 1; got {max_seeds!r}")
+
+
 class SeedBatchLaunch:
     """Launches a sweep's jobs, a group of seeds as one batch (``max_seeds`` at most each)."""
 
     def __init__(self, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig,
                  max_seeds: int = 64) -> None:
-        if type(max_seeds) is not int or max_seeds < 1:
-            raise ConfigError(f"hydra.launcher.max_seeds must be an integer >= 1; got {max_seeds!r}")
+        check_max_seeds(max_seeds)
         self.hydra_context, self.task_function, self.config = hydra_context, task_function, config
         self.max_seeds = max_seeds
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> list[JobReturn]:
         setup_globals()
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
-        groups = group_jobs(job_overrides)  # refused before any job starts
+        chunks = batches(job_overrides, initial_job_idx, self.max_seeds)  # refused before any job starts
         Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
         log.info(f"Launching {len(job_overrides)} jobs in this process, seeds of the same "
-                 f"settings together ({len(groups)} group{'s' * (len(groups) != 1)})")
+                 f"settings together ({len(chunks)} batch{'es' * (len(chunks) != 1)})")
         returns: dict[int, JobReturn] = {}
-        for members in groups:
-            for start in range(0, len(members), self.max_seeds):
-                chunk = [(initial_job_idx + i, job_overrides[i]) for i in members[start:start + self.max_seeds]]
-                returns.update(self._launch_batch(chunk) if len(chunk) > 1 else {chunk[0][0]: self._run(*chunk[0])})
+        for chunk in chunks:
+            returns.update(self.run_chunk(chunk))
         return [returns[initial_job_idx + i] for i in range(len(job_overrides))]
+
+    def run_chunk(self, chunk: list[tuple[int, list[str]]]) -> dict[int, JobReturn]:
+        """One batch's jobs (job index, overrides): trained together, or alone if one."""
+        return self._launch_batch(chunk) if len(chunk) > 1 else {chunk[0][0]: self._run(*chunk[0])}
 
     def _run(self, idx: int, overrides: Sequence[str]) -> JobReturn:
         """One job through Hydra's ``run_job``, as the basic launcher runs it."""
@@ -128,3 +143,44 @@ def _batch(jobs: list[BatchJob]) -> list[dict]:
             (job.run_dir / "error.txt").write_text(message + "\n")
         return []
 
+
+
+# -- submitit: one submitit job per batch ----------------------------------------------
+def submit_batches(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> list[JobReturn]:
+    """``hydra/launcher=seeds_submitit_slurm`` (or ``_local``): the sweep's batches
+    (:func:`batches`) as one submitit job array, each job training one batch of seeds
+    (:func:`run_batch_job`); ``launcher`` is the plugin's (Hydra's submitit launcher with
+    ``max_seeds``; ``params`` its queue settings, ``QUEUE_KEYS`` those submitit names
+    without the cluster's prefix)."""
+    import submitit
+    from hydra.core.singleton import Singleton
+
+    chunks = batches(job_overrides, initial_job_idx, launcher.max_seeds)  # refused before any submission
+    cluster, params = launcher._EXECUTOR, dict(launcher.params)
+    executor = submitit.AutoExecutor(folder=params.pop("submitit_folder"), cluster=cluster,
+                                     **{f"{cluster}_max_num_timeout": params.pop("max_num_timeout")}
+                                     if "max_num_timeout" in params else {})
+    shared = launcher.QUEUE_KEYS  # submitit's own parameter names; the others are the cluster's
+    executor.update_parameters(**{k if k in shared else f"{cluster}_{k}": v for k, v in params.items()})
+    sweep_dir = Path(str(launcher.config.hydra.sweep.dir))
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    log.info(f"Submitting {len(job_overrides)} jobs as {len(chunks)} submitit '{cluster}' job"
+             f"{'s' * (len(chunks) != 1)}, one per batch of seeds; output under {sweep_dir}")
+    for chunk in chunks:
+        log.info("\t" + ", ".join(f"#{idx}" for idx, _ in chunk) + f" : {' '.join(filter_overrides(chunk[0][1]))}")
+    state = Singleton.get_state()
+    returns: dict[int, JobReturn] = {}
+    for job in executor.map_array(launcher, chunks, [state] * len(chunks)):
+        returns.update(job.results()[0])
+    return [returns[initial_job_idx + i] for i in range(len(job_overrides))]
+
+
+def run_batch_job(launcher, chunk: list[tuple[int, list[str]]], singleton_state: dict) -> dict[int, JobReturn]:
+    """Inside a submitit job: one batch of seeds, trained as the ``seeds`` launcher trains it."""
+    from hydra.core.singleton import Singleton
+
+    Singleton.set_state(singleton_state)
+    setup_globals()
+    launch = SeedBatchLaunch(launcher.hydra_context, launcher.task_function, launcher.config, launcher.max_seeds)
+    configure_log(launcher.config.hydra.hydra_logging, launcher.config.hydra.verbose)
+    return launch.run_chunk(chunk)

@@ -36,6 +36,17 @@ def test_the_slurm_config_is_submitits_slurm_launcher_with_the_settings_a_user_e
         assert f"\n{key}:" in text  # written out, with its meaning, for the user to edit
 
 
+def test_the_seeds_slurm_config_is_one_slurm_job_per_batch_of_seeds():
+    with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+        launcher = compose("config", overrides=["hydra/launcher=seeds_slurm", "hydra.launcher.partition=cpu"],
+                           return_hydra_config=True).hydra.launcher
+    assert launcher._target_ == "hydra_plugins.rl_seed_launcher.seed_launcher.SeedBatchSlurmLauncher"
+    assert launcher.partition == "cpu" and launcher.max_seeds >= 1 and launcher.timeout_min >= 1
+    text = (conf_dir() / "hydra" / "launcher" / "seeds_slurm.yaml").read_text()
+    for key in ("max_seeds", "partition", "timeout_min", "cpus_per_task", "mem_gb", "setup"):
+        assert f"\n{key}:" in text
+
+
 def test_a_slurm_launcher_passes_where_slurm_is_and_is_refused_where_it_is_not(monkeypatch):
     launcher = OmegaConf.to_container(slurm_launcher())
     monkeypatch.setattr(launchers.shutil, "which", lambda tool: f"/usr/bin/{tool}")
@@ -48,8 +59,9 @@ def test_a_slurm_launcher_passes_where_slurm_is_and_is_refused_where_it_is_not(m
 
 
 @pytest.mark.parametrize("args, line", [
-    (["hydra/launcher=ray"], "error: hydra/launcher=ray is not installed; installed: basic, joblib, seeds, slurm, "
-                             "submitit_local, submitit_slurm (a Hydra launcher plugin is a pip package"),
+    (["hydra/launcher=ray"], "error: hydra/launcher=ray is not installed; installed: basic, joblib, seeds, seeds_slurm, "
+                             "seeds_submitit_local, seeds_submitit_slurm, slurm, submitit_local, submitit_slurm "
+                             "(a Hydra launcher plugin is a pip package"),
     (["hydra/launcher=slurm", "hydra.launcher.timeout_min=abc"],
      "error: hydra.launcher.timeout_min must be an integer; got 'abc'"),
     (["hydra/launcher=slurm", "hydra.launcher.partition=[a,b]"],
@@ -57,6 +69,9 @@ def test_a_slurm_launcher_passes_where_slurm_is_and_is_refused_where_it_is_not(m
     (["hydra/launcher=slurm", "hydra.launcher.cpus_per_task=0"],
      "error: hydra.launcher.cpus_per_task must be an integer >= 1 (or null where Slurm has a default); got 0"),
     (["hydra/launcher=slurm"], "error: the Slurm launcher needs Slurm's sbatch and srun on PATH, not found here"),
+    (["hydra/launcher=seeds_slurm"], "error: the Slurm launcher needs Slurm's sbatch and srun on PATH, not found here"),
+    (["hydra/launcher=seeds_submitit_local", "hydra.launcher.max_seeds=0"],
+     "error: hydra.launcher.max_seeds must be an integer >= 1; got 0"),
 ])
 def test_a_launcher_the_sweep_cannot_use_is_one_line_before_any_job(tmp_path, args, line):
     if shutil.which("srun") or shutil.which("sbatch"):

@@ -105,6 +105,25 @@ def test_a_submitit_sweep_keeps_its_jobs_in_one_folder_and_a_failed_job_fails_it
         "learner.alpha must be a finite number in (0, 1]; got -1: the sweep exits 1")
 
 
+def test_a_submitit_job_holds_a_batch_of_seeds(tmp_path):
+    """hydra/launcher=seeds_submitit_local (seeds_slurm's local twin): seeds of one setting
+    go to submitit as batches of max_seeds, each batch one job that trains its seeds
+    together; every seed still gets its folder and the launching process compares them."""
+    proc = run(["train.py", "-m", "hydra/launcher=seeds_submitit_local", f"hydra.sweep.dir={tmp_path}/sweep",
+                "hydra.launcher.max_seeds=2", "seed=0,1,2", "learner=qlearn", "learner.nepisodes=4",
+                "eval_episodes=0", "quiet=true"], timeout=900)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    sweep = tmp_path / "sweep"
+    assert "Submitting 3 jobs as 2 submitit 'local' jobs, one per batch of seeds" in proc.stderr + proc.stdout
+    logs = sorted((sweep / ".submitit").glob("*/*_log.out"))
+    batched = [log for log in logs if "Training 2 seeds together: 0, 1" in log.read_text()]
+    assert len(logs) == 2 and len(batched) == 1, [log.read_text()[-500:] for log in logs]
+    jobs = sorted(p.name for p in sweep.iterdir() if p.is_dir() and (p / "metrics.csv").exists())
+    assert jobs == ["0_cartpole_qlearn_seed0", "1_cartpole_qlearn_seed1", "2_cartpole_qlearn_seed2"]
+    rows = list(csv.DictReader(open(sweep / "comparison.csv")))
+    assert len(rows) == 1 and rows[0]["finished"] == "3"
+
+
 def test_a_failing_job_does_not_cost_the_sweep_its_other_jobs_but_fails_it(tmp_path):
     sweep = tmp_path / "sweep"
     proc = run(["train.py", "-m", f"hydra.sweep.dir={sweep}", "learner=qlearn",
