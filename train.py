@@ -5,6 +5,7 @@
     python train.py -m learner=qlearn seed=0,1,2     # a sweep
     python train.py mode=eval checkpoint=outputs/.../model.pt
     python train.py resume=outputs/...               # continue a stopped or killed run
+    python train.py resume=multirun/...              # ... every unfinished job of a sweep, seeds together
 
 The run folder (printed at the end) holds config.yaml (resolved), metrics.csv,
 timing.csv, reward_curve.png, model.pt, checkpoint.pt (the whole training
@@ -45,6 +46,7 @@ from runs.batch import BatchJob
 from runs.resume import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
+from sweeps.resume import is_sweep_folder, resume_sweep
 from sweeps.seed_batch import collect
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
                           sibling_should_exit, stop_sweep, sweep_dir, sweep_stopped)
@@ -52,7 +54,8 @@ from sweeps.tuning import trial_link
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
 # a wrong path gets a fresh folder and the one-line error from ``resumed_config``.
-OmegaConf.register_new_resolver("if_run_folder", lambda path, yes, no: yes if is_run_folder(path) else no,
+OmegaConf.register_new_resolver("if_run_folder",
+                                lambda path, yes, no: yes if is_run_folder(path) or is_sweep_folder(path) else no,
                                 replace=True)
 # Default run and sweep folders end in the process id: two runs started in the same second
 # get two folders. Cached, as Hydra's ${now:}: Hydra copies a resolver's cached values from the
@@ -95,6 +98,9 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> dict:
     if resume:
         if not isinstance(cfg.resume, str):
             raise ConfigError(f"resume must be the path of a run folder; got {cfg.resume!r}")
+        if is_sweep_folder(cfg.resume):  # every unfinished job of the sweep, seeds together
+            summaries = resume_sweep(cfg, overrides)
+            return next((s for s in summaries if s.get("interrupted")), {})
         cfg, run_dir = resumed_config(cfg, overrides)
         choices = read_run_json(run_dir)
     elif cfg.mode == "eval" and run_folder_of(cfg.get("checkpoint")) is not None:

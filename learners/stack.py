@@ -310,6 +310,8 @@ class DQNStack:
         self.started = [False] * self.seeds  # the seed's optimizer holds its (stacked) state
         self.owed = [0] * self.seeds
         self._views = [self._seed_views(b) for b in range(self.seeds)]
+        for b in range(self.seeds):
+            self._take_optimizer_state(b)
         self._minibatch = torch.empty(self.seeds, first.batch_size, first.buffer._rows.shape[1],
                                       device=first.device)
         for b, learner in enumerate(self.learners):
@@ -328,6 +330,21 @@ class DQNStack:
             for k, p in enumerate(params):
                 p.data = stacked[k][b]
         return stacked
+
+    def _take_optimizer_state(self, b: int) -> None:
+        """A seed whose optimizer has stepped already (a resumed run's): its Adam state and
+        latest gradients move into its slices of the stacked ones, as it holds them alone."""
+        learner, views = self.learners[b], self._views[b]
+        state = [learner.optimizer.state.get(p) for p in learner._params]
+        if not all(state):
+            return
+        for k, (p, own) in enumerate(zip(learner._params, state)):
+            views["steps"][k].copy_(own["step"])
+            views["exp_avgs"][k].copy_(own["exp_avg"])
+            views["exp_avg_sqs"][k].copy_(own["exp_avg_sq"])
+            if self.kept_grads is not None and p.grad is not None:
+                self.kept_grads[k][b].copy_(p.grad)
+        self._start(b)
 
     def _seed_views(self, b: int) -> dict[str, list[torch.Tensor]]:
         return {name: [t[b] for t in tensors] for name, tensors in (

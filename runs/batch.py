@@ -75,6 +75,7 @@ class BatchJob:
     choices: Mapping[str, str | None]
     overrides: Sequence[str] = ()
     changes: Sequence[str] | None = None
+    resume: bool = False  # continues the stopped run in run_dir (its cfg: the folder's, resume= set)
 
 
 def batchable(cfg: DictConfig) -> bool:
@@ -91,8 +92,9 @@ def check_batch(jobs: Sequence[BatchJob]) -> None:
     twice = sorted({s for s in seeds if seeds.count(s) > 1})
     if twice:
         raise ConfigError(f"seed {twice[0]} appears twice in one sweep; give each seed once")
-    if not all(batchable(job.cfg) for job in jobs):
-        raise ConfigError(f"a seed batch trains fresh runs only (no {', '.join(NOT_BATCHED)})")
+    if not all(batchable(job.cfg) for job in jobs if not job.resume) or not all(
+            job.cfg.mode == "train" and not job.cfg.get("checkpoint") for job in jobs if job.resume):
+        raise ConfigError(f"a seed batch trains fresh or resumed runs only (no {', '.join(NOT_BATCHED[1:])})")
     first = _without_seed(jobs[0].cfg)
     for job in jobs[1:]:
         if _without_seed(job.cfg) != first:
@@ -101,7 +103,17 @@ def check_batch(jobs: Sequence[BatchJob]) -> None:
 
 
 def _without_seed(cfg: DictConfig) -> dict:
-    return {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k != "seed"}
+    """The config but its seed (and a resumed run's own folder)."""
+    return {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ("seed", "resume")}
+
+
+def same_batch(cfgs: Sequence[DictConfig]) -> list[list[int]]:
+    """Indices of ``cfgs`` grouped by their config but the seed (first-seen order): the
+    batches they may train in."""
+    groups: dict[str, list[int]] = {}
+    for i, cfg in enumerate(cfgs):
+        groups.setdefault(repr(_without_seed(cfg)), []).append(i)
+    return list(groups.values())
 
 
 @dataclass
@@ -279,13 +291,16 @@ def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
     for slot in slots:
         job, session = slot.job, slot.session
         with slot.active(full=True):
-            start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
+            if not job.resume:
+                start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
             for line in banner_lines(job.cfg, dict(job.choices), job.changes, session.success,
                                           job.run_dir, session.learner.nepisodes):
                 print(line)
             solo.write_success(session)
-            slot.run = solo.make_run(session, resume=False, progress=None, save=slot.save)
-            slot.run.continue_from(first[env.block(slot.index)])
+            # Resumed: its block, learner, run and random streams as its checkpoint holds them.
+            slot.run = solo.make_run(session, resume=job.resume, progress=None, save=slot.save)
+            if not job.resume:
+                slot.run.continue_from(first[env.block(slot.index)])
             session.learner.begin()
             slot.td = slot.run.start(session.env)
 

@@ -105,12 +105,16 @@ def sweep_stopped() -> bool:
 
 def report_stopped_sweep(folder: Path) -> None:
     """One resume command per job the stop left unfinished."""
+    resumable = 0
     for job in sorted(p for p in folder.iterdir() if p.is_dir()):
         state = summarize_run(job)  # the same reading of a job folder compare.py uses
         if state.get("resume"):
             print(f"resume with: {state['resume']}")
+            resumable += 1
         elif state["status"] == "never started":
             print(f"not started: {job.name}")
+    if resumable > 1:
+        print(f"or all of them, seeds of one setting together: python train.py resume={folder}")
 
 
 def end_stopped_sweep() -> int | None:

@@ -43,7 +43,7 @@ TorchRL "auto-reset" env, whose ``next`` observations would be the reset ones).
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -404,6 +404,14 @@ class _Rows:
     def state_dict(self) -> dict[str, np.ndarray]:
         return {k: v[self._rows] for k, v in self._inner.state_dict().items()}
 
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """Restores these rows of ``inner``'s per-copy state (the other rows as they are)."""
+        full = self._inner.state_dict()
+        for key, value in state.items():
+            if key in full:
+                full[key][self._rows] = value
+        self._inner.load_state_dict({**full, **{k: v for k, v in state.items() if k not in full}})
+
 
 class SeedBlock:
     """One seed block of a :class:`RobotTaskEnv`, read as an env of ``block_size`` copies:
@@ -421,6 +429,11 @@ class SeedBlock:
     @property
     def divergences(self) -> int:
         return int(self.env.block_divergences[self.index])
+
+    @divergences.setter
+    def divergences(self, count: int) -> None:  # a resumed seed's count, from its checkpoint
+        self.env.divergences += int(count) - int(self.env.block_divergences[self.index])
+        self.env.block_divergences[self.index] = int(count)
 
     @property
     def ended_info(self) -> dict[str, np.ndarray]:

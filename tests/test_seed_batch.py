@@ -136,6 +136,49 @@ def test_a_stopped_batch_seed_resumes_alone_to_its_uninterrupted_run(tmp_path, m
         assert (folder / name).read_bytes() == (alone.run_dir / name).read_bytes(), name
 
 
+@pytest.mark.parametrize("learner", ["qlearn", "dqn"])
+def test_a_stopped_sweep_resumes_as_one_batch_to_each_seeds_uninterrupted_run(tmp_path, monkeypatch, learner):
+    """A batch stopped at a step, then ``resume=<sweep folder>`` (sweeps.resume): its seeds
+    continue together from their checkpoints (learners, env blocks, runs, random streams,
+    a DQN's Adam state) and end with the files of each seed's run never stopped."""
+    from sweeps.resume import resume_sweep
+
+    real_end_step = Run.end_step
+    limit = 20  # episodes; the dqn's updates began before (its Adam state is saved and taken back)
+
+    def end_step(self, td):
+        td = real_end_step(self, td)
+        if self.n_episodes >= limit and (learner == "qlearn" or self.env_steps >= 1200):
+            self.request_stop()
+        return td
+
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "multirun.yaml").write_text("{}\n")  # what makes a folder a sweep's
+    monkeypatch.setattr(Run, "end_step", end_step)
+    summaries = execute_batch(jobs(learner, sweep, "batch"))
+    assert all(s["interrupted"] for s in summaries)
+    if learner == "dqn":
+        state = torch.load(sweep / f"batch{SEEDS[0]}" / "checkpoint.pt", weights_only=True)["learner"]
+        assert state["optimizer_steps"] > 0 and state["optimizer"]["state"]
+    monkeypatch.setattr(Run, "end_step", real_end_step)
+    resumed = []
+    monkeypatch.setattr(batch_module.Run, "continue_from",
+                        lambda self, td, real=Run.continue_from: resumed.append(self.n_episodes) or real(self, td))
+    summaries = resume_sweep(compose("cartpole", learner=learner, overrides=[f"resume={sweep}"]), [f"resume={sweep}"])
+    assert len(summaries) == len(SEEDS) and not any(s.get("interrupted") or s.get("failed") for s in summaries)
+    assert len(resumed) == len(SEEDS) and min(resumed) >= limit  # each from its checkpoint
+    run_alone(learner, tmp_path)
+    for seed in SEEDS:
+        together, alone = sweep / f"batch{seed}", tmp_path / f"alone{seed}"
+        for name in SAME_FILES:
+            assert (together / name).read_bytes() == (alone / name).read_bytes(), (seed, name)
+        a, b = (torch.load(d / "model.pt", weights_only=True) for d in (together, alone))
+        assert tensors_equal({k: v for k, v in a.items() if k not in ("meta", "checksum")},
+                             {k: v for k, v in b.items() if k not in ("meta", "checksum")}), seed
+    assert (sweep / "comparison.csv").is_file()
+
+
 def test_a_failing_seed_ends_alone(tmp_path, monkeypatch):
     """A seed's own call failing (here its per-episode epsilon decay, after 10 episodes)
     ends it alone, with its files; the other seed trains on."""
@@ -208,7 +251,7 @@ def test_a_failed_stacked_call_ends_every_seed_with_its_trace(tmp_path, monkeypa
 @pytest.mark.parametrize("change, message", [
     (lambda js: js[1].cfg.__setitem__("seed", js[0].cfg.seed), "appears twice"),
     (lambda js: js[1].cfg.learner.__setitem__("alpha", 0.5), "differ in more than their seed"),
-    (lambda js: js[1].cfg.__setitem__("mode", "eval"), "fresh runs only"),
+    (lambda js: js[1].cfg.__setitem__("mode", "eval"), "fresh or resumed runs only"),
 ])
 def test_a_batch_of_unlike_jobs_is_refused_before_any_work(tmp_path, change, message):
     batch = jobs("qlearn", tmp_path, "batch")

@@ -1,0 +1,77 @@
+"""A stopped sweep resumed as a whole: ``python train.py resume=<sweep folder>``.
+
+Every unfinished job folder of the sweep with a checkpoint continues from it, the jobs
+alike but their seed trained together as one seed batch (:func:`runs.batch.execute_batch`),
+each exactly as ``resume=<job folder>`` continues it alone; then the sweep's comparison is
+made again. Jobs that cannot continue (no checkpoint.pt, a damaged one) are listed with
+their one-line reason and left as they are; finished jobs are not touched.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+from omegaconf import DictConfig
+
+from params import ConfigError
+from runs.batch import BatchJob, execute_batch, same_batch
+from runs.checkpoint import CheckpointError
+from runs.folder import is_finished, is_run_folder, resumed_config
+from runs.resume import read_run_json
+from runs.settings import check_run_config
+from sweeps.comparison import NotASweep, report
+from sweeps.state import report_stopped_sweep
+
+
+def is_sweep_folder(path) -> bool:
+    """Whether ``path`` is a Hydra multirun sweep folder (Hydra's ``multirun.yaml`` in it)."""
+    return bool(path) and (Path(str(path)) / "multirun.yaml").is_file()
+
+
+def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[BatchJob], list[str]]:
+    """The unfinished job folders of the sweep ``cfg.resume``, each as its resumed job, and a
+    line for each that cannot continue. :class:`CheckpointError` if none can."""
+    folder = Path(str(cfg.resume))
+    unfinished = [d for d in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+                  if is_run_folder(d) and not is_finished(d)]  # (Hydra's own .hydra* folders aside)
+    jobs, skipped = [], []
+    for run_dir in unfinished:
+        job_cfg = cfg.copy()
+        job_cfg.resume = str(run_dir)
+        try:
+            saved, run_dir = resumed_config(job_cfg, list(overrides))
+            check_run_config(saved)
+        except (CheckpointError, ConfigError) as err:
+            skipped.append(f"not resumed: {run_dir.name}: {str(err).splitlines()[0]}")
+            continue
+        jobs.append(BatchJob(saved, run_dir, read_run_json(run_dir), resume=True))
+    if not unfinished:
+        raise CheckpointError(f"resume={folder}: every run of this sweep is finished; nothing to continue "
+                              f"(compare it with: python compare.py {folder})")
+    if not jobs:
+        raise CheckpointError(f"resume={folder}: none of its {len(unfinished)} unfinished runs can continue "
+                              f"(the first: {skipped[0].split(': ', 1)[1]})")
+    return jobs, skipped
+
+
+def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
+    """Continues the sweep ``cfg.resume`` (see the module docstring); each job's summary."""
+    folder = Path(str(cfg.resume))
+    jobs, skipped = resumable_jobs(cfg, overrides)
+    for line in skipped:
+        print(line)
+    (folder / ".stop").unlink(missing_ok=True)  # the stop is over: the comparison says so no more
+    summaries = []
+    for members in same_batch([job.cfg for job in jobs]):
+        batch = [jobs[i] for i in members]
+        print(f"resuming {len(batch)} job{'s' * (len(batch) != 1)} of {folder} together: "
+              f"{', '.join(job.run_dir.name for job in batch)}")
+        summaries += execute_batch(batch)
+    try:
+        report(folder)
+    except NotASweep as err:  # pragma: no cover - the folder held the jobs just resumed
+        print(f"no comparison: {err}")
+    if any(s.get("interrupted") for s in summaries):
+        report_stopped_sweep(folder)
+    return summaries
