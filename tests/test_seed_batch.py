@@ -279,6 +279,11 @@ def test_a_multirun_trains_its_seeds_in_one_batch_per_group(tmp_path):
     jobs_done = sorted(p.name for p in (tmp_path / "sweep").iterdir() if (p / "summary.json").is_file())
     assert len(jobs_done) == 4, jobs_done
     assert "[seed 1] VERDICT" in proc.stdout and (tmp_path / "sweep" / "comparison.csv").is_file()
+    # Nothing of a finished sweep to resume: one line, nothing touched.
+    proc = run_cli([f"resume={tmp_path / 'sweep'}"], tmp_path)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
+        f"error: resume={tmp_path / 'sweep'}: every run of this sweep is finished; nothing to continue "
+        f"(compare it with: python compare.py {tmp_path / 'sweep'})"], proc.stderr[-2000:]
 
 
 def test_a_seed_given_twice_is_one_line_and_nothing_runs(tmp_path):
