@@ -30,9 +30,18 @@ or 16 on this machine), its greedy evaluations (every 100 episodes, 20 episodes 
 third of the dqn batch's time) and its checkpoints, and a per-episode DQN's update rounds
 (2.3 seeds a round at 16 copies). README "Seeds in one process" has the profile.
 
+Then, with the physics floor (``physics_floor_s``: the batch's copy-steps, training and
+greedy evaluations, priced at this machine's rollout cost a copy-step at the batch's
+widths; below it no batch can go here) and the final evaluations of seeds ending at one
+step made together (2026-11-26, load average 3.1 at the start, 6.7 at the end):
+
+    learner copies  one_s  batch_s  ratio  cpu_ratio  physics_floor_s  floor_ratio  peak_rss_mb
+    qlearn  8        56.7    328.6   5.79   5.61       125.7            2.22         621
+    dqn     16       25.1    190.2   7.57   6.63        50.0            1.99         641
+
 Last lines, per learner and copies: ``BATCH <learner> num_envs=<n> seeds=<N> one_s=<v>
 batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)> one_cpu_s=<v>
-batch_cpu_s=<v> cpu_ratio=<v> peak_rss_mb=<batch>``.
+batch_cpu_s=<v> cpu_ratio=<v> physics_floor_s=<v> floor_ratio=<floor/one> peak_rss_mb=<batch>``.
 """
 
 from __future__ import annotations
