@@ -40,8 +40,8 @@ step made together (2026-11-26, load average 3.1 at the start, 6.7 at the end):
     dqn     16       25.1    190.2   7.57   6.63        50.0            1.99         641
 
 Last lines, per learner and copies: ``BATCH <learner> num_envs=<n> seeds=<N> one_s=<v>
-batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)> one_cpu_s=<v>
-batch_cpu_s=<v> cpu_ratio=<v> physics_floor_s=<v> floor_ratio=<floor/one> peak_rss_mb=<batch>``.
+batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)> physics_floor_s=<v>
+floor_ratio=<floor/one> one_cpu_s=<v> batch_cpu_s=<v> cpu_ratio=<v> peak_rss_mb=<batch>``.
 """
 
 from __future__ import annotations
