@@ -225,7 +225,7 @@ def train_cli(tmp_path, *overrides: str) -> dict:
 
 def test_the_default_run_is_solved_and_says_so_in_few_lines(tmp_path):
     """``python train.py`` as the README's quick start runs it (cartpole / stay_up / tuned
-    qlearn, seed 0): solved by the seeds' rule (seeds 0-2 take 1057-1292 episodes; see
+    qlearn, seed 0): solved by the seeds' rule (seeds 0-2 take 307-1508 episodes; see
     conf/tuned/cartpole_qlearn.yaml), in fewer than 60 console lines, all of them also in
     the run folder's train.log."""
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
