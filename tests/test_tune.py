@@ -84,8 +84,16 @@ def test_every_learner_has_a_search_space():
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (conf_dir() / "search").glob("*.yaml")))
 def test_every_search_space_fits_its_learner(name):
+    """conf/search/<learner>, <robot>_<learner> or <robot>_<task>_<learner> (a task's space)."""
+    from runs.catalog import names, robot_names
+
     robot, _, learner = name.rpartition("_") if name not in LEARNERS else ("", "", name)
-    base = [f"robot={robot or 'cartpole'}", f"learner={learner}", "max_env_steps=1000", "stop_when_solved=false"]
+    task = None
+    if robot and robot not in robot_names():  # <robot>_<task>
+        robot, task = next((r, robot[len(r) + 1:]) for r in robot_names() if robot.startswith(f"{r}_"))
+        assert task in names("task"), f"conf/search/{name}.yaml names no task"
+    base = [f"robot={robot or 'cartpole'}", *([f"task={task}"] if task else []), f"learner={learner}",
+            "max_env_steps=1000", "stop_when_solved=false"]
     space = load_space(conf_dir() / "search" / f"{name}.yaml")
     check_space(space, compose(overrides=base), name, _check(base))
 
