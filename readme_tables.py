@@ -92,7 +92,8 @@ def _solved(task: Task) -> str:
 def discovery_tables() -> str:
     """Markdown tables of the robots, the tasks and the learners."""
     fits = {(r, t): catalog.built(r, t) for r in catalog.robot_names() for t in catalog.names("task")}
-    tuned = [pair for pair in catalog.tuned_pairs().values() if pair]
+    # A pair with a robot's file and a task's file (conf/tuned/<robot>_<task>_<learner>) counts once.
+    tuned = list(dict.fromkeys(pair for pair in catalog.tuned_pairs().values() if pair))
     return "\n\n".join((_robots(fits, tuned), _tasks(fits), _learners(tuned))) + "\n"
 
 

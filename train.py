@@ -37,7 +37,8 @@ from omegaconf import DictConfig, OmegaConf
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError, did_you_mean
 from runs.banner import tuned_changes
-from runs.catalog import GROUPS, compose, locate_model, run_choices, unreadable_conf_file, use_config_dirs
+from runs.catalog import (GROUPS, compose, locate_model, run_choices, unreadable_conf_file, use_config_dirs,
+                          with_tuned_layers)
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
 from runs.folder import (check_output_folder, eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
@@ -167,7 +168,7 @@ def cli() -> None:
     sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
     try:
         use_config_dirs(_config_dir_args(sys.argv[1:]))
-        sys.argv[1:] = with_run_choices(sys.argv[1:])
+        sys.argv[1:] = with_tuned_layers(with_run_choices(sys.argv[1:]))  # '~tuned': both layers
         for arg in sys.argv[1:]:  # before Hydra writes its record (.hydra/, train.log) there
             key, _, value = arg.partition("=")
             if key in ("hydra.run.dir", "hydra.sweep.dir") and value:

@@ -3,7 +3,13 @@ tuned files, and the run config Hydra composes from them.
 
     cfg = compose("cube", learner="dqn")                        # as train.py composes it
     env = make_env("turtlebot", "wall", ["task.min_range=0.4"])  # an env by names
-    default_task("cube"), names("learner"), tuned_pairs()
+    default_task("cube"), names("learner"), tuned_pairs(), tuned_layers("turtlebot", "wall", "dqn")
+
+Tuned files come in two layers (``conf/config.yaml``'s defaults list): the robot's,
+``conf/tuned/<robot>_<learner>.yaml``, then the task's on top of it,
+``conf/tuned/<robot>_<task>_<learner>.yaml``; each applies where it exists. Hydra's ``~tuned``
+removes one defaults entry: :func:`with_tuned_layers` makes it remove both, for the command
+line (``train.py``) and for :func:`compose` alike.
 
 The configs are found through the installed ``conf`` package, so this works from any
 working directory and without an editable install. More config folders (a user's
@@ -33,6 +39,11 @@ from tasks.env import RobotTaskEnv
 
 # The config groups a run picks by name (``robot=cube``); everything else is a value.
 GROUPS = ("robot", "task", "learner")
+# The defaults-list key of the per-task tuned layer (``optional tuned@_global_:
+# ${robot}_${task}_${learner}`` in conf/config.yaml): the group ``tuned`` a second time,
+# so a second key; run_choices calls its pick ``tuned_task``.
+TASK_TUNED = "tuned@_global_"
+TUNED_PICKS = ("tuned", "tuned_task")  # run_choices' names of the two layers, robot's first
 
 
 _EXTRA_DIRS: list[Path] = []  # config folders after conf/ (use_config_dirs)
@@ -115,18 +126,45 @@ def robot_names() -> list[str]:
     return names("robot")
 
 
-def tuned_file(robot: str, learner: str) -> Path:
-    """Where the tuned parameters of ``robot`` x ``learner`` live (the file may not exist)."""
-    return config_file("tuned", f"{robot}_{learner}") or conf_dir() / "tuned" / f"{robot}_{learner}.yaml"
+def tuned_name(robot: str, learner: str, task: str | None = None) -> str:
+    """The name of a tuned file: ``<robot>_<learner>``, or with ``task`` the per-task
+    ``<robot>_<task>_<learner>``."""
+    return f"{robot}_{task}_{learner}" if task else f"{robot}_{learner}"
+
+
+def tuned_file(robot: str, learner: str, task: str | None = None) -> Path:
+    """Where the tuned parameters of ``robot`` x ``learner`` live, with ``task`` those for
+    that task only, applied on top (the file may not exist)."""
+    name = tuned_name(robot, learner, task)
+    return config_file("tuned", name) or conf_dir() / "tuned" / f"{name}.yaml"
+
+
+def tuned_layers(robot: str, task: str, learner: str) -> list[str]:
+    """The tuned files a plain run of ``robot`` / ``task`` / ``learner`` applies, by name,
+    in the order Hydra applies them (the robot's, then the task's); ``[]`` for none."""
+    layers = (tuned_name(robot, learner), tuned_name(robot, learner, task))
+    return [name for name in layers if config_file("tuned", name) is not None]
+
+
+def with_tuned_layers(overrides: Sequence[str]) -> list[str]:
+    """``overrides`` with ``~tuned`` leaving out both tuned layers: ``~tuned@_global_``
+    (:data:`TASK_TUNED`) added after it, unless given already."""
+    out = list(overrides)
+    if "~tuned" in out and f"~{TASK_TUNED}" not in out:
+        out.insert(out.index("~tuned") + 1, f"~{TASK_TUNED}")
+    return out
 
 
 def run_choices(choices: Mapping[str, str | None]) -> dict[str, str | None]:
-    """A run's picks of the config groups (robot, task, learner, tuned) from Hydra's
-    ``runtime.choices``; ``tuned`` is None where no file answers the pick (the ``optional``
-    default names ``<robot>_<learner>`` whether or not there is one)."""
+    """A run's picks of the config groups (robot, task, learner) and of the tuned files from
+    Hydra's ``runtime.choices``: ``tuned`` (the robot's layer) and ``tuned_task`` (the task's,
+    on top), each None where no file answers the pick (an ``optional`` default names its
+    file whether or not there is one)."""
     picks = {k: choices.get(k) for k in (*GROUPS, "tuned")}
-    if picks["tuned"] and config_file("tuned", picks["tuned"]) is None:
-        picks["tuned"] = None
+    picks["tuned_task"] = choices.get(TASK_TUNED)
+    for key in TUNED_PICKS:
+        if picks[key] and config_file("tuned", picks[key]) is None:
+            picks[key] = None
     return picks
 
 
@@ -138,7 +176,7 @@ def compose(robot: str | None = None, task: str | None = None, learner: str | No
     Works inside a running Hydra app too: that app's global state is restored.
     """
     picks = [f"{k}={v}" for k, v in (("robot", robot), ("task", task), ("learner", learner)) if v]
-    return _resolved(_compose([*picks, *overrides]))
+    return _resolved(_compose([*picks, *with_tuned_layers(overrides)]))
 
 
 def default_task(robot: str) -> str:
@@ -208,7 +246,18 @@ def built(robot: str, task: str) -> Task | None:
 
 
 def tuned_pairs() -> dict[str, tuple[str, str] | None]:
-    """``conf/tuned/`` file name -> the ``(robot, learner)`` it tunes, ``None`` if it names
-    no such pair (Hydra would never apply it)."""
-    pairs = {f"{r}_{lr}": (r, lr) for r in robot_names() for lr in names("learner")}
-    return {stem: pairs.get(stem) for stem in names("tuned")}
+    """``conf/tuned/`` file name -> the ``(robot, learner)`` it tunes (a per-task file's
+    too: :func:`tuned_targets` says which task), ``None`` if it names no such pair (Hydra
+    would never apply it)."""
+    return {stem: (target[0], target[2]) if target else None for stem, target in tuned_targets().items()}
+
+
+def tuned_targets() -> dict[str, tuple[str, str | None, str] | None]:
+    """``conf/tuned/`` file name -> the ``(robot, task, learner)`` it tunes (``task`` None for
+    a robot's file, which applies to all its tasks), ``None`` if it names neither a
+    ``<robot>_<learner>`` nor a ``<robot>_<task>_<learner>`` (Hydra would never apply it)."""
+    robots, tasks, learners = robot_names(), names("task"), names("learner")
+    targets: dict[str, tuple[str, str | None, str]] = {
+        tuned_name(r, lr, t): (r, t, lr) for r in robots for t in tasks for lr in learners}
+    targets |= {tuned_name(r, lr): (r, None, lr) for r in robots for lr in learners}
+    return {stem: targets.get(stem) for stem in names("tuned")}

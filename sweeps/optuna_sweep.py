@@ -20,7 +20,7 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
-from runs.catalog import GROUPS, conf_dir
+from runs.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name
 from runs.settings import check_run_config
 from runs.summary import measure_keys, summarize_run
 from sweeps.tuning import (Plan, check_space, check_sweeper_settings, current_trial, load_space, make_pruner,
@@ -114,7 +114,7 @@ class TuningSweep:
         fixed = [*self._trial_defaults(given), *given, *self._budget()]
         choices = self.config.hydra.runtime.choices
         robot, task, learner = (str(choices.get(k)) for k in GROUPS)
-        space_file = Path(self.search) if self.search else search_file(robot, learner)
+        space_file = Path(self.search) if self.search else search_file(robot, learner, task)
         params = load_space(space_file)
         base = self._compose(fixed)
         check_run_config(base)
@@ -236,22 +236,30 @@ class TuningSweep:
             f"pruner: {self.pruner or 'none'}; search space: {plan.space_file.name}",
             f"command: python train.py -m {' '.join(map(shown_url, self._hydra_overrides() + plan.given))}",
         ]
-        tuned_name = f"{robot}_{learner}.yaml"
-        base_file = conf_dir() / "tuned" / tuned_name
-        ran_with = self.config.hydra.runtime.choices.get("tuned")  # the tuned file the trials composed
-        ran_file = conf_dir() / "tuned" / f"{ran_with}.yaml"  # "optional": the choice may name no file
+        choices = self.config.hydra.runtime.choices
+        per_task = _per_task(robot, plan.task, choices.get(TASK_TUNED))
+        name = f"{tuned_name(robot, learner, plan.task if per_task else None)}.yaml"
+        base_file = conf_dir() / "tuned" / name
+        # The tuned file the trials composed that this one replaces ("optional": the choice may
+        # name no file); a task's file goes on top of the robot's, which stays as it is.
+        ran_with = choices.get(TASK_TUNED if per_task else "tuned")
+        ran_file = conf_dir() / "tuned" / f"{ran_with}.yaml"
         base_values = OmegaConf.to_container(OmegaConf.load(ran_file)) if ran_with and ran_file.is_file() else None
+        if per_task:
+            header.append(f"for task {plan.task} only: applied on top of {tuned_name(robot, learner)}.yaml "
+                          "(where there is one), which the trials ran with too")
         if base_values:
             header.append(f"settings not searched are {ran_with}.yaml's, which the trials ran with")
         text = tuned_text(values, base_values, header)
-        out = sweep_dir / f"tuned_{tuned_name}"
+        out = sweep_dir / f"tuned_{name}"
         out.write_text(text)
         print(f"best trial {best.number}: {plan.objective} {best.value:.4g} " + " ".join(
             f"{k}={override_value(v)}" for k, v in values.items()))
         print(f"tuned file: {out}")
         if self.write_tuned:
             print(replace_tuned(base_file, text, sweep_dir))
-            print(f"the next `python train.py robot={robot} learner={learner}` uses it")
+            print(f"the next `python train.py robot={robot}{f' task={plan.task}' if per_task else ''} "
+                  f"learner={learner}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
 
@@ -268,11 +276,22 @@ def _check_builds(cfg: DictConfig) -> Success:
         raise ConfigError((str(cause).strip().splitlines() or [type(cause).__name__])[0]) from None
 
 
-def search_file(robot: str, learner: str) -> Path:
-    """``conf/search/<robot>_<learner>.yaml`` where there is one (settings only that robot's
-    configs have, e.g. bins per state entry), else ``conf/search/<learner>.yaml``."""
-    pair = conf_dir() / "search" / f"{robot}_{learner}.yaml"
-    return pair if pair.is_file() else conf_dir() / "search" / f"{learner}.yaml"
+def search_file(robot: str, learner: str, task: str | None = None) -> Path:
+    """``conf/search/<robot>_<task>_<learner>.yaml`` where there is one (a space for one
+    task), else ``conf/search/<robot>_<learner>.yaml`` where there is one (settings only that
+    robot's configs have, e.g. bins per state entry), else ``conf/search/<learner>.yaml``."""
+    for name in ([tuned_name(robot, learner, task)] if task else []) + [tuned_name(robot, learner)]:
+        if (conf_dir() / "search" / f"{name}.yaml").is_file():
+            return conf_dir() / "search" / f"{name}.yaml"
+    return conf_dir() / "search" / f"{learner}.yaml"
+
+
+def _per_task(robot: str, task: str, task_file: str | None) -> bool:
+    """Whether a study of ``robot`` / ``task`` writes the task's tuned file
+    (``<robot>_<task>_<learner>``) rather than the robot's: for a task other than the robot's
+    default, or where a task's file (``task_file``, the per-task pick) applied already (the
+    robot's file would stay under it, its values overridden)."""
+    return task != default_task(robot) or bool(task_file and (conf_dir() / "tuned" / f"{task_file}.yaml").is_file())
 
 
 def _parser():

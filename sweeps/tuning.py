@@ -368,8 +368,9 @@ class TrialLink:
 
 
 def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header: list[str]) -> str:
-    """A ``conf/tuned/<robot>_<learner>.yaml``: ``base`` (the tuned file the study ran with,
-    if any) with the best trial's ``values`` (dotted keys) set, under ``header``."""
+    """A ``conf/tuned/<robot>_<learner>.yaml`` (or a task's ``<robot>_<task>_<learner>.yaml``):
+    ``base`` (the tuned file the study ran with, if any) with the best trial's ``values``
+    (dotted keys) set, under ``header``."""
     conf = OmegaConf.create(dict(base or {}))
     for key, value in values.items():
         OmegaConf.update(conf, key, value, force_add=True)

@@ -103,3 +103,38 @@ def test_a_results_folder_takes_more_jobs_and_keeps_finished_ones(tmp_path):
     assert benchmark.finished(done, tmp_path) and not benchmark.finished(stopped, tmp_path)
     with pytest.raises(benchmark.BadInput, match="already holds cartpole/qlearn_tuned run with other"):
         benchmark.merge([done], [job("qlearn", 5000)], tmp_path)
+
+
+def test_the_tuned_setting_names_and_uses_a_task_tuned_file(tmp_path):
+    """A task's tuned file (conf/tuned/<robot>_<task>_<learner>.yaml) counts as a tuned file of
+    the job, applies on top of the robot's in what the job's runs compose, is named in the
+    table's setting; the published setting leaves both files out."""
+    from runs import catalog
+
+    (tmp_path / "tuned").mkdir()
+    (tmp_path / "tuned" / "cartpole_stay_up_mbalunovic.yaml").write_text("# @package _global_\nlearner:\n  gamma: 0.9\n")
+    (tmp_path / "tuned" / "cartpole_stay_up_qlearn.yaml").write_text("# @package _global_\nlearner:\n  gamma: 0.93\n")
+    job = lambda learner, setting="tuned": benchmark.Job(  # noqa: E731
+        "cartpole", "cartpole", "stay_up", learner, setting, 8000, (1000,))
+    assert not benchmark.has_tuned_file(job("mbalunovic"))
+    catalog.use_config_dirs([tmp_path])
+    try:
+        assert benchmark.has_tuned_file(job("mbalunovic"))  # the task's file alone
+        assert benchmark.tuned_files(job("mbalunovic")) == ["cartpole_stay_up_mbalunovic"]
+        assert benchmark.tuned_files(job("qlearn")) == ["cartpole_qlearn", "cartpole_stay_up_qlearn"]
+        tuned = catalog.compose(overrides=benchmark.overrides(job("qlearn")))
+        assert tuned.learner.gamma == 0.93 and tuned.num_envs == 8  # both layers
+        published = catalog.compose(overrides=benchmark.overrides(job("qlearn", "published")))
+        assert published.learner.gamma == 0.7 and published.num_envs == 1
+        # the table names what the runs recorded in run.json, else what conf/tuned/ has now
+        run = tmp_path / "run"
+        run.mkdir()
+        rows = [{"run_dir": str(run)}]
+        assert benchmark.applied_tuned(job("qlearn"), rows) == "cartpole_qlearn + cartpole_stay_up_qlearn"
+        (run / "run.json").write_text('{"tuned": "cartpole_qlearn", "tuned_task": null}')
+        assert benchmark.applied_tuned(job("qlearn"), rows) == "cartpole_qlearn"
+        assert benchmark.applied_tuned(job("qlearn", "published"), rows) == ""
+        row = benchmark.pair_row(job("qlearn"), [], None)
+        assert row["tuned_file"] == ""
+    finally:
+        catalog.use_config_dirs([])

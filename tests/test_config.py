@@ -119,3 +119,66 @@ def test_bad_values_give_one_line_naming_the_key(override, key):
     message = train._one_line(err.value)
     assert key in message and "got" in message, message
     assert isinstance(err.value, ConfigError) or isinstance(err.value.__cause__, ConfigError)
+
+
+# -- the per-task tuned layer: conf/tuned/<robot>_<task>_<learner>.yaml on top of the robot's --
+@pytest.fixture
+def task_layer(tmp_path):
+    """A config folder (as ``--config-dir``) holding a per-task tuned file for cartpole /
+    stay_up / qlearn that changes two of cartpole_qlearn.yaml's values and adds one."""
+    (tmp_path / "tuned").mkdir()
+    (tmp_path / "tuned" / "cartpole_stay_up_qlearn.yaml").write_text(
+        "# @package _global_\n# a test's layer\nlearner:\n  alpha: 0.31\n  gamma: 0.93\n  epsilon_min: 0.011\n")
+    catalog.use_config_dirs([tmp_path])
+    yield tmp_path
+    catalog.use_config_dirs([])
+
+
+def test_a_task_tuned_file_applies_on_top_of_the_robot_one(task_layer):
+    robot_file = OmegaConf.load(CONF / "tuned" / "cartpole_qlearn.yaml")
+    cfg = catalog.compose("cartpole", learner="qlearn")
+    assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon_min) == (0.31, 0.93, 0.011)
+    assert cfg.num_envs == robot_file.num_envs and cfg.learner.nepisodes == robot_file.learner.nepisodes
+    assert catalog.tuned_layers("cartpole", "stay_up", "qlearn") == ["cartpole_qlearn", "cartpole_stay_up_qlearn"]
+    assert catalog.tuned_targets()["cartpole_stay_up_qlearn"] == ("cartpole", "stay_up", "qlearn")
+    assert catalog.tuned_pairs()["cartpole_stay_up_qlearn"] == ("cartpole", "qlearn")
+    # the command line still wins, and only that pair's task gets the layer
+    assert catalog.compose("cartpole", learner="qlearn", overrides=["learner.gamma=0.5"]).learner.gamma == 0.5
+    assert catalog.compose("cartpole", learner="dqn").learner.gamma == OmegaConf.load(
+        CONF / "tuned" / "cartpole_dqn.yaml").learner.get("gamma", 0.99)
+    choices = catalog._compose(["robot=cartpole", "learner=qlearn"]).hydra.runtime.choices
+    assert catalog.run_choices(choices) == {"robot": "cartpole", "task": "stay_up", "learner": "qlearn",
+                                            "tuned": "cartpole_qlearn", "tuned_task": "cartpole_stay_up_qlearn"}
+
+
+def test_no_tuned_drops_both_layers(task_layer):
+    plain = OmegaConf.load(CONF / "learner" / "qlearn.yaml")
+    cfg = catalog.compose("cartpole", learner="qlearn", overrides=["~tuned"])
+    assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon_min) == (plain.alpha, plain.gamma, plain.epsilon_min)
+    assert cfg.num_envs == 1
+    # the task's layer alone can be left out by its own key
+    cfg = catalog.compose("cartpole", learner="qlearn", overrides=[f"~{catalog.TASK_TUNED}"])
+    assert cfg.learner.alpha == OmegaConf.load(CONF / "tuned" / "cartpole_qlearn.yaml").learner.alpha
+    assert catalog.with_tuned_layers(["a=1", "~tuned", "b=2"]) == ["a=1", "~tuned", "~tuned@_global_", "b=2"]
+    assert catalog.with_tuned_layers(["~tuned", "~tuned@_global_"]) == ["~tuned", "~tuned@_global_"]
+
+
+def test_a_task_tuned_file_without_a_robot_one_applies_alone(tmp_path):
+    (tmp_path / "tuned").mkdir()
+    (tmp_path / "tuned" / "cartpole_stay_up_mbalunovic.yaml").write_text("# @package _global_\nlearner:\n  gamma: 0.9\n")
+    catalog.use_config_dirs([tmp_path])
+    try:
+        assert catalog.compose("cartpole", learner="mbalunovic").learner.gamma == 0.9
+        assert catalog.compose("cartpole", learner="mbalunovic", overrides=["~tuned"]).learner.gamma == 0.99
+        assert catalog.tuned_layers("cartpole", "stay_up", "mbalunovic") == ["cartpole_stay_up_mbalunovic"]
+    finally:
+        catalog.use_config_dirs([])
+
+
+def test_a_tuned_file_naming_neither_a_pair_nor_a_task_of_one_is_an_orphan(monkeypatch):
+    real = catalog.names
+    monkeypatch.setattr(catalog, "names",
+                        lambda group: real(group) + (["cartpole_stayup_dqn"] if group == "tuned" else []))
+    assert catalog.tuned_pairs()["cartpole_stayup_dqn"] is None
+    assert catalog.tuned_targets()["cartpole_stayup_dqn"] is None
+    assert catalog.tuned_targets()["cartpole_dqn"] == ("cartpole", None, "dqn")

@@ -119,6 +119,32 @@ def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypat
     assert json.loads((tmp_path / "run.json").read_text())["tuned"] is None
 
 
+
+def test_the_banner_names_a_task_tuned_file_on_top_of_the_robot_one(tmp_path, monkeypatch, capsys):
+    """conf/tuned/<robot>_<task>_<learner>.yaml (here from a --config-dir) is named after the
+    robot's file, its values among what they changed; '~tuned' leaves out both."""
+    from runs.catalog import use_config_dirs
+
+    layer = tmp_path / "conf"
+    (layer / "tuned").mkdir(parents=True)
+    (layer / "tuned" / "cartpole_stay_up_qlearn.yaml").write_text("# @package _global_\nlearner:\n  alpha: 0.31\n")
+    try:
+        args = ["--config-dir", str(layer), "learner=qlearn", "learner.nepisodes=1", "eval_episodes=0", "quiet=true"]
+        code = cli([*args, f"hydra.run.dir={tmp_path / 'both'}"], monkeypatch)
+        out = capsys.readouterr().out.splitlines()
+        assert code == 0 and out[1].startswith(
+            "tuned: conf/tuned/cartpole_qlearn.yaml + conf/tuned/cartpole_stay_up_qlearn.yaml changed num_envs 1 -> 8")
+        assert out[1].endswith("('~tuned' leaves them out)") and "learner.alpha 0.1 -> 0.31" in out[1]
+        saved = json.loads((tmp_path / "both" / "run.json").read_text())
+        assert (saved["tuned"], saved["tuned_task"]) == ("cartpole_qlearn", "cartpole_stay_up_qlearn")
+        code = cli([*args, "~tuned", f"hydra.run.dir={tmp_path / 'none'}"], monkeypatch)
+        out = capsys.readouterr().out.splitlines()
+        assert code == 0 and not any(line.startswith("tuned:") for line in out)
+        saved = json.loads((tmp_path / "none" / "run.json").read_text())
+        assert (saved["tuned"], saved["tuned_task"]) == (None, None)
+    finally:
+        use_config_dirs([])
+
 # -- mode=eval from a run folder --------------------------------------------------------
 def cli(args: list[str], monkeypatch) -> int:
     """``python train.py <args>`` in this process; its exit code (0 when it returns)."""

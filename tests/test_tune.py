@@ -84,8 +84,16 @@ def test_every_learner_has_a_search_space():
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (conf_dir() / "search").glob("*.yaml")))
 def test_every_search_space_fits_its_learner(name):
+    """conf/search/<learner>, <robot>_<learner> or <robot>_<task>_<learner> (a task's space)."""
+    from runs.catalog import names, robot_names
+
     robot, _, learner = name.rpartition("_") if name not in LEARNERS else ("", "", name)
-    base = [f"robot={robot or 'cartpole'}", f"learner={learner}", "max_env_steps=1000", "stop_when_solved=false"]
+    task = None
+    if robot and robot not in robot_names():  # <robot>_<task>
+        robot, task = next((r, robot[len(r) + 1:]) for r in robot_names() if robot.startswith(f"{r}_"))
+        assert task in names("task"), f"conf/search/{name}.yaml names no task"
+    base = [f"robot={robot or 'cartpole'}", *([f"task={task}"] if task else []), f"learner={learner}",
+            "max_env_steps=1000", "stop_when_solved=false"]
     space = load_space(conf_dir() / "search" / f"{name}.yaml")
     check_space(space, compose(overrides=base), name, _check(base))
 
@@ -391,3 +399,36 @@ def test_a_tuned_file_replaced_keeps_the_old_one_and_says_what_changed(tmp_path)
     assert line == (f"wrote {path} (the previous one kept as {study / 'previous_cartpole_qlearn.yaml'}): "
                     "learner.alpha 0.2 -> 0.78")
     assert (study / "previous_cartpole_qlearn.yaml").read_text() == old and path.read_text() == new
+
+
+# -- a task other than the robot's default: the task's tuned file --------------------------
+def test_a_study_of_a_task_other_than_the_robots_default_writes_the_tasks_tuned_file(tmp_path, capsys):
+    """turtlebot / wall (the maze is its default task): the study's tuned file is
+    <robot>_<task>_<learner>.yaml, applied on top of <robot>_<learner>.yaml; on the robot's
+    default task it stays <robot>_<learner>.yaml. (Its _finish on a study of one trial.)"""
+    from sweeps.optuna_sweep import TuningSweep, _per_task, search_file
+    from sweeps.tuning import Plan
+
+    assert _per_task("turtlebot", "wall", None) and not _per_task("turtlebot", "maze", "turtlebot_maze_qlearn")
+    assert search_file("turtlebot", "dqn", "maze") == conf_dir() / "search" / "turtlebot_dqn.yaml"
+    assert search_file("cartpole", "dqn", "stay_up") == conf_dir() / "search" / "dqn.yaml"
+    space = parse_space({"learner.gamma": "interval(0.6, 0.999)"}, "test")
+    for task, written in (("wall", "turtlebot_wall_qlearn"), ("maze", "turtlebot_qlearn")):
+        sweep = TuningSweep(study="s", storage=f"sqlite:///{tmp_path / 'x.db'}")
+        sweep._check_settings()
+        sweep.config = OmegaConf.create({"hydra": {"overrides": {"hydra": []}, "runtime": {"choices": {
+            "robot": "turtlebot", "task": task, "learner": "qlearn", "tuned": "turtlebot_qlearn",
+            "tuned@_global_": f"turtlebot_{task}_qlearn"}}}})
+        study = optuna.create_study(direction="maximize")
+        study.add_trial(optuna.trial.create_trial(params={"learner.gamma": 0.95},
+                                                  distributions={"learner.gamma": space["learner.gamma"].distribution},
+                                                  value=51.0))
+        plan = Plan("turtlebot", task, "qlearn", [], [], Path("test.yaml"), space, "distance", "greedy_distance")
+        folder = tmp_path / task
+        folder.mkdir()
+        sweep._finish(study, plan, folder)
+        out = capsys.readouterr().out
+        text = (folder / f"tuned_{written}.yaml").read_text()
+        assert OmegaConf.create(text).learner.gamma == 0.95
+        assert f"cp {folder / f'tuned_{written}.yaml'} {conf_dir() / 'tuned' / f'{written}.yaml'}" in out
+        assert ("for task wall only: applied on top of turtlebot_qlearn.yaml" in text) == (task == "wall")

@@ -13,7 +13,8 @@ training episodes; the study's metric name). Jobs report their rolling measure e
 in ``storage`` (an SQLite file by default, any SQL database by URL), so sweeps started on
 several machines share it. The best trial ends as a tuned file:
 ``tuned_<robot>_<learner>.yaml`` in the sweep folder, and with ``write_tuned=true``
-``conf/tuned/<robot>_<learner>.yaml``, which the next plain run uses.
+``conf/tuned/<robot>_<learner>.yaml``, which the next plain run uses (for a task other
+than the robot's default: ``<robot>_<task>_<learner>``, applied on top of the robot's).
 
 Why not ``hydra-optuna-sweeper``: it pins optuna < 3, whose SQLite storage fails with
 SQLAlchemy 2 (what pip resolves today), and its jobs cannot report intermediate values,
