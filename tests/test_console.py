@@ -127,14 +127,15 @@ def test_the_banner_names_a_task_tuned_file_on_top_of_the_robot_one(tmp_path, mo
 
     layer = tmp_path / "conf"
     (layer / "tuned").mkdir(parents=True)
-    (layer / "tuned" / "cartpole_stay_up_qlearn.yaml").write_text("# @package _global_\nlearner:\n  alpha: 0.31\n")
+    (layer / "tuned" / "cartpole_stay_up_qlearn.yaml").write_text("# @package _global_\nnum_envs: 4\n")
     try:
         args = ["--config-dir", str(layer), "learner=qlearn", "learner.nepisodes=1", "eval_episodes=0", "quiet=true"]
         code = cli([*args, f"hydra.run.dir={tmp_path / 'both'}"], monkeypatch)
         out = capsys.readouterr().out.splitlines()
+        # The task's file over the robot's: num_envs 8 (cartpole_qlearn) -> 4.
         assert code == 0 and out[1].startswith(
-            "tuned: conf/tuned/cartpole_qlearn.yaml + conf/tuned/cartpole_stay_up_qlearn.yaml changed num_envs 1 -> 8")
-        assert out[1].endswith("('~tuned' leaves them out)") and "learner.alpha 0.1 -> 0.31" in out[1]
+            "tuned: conf/tuned/cartpole_qlearn.yaml + conf/tuned/cartpole_stay_up_qlearn.yaml changed num_envs 1 -> 4")
+        assert out[1].endswith("('~tuned' leaves them out)")
         saved = json.loads((tmp_path / "both" / "run.json").read_text())
         assert (saved["tuned"], saved["tuned_task"]) == ("cartpole_qlearn", "cartpole_stay_up_qlearn")
         code = cli([*args, "~tuned", f"hydra.run.dir={tmp_path / 'none'}"], monkeypatch)
