@@ -61,7 +61,9 @@ def only_sweep_folder(parent: Path) -> Path:
     return folders[0]
 
 
-@pytest.mark.parametrize("launcher", ["joblib", pytest.param("submitit_local", marks=pytest.mark.slow)])
+# joblib's wiring stays in CI through test_run_folders (Ctrl-C on a joblib sweep); both here: -m slow.
+@pytest.mark.slow
+@pytest.mark.parametrize("launcher", ["joblib", "submitit_local"])
 def test_two_job_sweep_through_a_launcher_compares_itself_and_compare_reruns(tmp_path, launcher):
     # ${pid:} as in the default sweep folder: it must resolve to the launching process's id in every job.
     proc = run(["train.py", "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}/sweep_${{pid:}}",
