@@ -164,21 +164,27 @@ def final_evaluation(session: Session, run: Run, result: dict | None = None) -> 
     very policy is reused); at the budget's end it may still solve a greedily judged task.
     None when the run was stopped or evaluates nothing. ``result``: that evaluation, made
     already (a seed batch evaluates the seeds that end at one step together)."""
-    if not owes_final_evaluation(session, run):
-        return None if session.final_episodes <= 0 or run.stop_requested else run.last_eval
+    if session.final_episodes <= 0 or run.stop_requested:
+        return None
+    if _evaluated_already(session, run):
+        return run.last_eval
     evaluation = partial(session.evaluator, session.final_episodes) if result is None else lambda: result
     return run.evaluate_greedy(evaluation)
 
 
 def owes_final_evaluation(session: Session, run: Run) -> bool:
     """Whether :func:`final_evaluation` runs a new evaluation: not when the run was stopped
-    or evaluates nothing, nor when its last evaluation was of this very policy (also a
-    resumed run killed after its final evaluation was saved: never a second row)."""
-    n_eval = session.final_episodes
-    if n_eval <= 0 or run.stop_requested:
-        return False
+    or evaluates nothing, nor when its last evaluation was of this very policy."""
+    return session.final_episodes > 0 and not run.stop_requested and not _evaluated_already(session, run)
+
+
+def _evaluated_already(session: Session, run: Run) -> bool:
+    """Whether the run's last evaluation is its final one: of this very policy, as many
+    episodes (also a resumed run killed after its final evaluation was saved: never a
+    second row)."""
     last = run.last_eval
-    return not (last is not None and run.evals[-1]["episode"] == run.n_episodes and last["episodes"] == n_eval)
+    return (last is not None and run.evals[-1]["episode"] == run.n_episodes
+            and last["episodes"] == session.final_episodes)
 
 
 def close_run(session: Session, run: Run, finished: bool) -> dict:

@@ -21,6 +21,7 @@ from runs.folder import is_finished, is_run_folder, resumed_config
 from runs.resume import read_run_json
 from runs.settings import check_run_config
 from sweeps.comparison import NotASweep, report
+from sweeps.folder import job_folders
 from sweeps.state import report_stopped_sweep
 
 
@@ -33,8 +34,10 @@ def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Batc
     """The unfinished job folders of the sweep ``cfg.resume``, each as its resumed job, and a
     line for each that cannot continue. :class:`CheckpointError` if none can."""
     folder = Path(str(cfg.resume))
-    unfinished = [d for d in sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
-                  if is_run_folder(d) and not is_finished(d)]  # (Hydra's own .hydra* folders aside)
+    unfinished = [d for d in job_folders(folder) if is_run_folder(d) and not is_finished(d)]
+    if not unfinished:
+        raise CheckpointError(f"resume={folder}: every run of this sweep is finished; nothing to continue "
+                              f"(compare it with: python compare.py {folder})")
     jobs, skipped = [], []
     for run_dir in unfinished:
         job_cfg = cfg.copy()
@@ -43,16 +46,13 @@ def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Batc
             saved, run_dir = resumed_config(job_cfg, list(overrides))
             check_run_config(saved)
         except (CheckpointError, ConfigError) as err:
-            skipped.append(f"not resumed: {run_dir.name}: {str(err).splitlines()[0]}")
+            skipped.append((run_dir.name, str(err).splitlines()[0]))
             continue
         jobs.append(BatchJob(saved, run_dir, read_run_json(run_dir), resume=True))
-    if not unfinished:
-        raise CheckpointError(f"resume={folder}: every run of this sweep is finished; nothing to continue "
-                              f"(compare it with: python compare.py {folder})")
     if not jobs:
         raise CheckpointError(f"resume={folder}: none of its {len(unfinished)} unfinished runs can continue "
-                              f"(the first: {skipped[0].split(': ', 1)[1]})")
-    return jobs, skipped
+                              f"(the first: {skipped[0][1]})")
+    return jobs, [f"not resumed: {name}: {why}" for name, why in skipped]
 
 
 def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:

@@ -144,7 +144,6 @@ def _batch(jobs: list[BatchJob]) -> list[dict]:
         return []
 
 
-
 # -- submitit: one submitit job per batch ----------------------------------------------
 def submit_batches(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> list[JobReturn]:
     """``hydra/launcher=seeds_submitit_slurm`` (or ``_local``): the sweep's batches

@@ -24,6 +24,7 @@ from hydra.experimental.callback import Callback
 
 from params import ConfigError
 from runs.summary import summarize_run
+from sweeps.folder import job_folders
 from sweeps.comparison import NotASweep, report
 from sweeps.launchers import check_launcher
 
@@ -106,7 +107,7 @@ def sweep_stopped() -> bool:
 def report_stopped_sweep(folder: Path) -> None:
     """One resume command per job the stop left unfinished."""
     resumable = 0
-    for job in sorted(p for p in folder.iterdir() if p.is_dir()):
+    for job in job_folders(folder):  # (Hydra's own .hydra* folders aside)
         state = summarize_run(job)  # the same reading of a job folder compare.py uses
         if state.get("resume"):
             print(f"resume with: {state['resume']}")
