@@ -107,6 +107,7 @@ def test_ctrl_c_on_a_joblib_sweep_leaves_every_started_job_resumable(tmp_path):
         assert (job / "checkpoint.pt").is_file() and (job / "model.pt").is_file()
         assert f"resume with: python train.py resume={job}" in out.splitlines()
     assert "not started: 2_cartpole_qlearn_seed2" in out
+    assert f"or all of them, seeds of one setting together: python train.py resume={sweep}" in out.splitlines()
     assert "the sweep was stopped (SIGINT)" in out and (sweep / "comparison.csv").is_file()  # what finished
     # The job goes on where it stopped (and is stopped again once it has added an episode).
     size = (started[0] / "metrics.csv").stat().st_size
