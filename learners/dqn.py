@@ -22,7 +22,8 @@ When it trains (``train_every``):
   fractional values allowed, once the buffer holds ``learning_starts``.
 
 ``done_episode_reward`` replaces the reward of terminating transitions
-(mbalunovic's -200). ``run_episodes`` greedy episodes follow training
+(mbalunovic's -200); ``reward_scale`` then multiplies every reward the learner
+stores (its Q-values in those units; the task's reward and measures unchanged). ``run_episodes`` greedy episodes follow training
 (ruippeixotog's "run" phase).
 
 :meth:`DQN.train_stats` gives the numbers the logger shows as ``train/*``:
@@ -345,6 +346,8 @@ class DQN:
     grad_clip: float = param(10.0, "gradient norm clip", ge=0, note="0 = no clipping")
     done_episode_reward: float | None = param(None, "reward that replaces a terminating "
                                                     "transition's (null: keep it)")
+    reward_scale: float = param(1.0, "factor on every reward the learner stores, after "
+                                     "done_episode_reward (its Q-values in those units)", gt=0)
     nepisodes: int = param(1000, "training episodes (the budget)", ge=1, le=10**8)
     nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1, le=10**7)
     run_episodes: int = param(0, "greedy episodes after training (ruippeixotog's run phase)", ge=0,
@@ -454,11 +457,14 @@ class DQN:
 
     def rows_of(self, tensordict: TensorDictBase) -> torch.Tensor:
         """The buffer's rows (:func:`pack`) of the transitions of ``tensordict``, the
-        terminating rewards replaced if ``done_episode_reward`` says so, on ``device``."""
+        terminating rewards replaced if ``done_episode_reward`` says so and all of them
+        scaled by ``reward_scale``, on ``device``."""
         batch = Transitions.of(tensordict)
         if self.done_episode_reward is not None:
             batch = batch._replace(reward=torch.where(
                 batch.terminated, float(self.done_episode_reward), batch.reward))
+        if self.reward_scale != 1.0:
+            batch = batch._replace(reward=batch.reward * float(self.reward_scale))
         return pack(batch).to(self.device)
 
     def optimize(self, n: int) -> None:

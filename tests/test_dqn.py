@@ -80,6 +80,19 @@ def test_terminal_reward_replacement_only_on_termination():
     assert (reward[term] == -200).all() and (reward[~term] == 1).all()
 
 
+def test_reward_scale_multiplies_stored_rewards_after_the_terminal_replacement():
+    learner = variant("mbalunovic", reward_scale=0.01)
+    learner.build(StayUp(CartPole()))
+    env = RobotTaskEnv(StayUp(CartPole(), max_episode_steps=6), num_envs=8, seed=0)
+    fill_buffer(learner, env, steps=30)
+    data = learner.buffer.transitions()
+    term = data.terminated.squeeze(-1)
+    reward = data.reward.squeeze(-1)
+    assert term.any()
+    assert torch.allclose(reward[term], torch.tensor(-2.0))
+    assert torch.allclose(reward[~term], torch.tensor(0.01))
+
+
 def test_the_buffer_gives_back_what_was_stored_and_samples_like_torchrl():
     learner = variant("dqn", batch_size=32)
     learner.build(StayUp(CartPole()))

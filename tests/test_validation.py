@@ -201,6 +201,7 @@ CASES = [
     (["learner=dqn", "learner.updates=0"], "learner.updates", "0"),
     (["learner=dqn", "learner.double_dqn=2"], "learner.double_dqn", "2"),
     (["learner=dqn", "learner.done_episode_reward=nan"], "learner.done_episode_reward", "nan"),
+    (["learner=dqn", "learner.reward_scale=-0.5"], "learner.reward_scale", "-0.5"),
     (["learner=dqn", "learner.epsilon.epsilon=1.5"], "learner.epsilon.epsilon", "1.5"),
     (["learner=dqn", "learner.epsilon.epsilon_min=2"], "learner.epsilon.epsilon_min", "2"),
     (["learner=dqn", "learner.epsilon.steps=0"], "learner.epsilon.steps", "0"),
