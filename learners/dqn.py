@@ -23,8 +23,8 @@ When it trains (``train_every``):
 
 ``done_episode_reward`` replaces the reward of terminating transitions
 (mbalunovic's -200); ``reward_scale`` then multiplies every reward the learner
-stores (its Q-values in those units; the task's reward and measures unchanged). ``run_episodes`` greedy episodes follow training
-(ruippeixotog's "run" phase).
+stores (its Q-values in those units; the task's reward and measures unchanged).
+``run_episodes`` greedy episodes follow training (ruippeixotog's "run" phase).
 
 :meth:`DQN.train_stats` gives the numbers the logger shows as ``train/*``:
 loss, mean Q of the taken actions, mean absolute TD error, gradient norm before

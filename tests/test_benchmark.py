@@ -140,3 +140,20 @@ def test_the_tuned_setting_names_and_uses_a_task_tuned_file(tmp_path):
         assert row["tuned_file"] == ""
     finally:
         catalog.use_config_dirs([])
+
+
+def test_a_tuned_budget_is_its_benchmark_tasks_budget():
+    """A tuned file that sets max_env_steps (the cube's, the wall dqn's) sets the benchmark's
+    budget for that task, so `python train.py` with it trains as the table's row did."""
+    from runs import catalog
+
+    plan = benchmark.load_plan(quick=False)
+    budgets = {(spec["robot"], spec["task"]): int(spec["budget_steps"]) for spec in plan["tasks"].values()}
+    checked = 0
+    for (robot, task), budget in budgets.items():
+        for learner in plan["learners"]:
+            steps = catalog.compose(robot, task, learner).max_env_steps
+            if steps:
+                assert steps == budget, f"{robot}/{task}/{learner}: max_env_steps {steps}, benchmark {budget}"
+                checked += 1
+    assert checked >= 3  # cube qlearn, cube dqn, wall dqn
