@@ -3,7 +3,7 @@
     python bench/update_rate.py [--seconds 0.5] [--rounds 5]
 
 qlearn: transitions per second of our batched epsilon-greedy choice and table update
-(``QTablePolicy`` + ``QLearn.update``, observations discretised on the way) at batch 64
+(``QLearn.act`` + ``QLearn.observe``, one member, observations discretised on the way) at batch 64
 and 4096, on cart-pole's 4 entries x 10 bins (a 10,000 x 2 table), beside a plain dict
 Q-learner as the original openai_ros ``qlearn.py`` (a dict keyed by (state, action);
 choose: a random action with probability epsilon, else the max over actions; learn:
@@ -11,8 +11,9 @@ Q += alpha * (r + gamma * max - Q)), given the states already discretised, one
 transition at a time. The two alternate in chunks of ``--seconds``; medians over
 ``--rounds``.
 
-dqn: one update of ``learners.dqn`` on cart-pole's network (4x64x64x2, batch 128, tuned
-settings) and its parts, each timed in chunks of 100 calls alternating with the others.
+dqn: one update of ``learners.dqn`` (one member) on cart-pole's network (4x64x64x2, batch
+128, tuned settings) and its parts, each timed in chunks of 100 calls alternating with the
+others.
 
 The last lines are machine-readable::
 
@@ -103,7 +104,7 @@ def ours_rate(learner: QLearn, data: list[TensorDict], seconds: float) -> float:
     done, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
         for td in data:
-            learner.update(learner.policy(td))
+            learner.observe(learner.act(td))
         done += sum(td.numel() for td in data)
     return done / (time.perf_counter() - start)
 
@@ -125,7 +126,7 @@ def qlearn_rates(batch: int, seconds: float, rounds: int) -> dict[str, float]:
     ours = QLearn(alpha=0.1, gamma=0.9, epsilon=0.1, number_splits=10)
     ours.build(task, torch.Generator().manual_seed(0))
     data = transitions(task, batch, max(1, 16384 // batch), torch.Generator().manual_seed(1))
-    index = ours.policy.discretizer
+    index = ours.discretizer
     plain = [(index(td["observation"]).tolist(), td["next", "reward"].reshape(-1).tolist(),
               index(td["next", "observation"]).tolist()) for td in data]
     theirs = DictQLearner(task.n_actions, alpha=0.1, gamma=0.9, epsilon=0.1)
@@ -135,45 +136,48 @@ def qlearn_rates(batch: int, seconds: float, rounds: int) -> dict[str, float]:
 
 # -- dqn ----------------------------------------------------------------------
 def dqn_learner(stored: int = 20_000):
-    """The tuned cart-pole DQN, its buffer holding ``stored`` random transitions."""
+    """The tuned cart-pole DQN (one member), its buffer holding ``stored`` random transitions."""
     cfg = compose(robot="cartpole", learner="dqn")
     learner = instantiate(cfg.learner, _convert_="all")
-    learner.build(StayUp(CartPole()))
+    learner.build(StayUp(CartPole()), torch.Generator().manual_seed(0))
     gen = torch.Generator().manual_seed(0)
-    rows = torch.randn(stored, learner.buffer.rows.shape[1], generator=gen)
+    buffer = learner.buffers[0]
+    rows = torch.randn(stored, buffer.rows.shape[1], generator=gen)
     n = learner.n_obs
     rows[:, 2 * n] = torch.randint(0, learner.n_actions, (stored,), generator=gen)
     rows[:, 2 * n + 2] = (torch.rand(stored, generator=gen) < 0.05).float()
     for chunk in rows.split(16):
-        learner.buffer.extend(chunk)
+        buffer.extend(chunk)
     return learner
 
 
 def dqn_parts(learner) -> dict[str, Callable[[], object]]:
-    """The update and its parts as calls on one sampled batch."""
-    from learners.dqn import _DISTANCES, td_terms
+    """The update and its parts as calls on one sampled minibatch."""
+    from learners.dqn import _DISTANCES, adam_step, td_terms, unpack
 
-    stored = len(learner.buffer)
-    batch = learner.buffer.sample_transitions(stored)
+    buffer, stored = learner.buffers[0], len(learner.buffers[0])
+    batch = unpack(buffer.sample_rows(stored).unsqueeze(0))
     distance = _DISTANCES[learner.loss_function]
-    _, target = td_terms(learner._q, learner._target_q, batch, learner.gamma, learner.double_dqn)
+
+    def q_of(params):
+        return lambda x: learner.net.q(params, x)
 
     def backward() -> None:
-        q = learner._q(batch.observation).gather(-1, batch.action)
-        for p in learner._params:
-            p.grad = None
-        distance(q, target).backward()
+        leaf = learner.params.detach().requires_grad_(True)
+        q, target = td_terms(q_of(leaf), q_of(learner.target), batch, learner.gamma, learner.double_dqn)
+        distance(q, target, reduction="none").mean((1, 2)).sum().backward()
 
-    backward()
+    grads = torch.zeros_like(learner.params)
+    moments = torch.zeros_like(learner.params), torch.zeros_like(learner.params)
+    params = learner.params.clone()
     return {
-        "update (whole)": lambda: learner._update(learner.buffer.sample_transitions(stored)),
-        "replay sample": lambda: learner.buffer.sample_transitions(stored),
-        "forward (q, targets)": lambda: td_terms(learner._q, learner._target_q, batch,
+        "update (whole)": lambda: learner.optimize(1),
+        "replay sample": lambda: buffer.sample_rows(stored),
+        "forward (q, targets)": lambda: td_terms(q_of(learner.params), q_of(learner.target), batch,
                                                  learner.gamma, learner.double_dqn),
         "q forward + loss + backward": backward,
-        "grad clip": learner._clip,
-        "adam (fused)": learner.optimizer.step,
-        "target update": learner._update_target,
+        "adam (member axis)": lambda: adam_step(params, grads, *moments, [1], [1e-3]),
+        "target update": lambda: learner.target.lerp_(learner.params, learner.tau),
     }
 
 

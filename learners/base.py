@@ -1,110 +1,157 @@
-"""The learner contract: what a learner is given, and what it must provide.
+"""The learner contract: one learning algorithm over a leading *member* axis.
 
-A learner is a dataclass made from its config node (``conf/learner/<name>.yaml``,
-its parameters checked in ``__post_init__``). The run package (:mod:`runs`) then:
+A member is one independent learning run: a seed of a seed batch, or the one seed of a
+single run (a batch of one). A learner is a dataclass made from its config node
+(``conf/learner/<name>.yaml``, its parameters checked in ``__post_init__``); everything
+it learns is held for all its members at once (a Q-table ``[members, states, actions]``,
+a network's parameters ``[members, ...]``), and each call serves every member:
 
-1. calls ``build(task, generator)`` once: the learner sizes its networks or table
-   from the task's observations, tabular state and actions;
-2. calls ``train(env, loop)`` (:func:`train`, the same loop for every learner):
-   ``begin()``, then step by step ``act(td)`` on the batched ``env``,
-   ``observe(td)`` to learn from the batch of transitions, ``end_episode()`` once
-   per finished episode, every step handed to ``loop`` (a :class:`Loop`), which
-   books episodes, evaluates, checkpoints and says when to stop;
-3. reads ``policy`` (inside ``with learner.greedy():`` for greedy acting) to
-   evaluate or film the trained policy;
-4. saves and loads: ``model_state()`` is what ``model.pt`` holds (the trained
-   policy), ``training_state()`` everything the next update depends on (for an
-   exact resume); both are dicts of tensors and plain values, and the matching
-   ``load_*`` raises :class:`StateMismatch` for a state of another shape.
+1. ``build(task, generators)``: sizes the table or networks from the task, one member per
+   generator (each member's own random stream: its exploration, its minibatch draws);
+2. ``act(td, live)``: every member's actions on its block of rows (block ``b`` is rows
+   ``b * n`` to ``(b + 1) * n``), the members of ``live`` drawing from their streams;
+3. ``observe(td, live)``: each live member learns from its block of the transitions;
+4. ``end_episodes(ended)``: per member, how many of its episodes the step finished
+   (epsilon schedules, per-episode updates);
+5. per member ``b``: ``stats(b)``, ``train_stats(b)``, ``model_state(b)`` (what
+   ``model.pt`` holds) and ``training_state(b)`` (all the next update depends on), with the
+   matching ``load_*`` raising :class:`StateMismatch` for a state of another shape, and
+   ``act_members`` for the greedy policy of some members.
 
-A learner knows nothing of folders, files or consoles: the run package writes
-and reads the files and reports what ``stats`` and ``train_stats`` give.
+:meth:`member` gives member ``b`` seen alone (:class:`Member`): what a run's files, its
+evaluations and its video read. A learner knows nothing of folders, files or consoles,
+and never drives the training loop (:mod:`runs.loop` does).
 """
 
 from __future__ import annotations
 
-from contextlib import AbstractContextManager
-from typing import Any, Mapping, Protocol, runtime_checkable
+from contextlib import contextmanager
+from typing import Any, Iterator, Mapping, Protocol, Sequence, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 
 
 class StateMismatch(ValueError):
     """A saved learner state that does not fit this learner (another shape or format)."""
 
 
-class Loop(Protocol):
-    """What a learner's ``train`` drives, step by step::
-
-        td = loop.start(env)
-        while not loop.done:
-            td = policy(td)
-            td, td_next = env.step_and_maybe_reset(td)
-            ...  # learn from td (it holds "next")
-            for episode in loop.record_step(env, td, learner.stats):
-                ...  # per-episode work (epsilon decay, updates)
-            td = loop.end_step(td_next)
-    """
-
-    @property
-    def done(self) -> bool: ...
-
-    def start(self, env) -> TensorDictBase: ...
-
-    def record_step(self, env, td: TensorDictBase, stats: Mapping[str, float] | None = None) -> list: ...
-
-    def end_step(self, td: TensorDictBase) -> TensorDictBase: ...
-
-
 @runtime_checkable
 class Learner(Protocol):
-    """A learning algorithm, as the run package uses it (see the module docstring)."""
+    """A learning algorithm over a member axis, as the run package uses it."""
 
     kind: str  # the learner family a saved state belongs to ("qlearn", "dqn")
     nepisodes: int  # the training budget in episodes
     nsteps: int  # steps per episode at most
+    members: int  # set by build
 
-    def build(self, task, generator: torch.Generator | None = None) -> Any: ...
-
-    @property
-    def policy(self) -> Any: ...
-
-    def greedy(self) -> AbstractContextManager[None]: ...
-
-    @property
-    def stats(self) -> dict[str, float]: ...
-
-    def train_stats(self, reset: bool = True) -> dict[str, float]: ...
+    def build(self, task, generators: Sequence[torch.Generator]) -> None: ...
 
     def begin(self) -> None: ...
 
-    def act(self, tensordict: TensorDictBase) -> TensorDictBase: ...
+    def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase: ...
 
-    def observe(self, tensordict: TensorDictBase) -> None: ...
+    def act_members(self, td: TensorDictBase, members: Sequence[int], greedy: bool,
+                    generators: Sequence[torch.Generator | None]) -> TensorDictBase: ...
 
-    def end_episode(self) -> None: ...
+    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None: ...
 
-    def train(self, env, loop: Loop) -> None: ...
+    def end_episodes(self, ended: Mapping[int, int]) -> None: ...
 
-    def model_state(self) -> dict: ...
+    def stats(self, b: int) -> dict[str, float]: ...
 
-    def load_model_state(self, state: Mapping, where: str) -> None: ...
+    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]: ...
 
-    def training_state(self) -> dict: ...
+    def model_state(self, b: int) -> dict: ...
 
-    def load_training_state(self, state: Mapping) -> None: ...
+    def load_model_state(self, b: int, state: Mapping, where: str) -> None: ...
+
+    def training_state(self, b: int) -> dict: ...
+
+    def load_training_state(self, b: int, state: Mapping) -> None: ...
+
+    def member(self, b: int) -> Member: ...
 
 
-def train(learner: Learner, env, loop: Loop) -> None:
-    """Acts on the batched ``env`` and learns from each batch of transitions until
-    ``loop.done``; ``end_episode`` once per episode the step finished."""
-    learner.begin()
-    td = loop.start(env)
-    while not loop.done:
-        td = learner.act(td)
-        td, td_next = env.step_and_maybe_reset(td)
-        learner.observe(td)
-        for _ in loop.record_step(env, td, learner.stats):
-            learner.end_episode()
-        td = loop.end_step(td_next)
+def everyone(learner: Learner, live: Sequence[int] | None) -> list[int]:
+    """``live`` as a list, every member when None."""
+    return list(range(learner.members)) if live is None else list(live)
+
+
+def single(generator: torch.Generator | Sequence[torch.Generator] | None) -> list[torch.Generator]:
+    """``build``'s generators from one generator, a sequence of them or None (one fresh stream)."""
+    if generator is None:
+        return [torch.Generator()]
+    if isinstance(generator, torch.Generator):
+        return [generator]
+    return list(generator)
+
+
+class MemberPolicy(TensorDictModuleBase):
+    """A member's policy as a TensorDict module: reads ``observation``, writes ``action`` (and
+    what else its learner writes): epsilon-greedy from the member's own stream, or greedy
+    inside :meth:`Member.greedy`."""
+
+    in_keys = ["observation"]
+
+    def __init__(self, member: Member) -> None:
+        super().__init__()
+        self.out_keys = list(member.learner.out_keys)
+        self._member = member
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        member = self._member
+        greedy = member.greedy_draws is not None
+        generator = member.greedy_draws if greedy else member.learner.generators[member.index]
+        return member.learner.act_members(tensordict, [member.index], greedy, [generator])
+
+
+class Member:
+    """Member ``index`` of ``learner`` seen alone: its numbers, its policy, its saved states.
+
+    Config values (``nsteps``, ``nepisodes``, ``run_episodes``, ...) read through to the learner.
+    """
+
+    def __init__(self, learner: Learner, index: int) -> None:
+        self.learner, self.index = learner, int(index)
+        # Inside greedy(): the stream that breaks its ties (seeded the same each time, so an
+        # evaluation neither draws from training's stream nor varies between two of one policy).
+        self.greedy_draws: torch.Generator | None = None
+        self.policy = MemberPolicy(self)
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name in ("learner", "index"):
+            raise AttributeError(name)
+        return getattr(self.learner, name)
+
+    @contextmanager
+    def greedy(self) -> Iterator[None]:
+        """Within the block ``policy`` acts greedily (no exploration)."""
+        saved, self.greedy_draws = self.greedy_draws, torch.Generator().manual_seed(0)
+        try:
+            yield
+        finally:
+            self.greedy_draws = saved
+
+    @property
+    def stats(self) -> dict[str, float]:
+        return self.learner.stats(self.index)
+
+    def train_stats(self, reset: bool = True) -> dict[str, float]:
+        return self.learner.train_stats(self.index, reset)
+
+    def end_episode(self) -> None:
+        self.learner.end_episodes({self.index: 1})
+
+    def model_state(self) -> dict:
+        return self.learner.model_state(self.index)
+
+    def load_model_state(self, state: Mapping, where: str) -> None:
+        self.learner.load_model_state(self.index, state, where)
+
+    def training_state(self) -> dict:
+        return self.learner.training_state(self.index)
+
+    def load_training_state(self, state: Mapping) -> None:
+        self.learner.load_training_state(self.index, state)

@@ -1,18 +1,20 @@
-"""The replay-buffer DQN family as one TorchRL learner; variants are configs.
+"""The replay-buffer DQN family as one TorchRL learner over a member axis; variants are configs.
 
-Parts: an ``MLP`` Q-network (in a ``QValueActor`` for checkpoints), an epsilon-greedy
-:class:`QPolicy` whose epsilon follows one of :mod:`learners.schedules`, a TD(0) loss
-(MSE or Huber, optional double DQN) against an optional target network kept by hard
-copies or Polyak averaging, and TorchRL's ``ReplayBuffer`` over one pre-allocated
-tensor (:class:`RowReplayBuffer`).
+Parts: an ``MLP`` Q-network (TorchRL's, in a ``QValueActor`` for checkpoints) whose
+parameters are held for every member as one ``[members, P]`` tensor (:class:`StackedMLP`:
+each linear layer a batched matrix product, ``baddbmm``, over the members), an
+epsilon-greedy policy whose epsilon follows one of :mod:`learners.schedules` per member, a
+TD(0) loss (MSE or Huber, optional double DQN; :func:`td_terms`) against an optional target
+network kept by hard copies or Polyak averaging, gradients by autograd, Adam written over
+the member axis (:func:`adam_step`: each member its own step count and learning rate), and
+per member TorchRL's ``ReplayBuffer`` over one pre-allocated tensor (:class:`RowReplayBuffer`).
 
-The loss is :func:`td_loss`, the same number TorchRL's ``DQNLoss`` with a TD(0)
-estimator computes (``tests/test_dqn.py`` checks it). Updates are most of a DQN run's
-wall-clock, and on a 4x64x64x2 network nearly all of an update is per-call overhead,
-so the hot path avoids it: transitions reach the buffer's storage in one write per
-update rather than per env step, minibatches are plain tensors indexed from it (no TensorDict), the network runs layer by layer (:func:`layer_by_layer`),
-gradients are clipped in two foreach calls and Adam is fused. The exploring policy is
-one forward on the observation tensor. ``bench/update_rate.py`` times the parts.
+A single run is one member. Every member's arithmetic is the same kernels whatever the
+number of members (a batched product computes each matrix alone, a reduction each row
+alone), so a member of a batch learns bit for bit as alone (``tests/test_members.py``).
+Each member keeps its own random stream (its ``build`` generator: exploration draws,
+minibatch indices and its network's initialisation), replay buffer, epsilon schedule,
+update credit, counters and statistics.
 
 When it trains (``train_every``):
 
@@ -20,6 +22,9 @@ When it trains (``train_every``):
   ruippeixotog);
 - ``step``: ``updates`` minibatches per collected transition (mbalunovic: 1),
   fractional values allowed, once the buffer holds ``learning_starts``.
+
+The updates owed by the members run in rounds: a round updates every member that still
+owes one, the others' parameters and optimizer state untouched.
 
 ``done_episode_reward`` replaces the reward of terminating transitions
 (mbalunovic's -200); ``reward_scale`` then multiplies every reward the learner
@@ -29,25 +34,24 @@ stores (its Q-values in those units; the task's reward and measures unchanged).
 :meth:`DQN.train_stats` gives the numbers the logger shows as ``train/*``:
 loss, mean Q of the taken actions, mean absolute TD error, gradient norm before
 clipping, epsilon, learning rate, updates and updates per second. An update
-only keeps its tensors for them (:class:`UpdateStats`: no host sync, ~1 us).
+only keeps its tensors for them (:class:`UpdateStats`: no host sync).
 """
 
 from __future__ import annotations
 
-import copy
+import math
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator, Mapping, NamedTuple
+from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 from torchrl.modules import MLP, QValueActor
 
-from learners.base import Loop, StateMismatch, train
+from learners.base import Member, StateMismatch, everyone, single
+from params.private_api import with_entries
 from learners.device import DEVICE_NOTE, check_device, resolve_device
 from params import require
 from params.declare import REQUIRED, check_fields, param
@@ -58,11 +62,12 @@ _DISTANCES = {"l2": nn.functional.mse_loss, "smooth_l1": nn.functional.smooth_l1
 # The training state's layout. 2: the replay buffer holds one float row per transition
 # (``pack``) and there is no ``last_loss``; 1 (unmarked): a TensorDict storage.
 FORMAT = 2
+ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8  # torch.optim.Adam's defaults
 
 
 class Transitions(NamedTuple):
-    """Transitions as plain tensors: ``observation`` and ``next_observation`` ``[n, n_obs]``,
-    ``action`` ``[n, 1]`` (int64), ``reward`` ``[n, 1]``, ``terminated`` ``[n, 1]`` (bool)."""
+    """Transitions as plain tensors: ``observation`` and ``next_observation`` ``[..., n_obs]``,
+    ``action`` ``[..., 1]`` (int64), ``reward`` ``[..., 1]``, ``terminated`` ``[..., 1]`` (bool)."""
 
     observation: torch.Tensor
     action: torch.Tensor
@@ -83,30 +88,18 @@ def pack(batch: Transitions) -> torch.Tensor:
     """One float row per transition: observation, next observation, action, reward, terminated."""
     dtype = batch.observation.dtype
     return torch.cat((batch.observation, batch.next_observation, batch.action.to(dtype),
-                      batch.reward.to(dtype), batch.terminated.to(dtype)), dim=1)
+                      batch.reward.to(dtype), batch.terminated.to(dtype)), dim=-1)
 
 
 def unpack(rows: torch.Tensor) -> Transitions:
-    """The :class:`Transitions` of rows made by :func:`pack` (views, but action and terminated)."""
-    n = (rows.shape[1] - 3) // 2
-    return Transitions(rows[:, :n], rows[:, 2 * n:2 * n + 1].long(), rows[:, 2 * n + 1:2 * n + 2],
-                       rows[:, n:2 * n], rows[:, 2 * n + 2:] != 0)
+    """The :class:`Transitions` of rows made by :func:`pack` (``[..., width]``; views, but
+    action and terminated)."""
+    n = (rows.shape[-1] - 3) // 2
+    return Transitions(rows[..., :n], rows[..., 2 * n:2 * n + 1].long(), rows[..., 2 * n + 1:2 * n + 2],
+                       rows[..., n:2 * n], rows[..., 2 * n + 2:] != 0)
 
 
 QFunction = Callable[[torch.Tensor], torch.Tensor]  # observations -> Q-values
-
-
-def layer_by_layer(net: nn.Sequential) -> QFunction:
-    """``net``'s forward calling each layer's ``forward`` directly: the same arithmetic
-    without ``nn.Module.__call__``'s hook machinery around each layer (~3 us a layer, and an
-    update runs three forwards of five layers)."""
-    layers = [layer.forward for layer in net]
-
-    def forward(x: torch.Tensor) -> torch.Tensor:
-        for layer in layers:
-            x = layer(x)
-        return x
-    return forward
 
 
 def td_loss(net: QFunction, target_net: QFunction, batch: Transitions, gamma: float,
@@ -117,8 +110,8 @@ def td_loss(net: QFunction, target_net: QFunction, batch: Transitions, gamma: fl
 
 def td_terms(net: QFunction, target_net: QFunction, batch: Transitions, gamma: float,
              double_dqn: bool) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(q, target)``, each ``[batch, 1]``: ``net``'s value of the taken actions and their
-    TD(0) targets (no gradient), where ``target_net`` values the next state.
+    """``(q, target)``, each ``[..., batch, 1]``: ``net``'s value of the taken actions and
+    their TD(0) targets (no gradient), where ``target_net`` values the next state.
 
     ``double_dqn``: the next action is ``net``'s argmax, valued by ``target_net``.
     Terminated transitions do not bootstrap; truncated ones do.
@@ -140,11 +133,10 @@ class RowReplayBuffer(ReplayBuffer):
 
     ``extend``, ``sample``, indexing and ``state_dict`` are TorchRL's. The update's
     :meth:`sample_transitions` draws the indices itself, the very draw of TorchRL's
-    ``RandomSampler`` (``torch.randint`` on torch's global generator), and indexes ``rows``:
-    ~30 us for 128 rows on a busy 2-core machine, where ``sample()`` takes ~50 us and the
-    ``TensorDictReplayBuffer`` this replaced ~200 us (``bench/update_rate.py``).
+    ``RandomSampler`` (``torch.randint``), from a given generator, and indexes ``rows``
+    (``bench/update_rate.py`` times it against ``sample()``).
 
-    :meth:`put` queues rows instead of writing them: TorchRL's ``extend`` costs ~60 us a
+    :meth:`put` queues rows instead of writing them: TorchRL's ``extend`` has a cost per
     call whatever its size, and a DQN adds a few rows per env step but reads the buffer
     only when it updates. The queue is written by one ``extend`` of its rows, in order, as
     soon as anything touches the storage (the length, a sample, ``rows``, the state,
@@ -195,47 +187,20 @@ class RowReplayBuffer(ReplayBuffer):
         if queue:
             self.extend(queue[0] if len(queue) == 1 else torch.cat(queue))
 
-    def sample_transitions(self, stored: int) -> Transitions:
-        """A minibatch drawn uniformly from the first ``stored`` rows (``len(self)``)."""
-        index = torch.randint(0, stored, (self.batch_size,))
+    def sample_rows(self, stored: int, generator: torch.Generator | None = None,
+                    out: torch.Tensor | None = None) -> torch.Tensor:
+        """A minibatch of rows drawn uniformly from the first ``stored`` rows (``len(self)``)."""
+        index = torch.randint(0, stored, (self.batch_size,), generator=generator)
         rows = self.rows
-        return unpack(rows.index_select(0, index.to(rows.device)))
+        return torch.index_select(rows, 0, index.to(rows.device), out=out)
+
+    def sample_transitions(self, stored: int, generator: torch.Generator | None = None) -> Transitions:
+        """:meth:`sample_rows` as :class:`Transitions`."""
+        return unpack(self.sample_rows(stored, generator))
 
     def transitions(self) -> Transitions:
         """Every stored transition, in storage order."""
         return unpack(self.rows[: len(self)])
-
-
-class QPolicy(TensorDictModuleBase):
-    """Reads ``observation``, writes ``action``: the Q-network's argmax, or while ``explore``
-    with probability ``epsilon`` a uniformly random action.
-
-    One forward on the observation tensor, without ``QValueActor`` and ``EGreedyModule``'s
-    per-call bookkeeping (on cart-pole's 16 copies ~0.1 ms, where they took ~0.4), drawing as
-    ``EGreedyModule`` does: a uniform per copy, then a random action per copy, from torch's
-    global generator. The greedy policy draws nothing.
-    """
-
-    in_keys = ["observation"]
-    out_keys = ["action"]
-
-    def __init__(self, net: nn.Sequential, n_actions: int, explore: bool,
-                 device: torch.device | str = "cpu") -> None:
-        super().__init__()
-        self.net, self.n_actions, self.explore = net, int(n_actions), explore
-        self.q = layer_by_layer(net)
-        self.device = torch.device(device)
-        self.epsilon = 0.0
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        with torch.no_grad():
-            q = self.q(tensordict.get("observation").to(self.device))
-        action = q.argmax(-1).cpu()
-        if self.explore:
-            explore = torch.rand(action.shape) < self.epsilon
-            action = torch.where(explore, torch.randint(0, self.n_actions, action.shape), action)
-        tensordict.set("action", action)
-        return tensordict
 
 
 class ObsScale(nn.Module):
@@ -250,10 +215,79 @@ class ObsScale(nn.Module):
         return x * self.scale
 
 
+_FUNCTIONS = {nn.Tanh: torch.tanh, nn.ReLU: torch.relu}
+
+
+class StackedMLP:
+    """The Q-networks of every member of a learner, all their parameters one ``[members, P]``
+    tensor laid out as ``torch.nn.utils.parameters_to_vector`` lays out a ``template`` network's
+    (its linear layers' weight and bias in order, after an optional :class:`ObsScale`).
+
+    ``q(params, x)``: each member's network on its ``x`` (``[k, n, n_obs]`` with ``params``
+    ``[k, P]``): every linear layer one ``baddbmm``, each member's matrix product computed
+    alone whatever ``k``."""
+
+    def __init__(self, template: nn.Sequential) -> None:
+        self.template = template
+        self.scale: torch.Tensor | None = None
+        self.layers: list = []  # (offset, out, in) of a linear layer, or an activation function
+        offset = 0
+        for layer in template:
+            if isinstance(layer, ObsScale):
+                self.scale = layer.scale
+            elif isinstance(layer, nn.Linear):
+                out, inp = layer.weight.shape
+                self.layers.append((offset, out, inp))
+                offset += out * inp + out
+            else:
+                self.layers.append(_FUNCTIONS[type(layer)])
+        self.size = offset
+
+    def q(self, params: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        k = len(params)
+        if self.scale is not None:
+            x = x * self.scale
+        for layer in self.layers:
+            if callable(layer):
+                x = layer(x)
+                continue
+            offset, out, inp = layer
+            weight = params[:, offset:offset + out * inp].view(k, out, inp)
+            bias = params[:, offset + out * inp:offset + out * inp + out]
+            x = torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+        return x
+
+    def vector(self) -> torch.Tensor:
+        """The template's parameters as one ``[P]`` vector."""
+        return nn.utils.parameters_to_vector(self.template.parameters()).detach().clone()
+
+    def load(self, vector: torch.Tensor) -> nn.Sequential:
+        """The template holding ``vector``'s parameters."""
+        nn.utils.vector_to_parameters(vector.detach().to(self.template[-1].weight.device),
+                                      self.template.parameters())
+        return self.template
+
+
 def grad_norm_of(params: list[nn.Parameter]) -> torch.Tensor:
     """Total 2-norm of ``params``' gradients (what ``clip_grad_norm_`` measures), as a tensor."""
-    grads = [p.grad for p in params if p.grad is not None]
-    return torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads)))
+    grads = [p.grad.reshape(-1) for p in params if p.grad is not None]
+    return torch.linalg.vector_norm(torch.cat(grads))
+
+
+def adam_step(params: torch.Tensor, grads: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor,
+              steps: Sequence[int], lrs: Sequence[float]) -> None:
+    """One Adam step (``torch.optim.Adam``'s arithmetic, default betas and eps) of each row of
+    ``params`` (``[k, P]``, a member each), ``steps[j]`` its step count after this step and
+    ``lrs[j]`` its learning rate; in place."""
+    beta1, beta2 = ADAM_BETAS
+    size = [[lr / (1 - beta1 ** s)] for lr, s in zip(lrs, steps)]
+    root = [[math.sqrt(1 - beta2 ** s)] for s in steps]
+    step_size = torch.tensor(size, dtype=params.dtype, device=params.device)
+    correction = torch.tensor(root, dtype=params.dtype, device=params.device)
+    exp_avg.lerp_(grads, 1 - beta1)
+    exp_avg_sq.mul_(beta2).addcmul_(grads, grads, value=1 - beta2)
+    denom = (exp_avg_sq.sqrt() / correction).add_(ADAM_EPS)
+    params.sub_(exp_avg / denom * step_size)
 
 
 class UpdateStats:
@@ -317,7 +351,7 @@ class UpdateStats:
 
 @dataclass(eq=False)
 class DQN:
-    """A configurable DQN; ``build`` makes its networks for a task, ``train`` runs it."""
+    """A configurable DQN over a member axis (see the module docstring)."""
 
     epsilon: Any = param(REQUIRED, "exploration schedule: a node with _target_ "
                                    "learners.schedules.LinearEpsilon, MultiplicativeEpsilon or "
@@ -355,6 +389,9 @@ class DQN:
     device: str = param("cpu", "where the networks, updates and replay buffer live",
                         note=DEVICE_NOTE, check=check_device)
 
+    kind = "dqn"
+    out_keys = ("action",)
+
     def __post_init__(self) -> None:
         check_fields(self, "learner")
         require(1 <= len(self.hidden) <= 16 and all(1 <= h <= 65_536 for h in self.hidden),
@@ -373,16 +410,9 @@ class DQN:
                 "learner.epsilon must be a schedule node (_target_: learners.schedules."
                 "LinearEpsilon, MultiplicativeEpsilon or LogEpisodeEpsilon)", self.epsilon)
         self.device = str(resolve_device(self.device))  # auto -> cuda or cpu
-        self.schedule = self.epsilon
         self.hidden = [int(h) for h in self.hidden]
         self.loss_function = LOSSES[self.loss]
-        self.optimizer_steps = 0
-        self._credit = 0.0
-        self._greedy = False
-        self.tracker = UpdateStats()
-        # Where the whole updates ``learn`` owes go instead of ``optimize`` (a seed stack,
-        # :class:`learners.stack.DQNStack`, runs those of all its seeds together); None: run here.
-        self.updates_sink: Callable[[int], None] | None = None
+        self.members = 0
 
     # -- building ------------------------------------------------------------
     def _arch(self) -> dict:
@@ -390,71 +420,124 @@ class DQN:
                 "activation": self.activation}
         return arch | ({"obs_scale": dict(self.obs_scale)} if self.obs_scale else {})
 
-    def build(self, task, generator: torch.Generator | None = None):
-        """Creates network, policies, target network, optimiser and replay buffer. The DQN
-        draws from torch's global generator (seeded by the run; checkpoints keep its state),
-        not ``generator``."""
-        from torchrl.data import Categorical
-
-        self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
-        self.net = MLP(in_features=self.n_obs, out_features=self.n_actions, num_cells=self.hidden,
-                       activation_class=ACTIVATIONS[self.activation])
+    def _template(self, task) -> nn.Sequential:
+        """One member's Q-network: TorchRL's ``MLP``, after an :class:`ObsScale` if asked."""
+        net = MLP(in_features=self.n_obs, out_features=self.n_actions, num_cells=self.hidden,
+                  activation_class=ACTIVATIONS[self.activation])
         if self.obs_scale:
             names = list(task.observation_names)
             unknown = sorted(set(self.obs_scale) - set(names))
             require(not unknown, f"learner.obs_scale names no observation of this task; its "
                                  f"observations: {', '.join(names)}", unknown)
             scale = torch.tensor([float(self.obs_scale.get(n, 1.0)) for n in names])
-            self.net = nn.Sequential(ObsScale(scale), *self.net)
-        self.net = self.net.to(self.device)
-        # The greedy actor TorchRL's way, for checkpoints and callers wanting action values;
-        # training and evaluation act through the lean QPolicy on the same network.
-        self.actor = QValueActor(self.net, in_keys=["observation"],
+            net = nn.Sequential(ObsScale(scale), *net)
+        return net.to(self.device)
+
+    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None) -> None:
+        """The networks, optimizer state and replay buffers of one member per generator: its
+        stream initialises its network (as ``nn.Linear`` does from torch's global stream) and
+        then draws its exploration and minibatches."""
+        from torchrl.data import Categorical
+
+        self.generators = single(generators)
+        self.members = m = len(self.generators)
+        self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
+        with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
+            template = self._template(task)
+        self.net = StackedMLP(template)
+        self.actor = QValueActor(template, in_keys=["observation"],  # model.pt's layout
                                  spec=Categorical(self.n_actions, dtype=torch.int64))
-        self.explorer = QPolicy(self.net, self.n_actions, explore=True, device=self.device)
-        self.greedy_policy = QPolicy(self.net, self.n_actions, explore=False, device=self.device)
-        # Without a target network the online network values the next state itself.
-        self.target_net = self.net
-        if self.target_update or self.tau:
-            self.target_net = copy.deepcopy(self.net).requires_grad_(False)
-        self._q, self._target_q = layer_by_layer(self.net), layer_by_layer(self.target_net)
-        self._params = list(self.net.parameters())
-        self._target_params = list(self.target_net.parameters())
-        # fused: one kernel for every parameter (torch's default on CPU loops over them,
-        # ~3x the time); it rounds differently from the loop in the last bit.
-        self.optimizer = torch.optim.Adam(self._params, lr=self.lr, fused=True)
-        decay = self.lr_decay
-        # Keras' legacy Adam ``decay``: lr_k = lr / (1 + decay * k) after k updates.
-        self.lr_schedule = torch.optim.lr_scheduler.LambdaLR(
-            self.optimizer, lambda k: 1.0 / (1.0 + decay * k))
-        self.buffer = RowReplayBuffer(self.buffer_size, 2 * self.n_obs + 3, self.batch_size,
-                                      self.device)
-        self._sync_epsilon()
-        return self.actor
+        self.params = torch.empty(m, self.net.size, device=self.device)
+        for b, generator in enumerate(self.generators):
+            self.params[b] = self._initial(template, generator)
+        self.has_target = bool(self.target_update or self.tau)
+        self.target = self.params.clone() if self.has_target else self.params
+        self.exp_avg = torch.zeros_like(self.params)
+        self.exp_avg_sq = torch.zeros_like(self.params)
+        self.grads: torch.Tensor | None = None  # each member's latest gradients
+        self.steps = [0] * m  # optimizer steps per member
+        self.credit = [0.0] * m  # updates owed, fractions carried over
+        self.owed = [0] * m  # whole updates owed, run by settle
+        self.schedules = [self.epsilon] + [_copy_schedule(self.epsilon) for _ in range(m - 1)]
+        self.trackers = [UpdateStats() for _ in range(m)]
+        self.buffers = [RowReplayBuffer(self.buffer_size, 2 * self.n_obs + 3, self.batch_size, self.device)
+                        for _ in range(m)]
+        self._minibatch = torch.empty(m, self.batch_size, 2 * self.n_obs + 3, device=self.device)
 
-    @property
-    def policy(self) -> QPolicy:
-        """The acting policy: epsilon-greedy while training, greedy inside ``greedy()``."""
-        return self.greedy_policy if self._greedy else self.explorer
+    @staticmethod
+    def _initial(template: nn.Sequential, generator: torch.Generator) -> torch.Tensor:
+        """Fresh parameters of ``template``'s layers drawn from ``generator`` (their own
+        ``reset_parameters``, as on torch's global stream)."""
+        with torch.random.fork_rng(devices=[]):
+            torch.set_rng_state(generator.get_state())
+            for layer in template:
+                if isinstance(layer, nn.Linear):
+                    layer.reset_parameters()
+            generator.set_state(torch.get_rng_state())
+        return nn.utils.parameters_to_vector(template.parameters()).detach()
 
-    @contextmanager
-    def greedy(self) -> Iterator[None]:
-        self._greedy = True
-        try:
-            yield
-        finally:
-            self._greedy = False
+    def member(self, b: int) -> Member:
+        return Member(self, b)
 
-    @property
-    def stats(self) -> dict[str, float]:
-        return {"alpha": self.optimizer.param_groups[0]["lr"], "gamma": self.gamma,
-                "epsilon": float(self.schedule.value)}
+    def lr_of(self, b: int) -> float:
+        """Member ``b``'s learning rate now (Keras' legacy decay: lr / (1 + decay * updates))."""
+        return self.lr * (1.0 / (1.0 + self.lr_decay * self.steps[b])) if self.lr_decay else self.lr
+
+    def stats(self, b: int) -> dict[str, float]:
+        return {"alpha": self.lr_of(b), "gamma": self.gamma, "epsilon": float(self.schedules[b].value)}
+
+    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
+        """``train/*`` of member ``b``: ``loss``, ``q_mean`` (of the taken actions),
+        ``td_error`` (mean absolute) and ``grad_norm`` (before clipping), means over the
+        updates since the last reset (the previous values if none ran; absent before the
+        first update), but with ``grad_clip=0`` ``grad_norm`` is the latest update's;
+        ``epsilon``, ``lr``, ``updates`` (optimizer steps so far) and ``updates_per_s`` (per
+        wall-clock second since the last reset). ``reset=False`` reads without starting a
+        new interval (for a progress bar shown between the logger's reads)."""
+        stats = self.trackers[b].read(self.steps[b], reset)
+        if self.grad_clip == 0 and self.grads is not None and self.steps[b]:
+            stats["grad_norm"] = float(torch.linalg.vector_norm(self.grads[b]))
+        return {**stats, "epsilon": float(self.schedules[b].value), "lr": self.lr_of(b)}
+
+    # -- acting --------------------------------------------------------------
+    def begin(self) -> None:
+        """Before the first step of a training session (a fresh run or a resumed one)."""
+        for b, tracker in enumerate(self.trackers):
+            tracker.restart(self.steps[b])
+
+    def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
+        """Every member's epsilon-greedy actions on its block; only ``live`` members draw."""
+        live = set(everyone(self, live))
+        return self.act_members(td, range(self.members), False,
+                                [g if b in live else None for b, g in enumerate(self.generators)])
+
+    def act_members(self, td: TensorDictBase, members: Sequence[int], greedy: bool,
+                    generators: Sequence[torch.Generator | None]) -> TensorDictBase:
+        """The actions of ``members`` on their blocks of ``td`` (block ``j`` is member
+        ``members[j]``'s): the Q-network's argmax, or unless ``greedy`` with probability
+        epsilon a uniformly random action, drawn from ``generators[j]`` as TorchRL's
+        ``EGreedyModule`` draws (a uniform per copy, then a random action per copy). Returns a
+        new tensordict of ``td``'s entries and ``action``."""
+        members = list(members)
+        k = len(members)
+        params = self.params if members == list(range(self.members)) else self.params[members]
+        observation = td.get("observation")
+        with torch.no_grad():
+            q = self.net.q(params, observation.reshape(k, -1, self.n_obs).to(self.device))
+        action = q.argmax(-1).cpu()
+        if not greedy:
+            n = action.shape[1]
+            uniform = torch.ones(k, n)
+            random_action = torch.zeros(k, n, dtype=torch.int64)
+            for j, generator in enumerate(generators):
+                if generator is not None:
+                    torch.rand(n, generator=generator, out=uniform[j])
+                    torch.randint(0, self.n_actions, (n,), generator=generator, out=random_action[j])
+            epsilon = torch.tensor([[float(self.schedules[b].value)] for b in members])
+            action = torch.where(uniform < epsilon, random_action, action)
+        return with_entries(td, action=action.reshape(td.batch_size))
 
     # -- learning ------------------------------------------------------------
-    def store(self, tensordict: TensorDictBase) -> None:
-        """Adds the batched transitions of ``tensordict`` (holding ``next``) to the buffer."""
-        self.buffer.put(self.rows_of(tensordict))
-
     def rows_of(self, tensordict: TensorDictBase) -> torch.Tensor:
         """The buffer's rows (:func:`pack`) of the transitions of ``tensordict``, the
         terminating rewards replaced if ``done_episode_reward`` says so and all of them
@@ -467,143 +550,177 @@ class DQN:
             batch = batch._replace(reward=batch.reward * float(self.reward_scale))
         return pack(batch).to(self.device)
 
-    def optimize(self, n: int) -> None:
-        """``n`` gradient steps on minibatches from the replay buffer."""
-        stored = len(self.buffer)
-        for _ in range(n):
-            self._update(self.buffer.sample_transitions(stored))
+    def store(self, td: TensorDictBase, live: Sequence[int] | None = None) -> int:
+        """Each live member adds its block's transitions to its replay buffer; the block size."""
+        rows = self.rows_of(td)
+        n = len(rows) // self.members
+        for b in everyone(self, live):
+            self.buffers[b].put(rows[b * n:(b + 1) * n])
+        return n
 
-    def _update(self, batch: Transitions) -> None:
-        """One gradient step on ``batch``; the target network follows. No host sync: the
-        tracker keeps the loss and values as tensors."""
-        q, target = td_terms(self._q, self._target_q, batch, self.gamma, self.double_dqn)
-        loss = _DISTANCES[self.loss_function](q, target)
-        for p in self._params:  # optimizer.zero_grad()'s effect, without its profiling wrapper
-            p.grad = None
-        loss.backward()
-        grad_norm = self._clip() if self.grad_clip > 0 else None
-        self.optimizer.step()
-        if self.lr_decay:
-            self.lr_schedule.step()
-        self.optimizer_steps += 1
-        self._update_target()
-        self.tracker.add(loss.detach(), q.detach(), target, grad_norm)
+    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
+        """Each live member stores its block's transitions and counts them (schedule, update
+        credit with ``train_every=step``); then the updates owed run."""
+        n = self.store(td, live)
+        for b in everyone(self, live):
+            self.schedules[b].step(n)
+            if self.train_every == "step":
+                self._owe(b, self.updates * n)
+        self.settle()
 
-    def _clip(self) -> torch.Tensor:
-        """``clip_grad_norm_(params, grad_clip)``'s very arithmetic in two foreach calls (it
-        loops over the tensors on CPU); returns the norm before clipping."""
-        grads = [p.grad for p in self._params if p.grad is not None]
-        norm = grad_norm_of(self._params)
-        torch._foreach_mul_(grads, (self.grad_clip / (norm + 1e-6)).clamp_(max=1.0))
-        return norm
+    def optimize(self, n: int, members: Sequence[int] | None = None) -> None:
+        """``n`` updates of each of ``members`` (all by default) on its replay buffer, now."""
+        for b in everyone(self, members):
+            self.owed[b] += n
+        self.settle()
 
-    def train_stats(self, reset: bool = True) -> dict[str, float]:
-        """``train/*``: ``loss``, ``q_mean`` (of the taken actions), ``td_error`` (mean
-        absolute) and ``grad_norm`` (before clipping), means over the updates since the last
-        reset (the previous values if none ran; absent before the first update), but with
-        ``grad_clip=0`` ``grad_norm`` is the latest update's (measured now, not per update);
-        ``epsilon``, ``lr``, ``updates`` (optimizer steps so far) and ``updates_per_s`` (per
-        wall-clock second since the last reset). ``reset=False`` reads without starting a
-        new interval (for a progress bar shown between the logger's reads)."""
-        stats = self.tracker.read(self.optimizer_steps, reset)
-        if self.grad_clip == 0 and self._params[0].grad is not None:
-            stats["grad_norm"] = float(grad_norm_of(self._params))
-        return {**stats, "epsilon": float(self.schedule.value),
-                "lr": float(self.optimizer.param_groups[0]["lr"])}
+    def end_episodes(self, ended: Mapping[int, int]) -> None:
+        """After each finished episode of a member: the schedule's episode step and, with
+        ``train_every=episode``, its updates; then the updates owed run."""
+        for b, count in ended.items():
+            for _ in range(count):
+                self.schedules[b].episode_end()
+                if self.train_every == "episode":
+                    self._owe(b, self.updates)
+        self.settle()
 
-    def _update_target(self) -> None:
-        """Polyak-averages (``tau``) or copies (every ``target_update`` steps) the target."""
-        with torch.no_grad():
-            if self.tau:
-                torch._foreach_lerp_(self._target_params, self._params, self.tau)
-            elif self.target_update and self.optimizer_steps % self.target_update == 0:
-                torch._foreach_copy_(self._target_params, self._params)
-
-    def _ready(self) -> bool:
-        return len(self.buffer) >= max(self.learning_starts, 1)
-
-    def learn(self, updates: float) -> None:
-        """Adds ``updates`` minibatch updates to those owed (fractions carry over) and runs
-        the whole ones, once the buffer holds ``learning_starts`` transitions."""
-        if not self._ready():
+    def _owe(self, b: int, updates: float) -> None:
+        """Adds ``updates`` to member ``b``'s credit once its buffer holds ``learning_starts``
+        transitions; the whole ones are owed."""
+        if len(self.buffers[b]) < max(self.learning_starts, 1):
             return
-        self._credit += updates
-        whole = int(self._credit)
-        self._credit -= whole
-        (self.updates_sink or self.optimize)(whole)
+        self.credit[b] += updates
+        whole = int(self.credit[b])
+        self.credit[b] -= whole
+        self.owed[b] += whole
 
-    def _sync_epsilon(self) -> None:
-        """The exploring policy acts with the schedule's current epsilon."""
-        self.explorer.epsilon = float(self.schedule.value)
+    def settle(self) -> None:
+        """Runs the updates the members owe, in rounds: a round updates every member that still
+        owes one (each member's updates in its order, as alone)."""
+        owed, self.owed = self.owed, [0] * self.members
+        stored = {b: len(self.buffers[b]) for b in range(self.members) if owed[b]}
+        for done in range(max(owed)):
+            self._round([b for b in stored if owed[b] > done], stored)
 
-    def begin(self) -> None:
-        """Before the first step of a training session (a fresh run or a resumed one)."""
-        self._sync_epsilon()
-        self.tracker.restart(self.optimizer_steps)
+    def _round(self, due: list[int], stored: Mapping[int, int]) -> None:
+        """One update of each member of ``due``: its minibatch, its TD loss's gradients by
+        autograd, its clipped norm, its Adam step and its target network's."""
+        k = len(due)
+        for j, b in enumerate(due):
+            self.buffers[b].sample_rows(stored[b], self.generators[b], out=self._minibatch[j])
+        batch = unpack(self._minibatch[:k])
+        everyone_due = k == self.members
+        index = None if everyone_due else torch.tensor(due, device=self.params.device)
+        params = self.params if everyone_due else self.params.index_select(0, index)
+        target = self.target if everyone_due or not self.has_target else self.target.index_select(0, index)
+        leaf = params.detach().requires_grad_(True)
+        online = lambda x: self.net.q(leaf, x)  # noqa: E731
+        valued = (lambda x: self.net.q(target, x)) if self.has_target else (lambda x: self.net.q(leaf.detach(), x))
+        q, td_target = td_terms(online, valued, batch, self.gamma, self.double_dqn)
+        loss = _DISTANCES[self.loss_function](q, td_target, reduction="none").mean((1, 2))
+        loss.sum().backward()
+        grads = leaf.grad
+        with torch.no_grad():
+            norms = torch.linalg.vector_norm(grads, dim=1)
+            if self.grad_clip > 0:
+                grads.mul_((self.grad_clip / (norms + 1e-6)).clamp_(max=1.0).unsqueeze(1))
+            self._step(due, index, params, target, grads)
+        for j, b in enumerate(due):
+            self.trackers[b].add(loss[j].detach(), q[j].detach(), td_target[j],
+                                 norms[j] if self.grad_clip > 0 else None)
 
-    def act(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Epsilon-greedy on the Q-network."""
-        return self.explorer(tensordict)
-
-    def observe(self, tensordict: TensorDictBase) -> None:
-        """Stores the batch of transitions and, per transition, learns as ``train_every`` says."""
-        self.observe_rows(self.rows_of(tensordict))
-
-    def observe_rows(self, rows: torch.Tensor) -> None:
-        """:meth:`observe` of transitions already packed (:meth:`rows_of`), one row each."""
-        self.buffer.put(rows)
-        self.schedule.step(len(rows))
-        if self.train_every == "step":
-            self.learn(self.updates * len(rows))
-        self._sync_epsilon()
-
-    def end_episode(self) -> None:
-        """After each finished episode: the schedule's episode step and per-episode updates."""
-        self.schedule.episode_end()
-        if self.train_every == "episode":
-            self.learn(self.updates)
-        self._sync_epsilon()
-
-    def train(self, env, run: Loop) -> None:
-        """Collects from the batched ``env`` and learns until ``run`` is done."""
-        train(self, env, run)
+    def _step(self, due: list[int], index: torch.Tensor | None, params: torch.Tensor, target: torch.Tensor,
+              grads: torch.Tensor) -> None:
+        """Adam and the target networks of the ``due`` members (``index``: their rows, None
+        for all); the gradients kept where ``train_stats`` reads them."""
+        for b in due:
+            self.steps[b] += 1
+        lrs = [self.lr * (1.0 / (1.0 + self.lr_decay * (self.steps[b] - 1))) if self.lr_decay else self.lr
+               for b in due]
+        exp_avg = self.exp_avg if index is None else self.exp_avg.index_select(0, index)
+        exp_avg_sq = self.exp_avg_sq if index is None else self.exp_avg_sq.index_select(0, index)
+        adam_step(params, grads, exp_avg, exp_avg_sq, [self.steps[b] for b in due], lrs)
+        if self.tau:
+            target.lerp_(params, self.tau)
+        elif self.target_update:
+            for j, b in enumerate(due):
+                if self.steps[b] % self.target_update == 0:
+                    target[j].copy_(params[j])
+        if self.grads is None:
+            self.grads = torch.zeros_like(self.params)
+        if index is None:
+            self.grads.copy_(grads)
+            return
+        for whole, part in ((self.params, params), (self.exp_avg, exp_avg), (self.exp_avg_sq, exp_avg_sq),
+                            (self.grads, grads)):
+            whole.index_copy_(0, index, part)
+        if self.has_target:
+            self.target.index_copy_(0, index, target)
 
     # -- persistence ---------------------------------------------------------
-    kind = "dqn"
+    def _net_state(self, vector: torch.Tensor) -> dict:
+        return {k: v.clone() for k, v in self.net.load(vector).state_dict().items()}
 
-    def training_state(self) -> dict:
-        """Everything the next update depends on, replay buffer included (for resuming)."""
+    def _optimizer_state(self, b: int) -> dict:
+        """Member ``b``'s Adam state in ``torch.optim.Adam``'s ``state_dict`` layout."""
+        shapes = [p.shape for p in self.net.template.parameters()]
+        state, offset = {}, 0
+        for i, shape in enumerate(shapes):
+            size = math.prod(shape)
+            if self.steps[b]:
+                state[i] = {"step": torch.tensor(float(self.steps[b])),
+                            "exp_avg": self.exp_avg[b, offset:offset + size].reshape(shape).clone(),
+                            "exp_avg_sq": self.exp_avg_sq[b, offset:offset + size].reshape(shape).clone()}
+            offset += size
+        group = {"lr": self.lr_of(b), "betas": ADAM_BETAS, "eps": ADAM_EPS, "weight_decay": 0,
+                 "amsgrad": False, "maximize": False, "foreach": None, "capturable": False,
+                 "differentiable": False, "fused": True, "decoupled_weight_decay": False,
+                 "initial_lr": self.lr, "params": list(range(len(shapes)))}
+        return {"state": state, "param_groups": [group]}
+
+    def _load_optimizer(self, b: int, state: Mapping) -> None:
+        """Member ``b``'s Adam moments from an Adam ``state_dict`` (none before a first step)."""
+        moments = state.get("state", {})
+        self.exp_avg[b].zero_()
+        self.exp_avg_sq[b].zero_()
+        if moments:
+            self.exp_avg[b] = torch.cat([moments[i]["exp_avg"].reshape(-1) for i in sorted(moments)])
+            self.exp_avg_sq[b] = torch.cat([moments[i]["exp_avg_sq"].reshape(-1) for i in sorted(moments)])
+
+    def training_state(self, b: int) -> dict:
+        """Everything member ``b``'s next update depends on, replay buffer and random stream
+        included (for resuming)."""
         return {
-            "format": FORMAT, "arch": self._arch(), "net": self.net.state_dict(),
-            "target_net": self.target_net.state_dict(), "optimizer": self.optimizer.state_dict(),
-            "lr_schedule": self.lr_schedule.state_dict(), "schedule": self.schedule.state_dict(),
-            "optimizer_steps": self.optimizer_steps, "credit": self._credit,
-            "buffer": self.buffer.state_dict(),
+            "format": FORMAT, "arch": self._arch(), "net": self._net_state(self.params[b]),
+            "target_net": self._net_state(self.target[b]), "optimizer": self._optimizer_state(b),
+            "lr_schedule": {"base_lrs": [self.lr], "last_epoch": self.steps[b] if self.lr_decay else 0,
+                            "_last_lr": [self.lr_of(b)]},
+            "schedule": self.schedules[b].state_dict(), "optimizer_steps": self.steps[b],
+            "credit": self.credit[b], "buffer": self.buffers[b].state_dict(),
+            "generator": self.generators[b].get_state(),
         }
 
-    def load_training_state(self, state: dict) -> None:
+    def load_training_state(self, b: int, state: Mapping) -> None:
         if state.get("format", 1) != FORMAT:
             raise StateMismatch(
                 f"the training checkpoint holds a DQN state of format {state.get('format', 1)}, "
                 f"this code reads format {FORMAT} (its replay buffer changed); resume it with "
                 "the version that wrote it, or start the run afresh")
         self._check_arch(state["arch"], "the training checkpoint")
-        self.net.load_state_dict(state["net"])
-        self.target_net.load_state_dict(state["target_net"])
-        self._load_optimizer(state["optimizer"])
-        self.lr_schedule.load_state_dict(state["lr_schedule"])
-        self.schedule.load_state_dict(state["schedule"])
-        self.optimizer_steps = int(state["optimizer_steps"])
-        self._credit = float(state["credit"])
-        self.buffer.load_state_dict(state["buffer"])
-        self._sync_epsilon()
+        self.params[b] = self._vector_of(state["net"])
+        if self.has_target:
+            self.target[b] = self._vector_of(state["target_net"])
+        self._load_optimizer(b, state["optimizer"])
+        self.schedules[b].load_state_dict(state["schedule"])
+        self.steps[b] = int(state["optimizer_steps"])
+        self.credit[b] = float(state["credit"])
+        self.buffers[b].load_state_dict(state["buffer"])
+        if "generator" in state:  # a checkpoint of an earlier version: the run's torch stream
+            self.generators[b].set_state(state["generator"])
 
-    def _load_optimizer(self, state: dict) -> None:
-        """Adam's state from a checkpoint, staying fused (a saved param group's flags would
-        replace ours, and models saved before this change were not fused)."""
-        self.optimizer.load_state_dict(state)
-        for group in self.optimizer.param_groups:
-            group.update(fused=True, foreach=None)
+    def _vector_of(self, net_state: Mapping) -> torch.Tensor:
+        self.net.template.load_state_dict(net_state)
+        return self.net.vector().to(self.device)
 
     def _check_arch(self, arch: dict, path) -> None:
         if arch != self._arch():
@@ -611,21 +728,33 @@ class DQN:
                 f"checkpoint {path} does not fit this run: it has network {arch}, "
                 f"this run builds {self._arch()}")
 
-    def model_state(self) -> dict:
-        """The trained network, its optimiser and schedule (``model.pt``)."""
+    def model_state(self, b: int) -> dict:
+        """Member ``b``'s trained network, its optimiser and schedule (``model.pt``)."""
+        self.net.load(self.params[b])
         return {
-            "kind": "dqn", "arch": self._arch(), "actor": self.actor.state_dict(),
-            "optimizer": self.optimizer.state_dict(), "schedule": self.schedule.state_dict(),
-            "optimizer_steps": self.optimizer_steps,
+            "kind": "dqn", "arch": self._arch(), "actor": {k: v.clone() for k, v in self.actor.state_dict().items()},
+            "optimizer": self._optimizer_state(b), "schedule": self.schedules[b].state_dict(),
+            "optimizer_steps": self.steps[b],
         }
 
-    def load_model_state(self, ckpt: Mapping, where: str) -> None:
-        """Loads saved weights (and optimiser, schedule) into the built learner; ``where``
-        names the state's origin in a :class:`StateMismatch`."""
+    def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
+        """Loads saved weights (and optimiser, schedule) into member ``b``; ``where`` names the
+        state's origin in a :class:`StateMismatch`."""
         self._check_arch(ckpt["arch"], where)
         self.actor.load_state_dict(ckpt["actor"])
-        self._load_optimizer(ckpt["optimizer"])
-        self.schedule.load_state_dict(ckpt["schedule"])
-        self.optimizer_steps = int(ckpt["optimizer_steps"])
-        if self.target_net is not self.net:
-            self.target_net.load_state_dict(self.net.state_dict())
+        self.params[b] = self.net.vector().to(self.device)
+        self._load_optimizer(b, ckpt["optimizer"])
+        self.schedules[b].load_state_dict(ckpt["schedule"])
+        self.steps[b] = int(ckpt["optimizer_steps"])
+        if self.has_target:
+            self.target[b] = self.params[b]
+
+
+def _copy_schedule(schedule):
+    """A fresh copy of an epsilon schedule (each member steps its own)."""
+    import copy
+    return copy.deepcopy(schedule)
+
+
+__all__ = ["DQN", "RowReplayBuffer", "StackedMLP", "Transitions", "UpdateStats", "adam_step", "pack",
+           "td_loss", "td_terms", "unpack"]

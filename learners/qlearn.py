@@ -11,7 +11,8 @@ the bins combine mixed-radix, first entry fastest::
     bin_i  = clip(floor((x_i - low_i) / (high_i - low_i) * splits_i), 0, splits_i - 1)
     index  = bin_0 + splits_0 * (bin_1 + splits_1 * (bin_2 + ...))
 
-The Q-table is a ``[prod(splits), n_actions]`` float64 tensor; unseen pairs hold
+The Q-tables of all members are one ``[members, prod(splits), n_actions]`` float64
+tensor (a single run: one member); unseen pairs hold
 ``initial_q`` (0 as in the original; an optimistic value, such as the largest
 return there is, makes the learner try every action before trusting one).
 
@@ -19,10 +20,13 @@ Update, for a batch of transitions at once::
 
     Q(s,a) <- Q(s,a) + alpha * (r + gamma * max_a' Q(s',a') * (1 - terminated) - Q(s,a))
 
-Transitions of one batch that hit the same (s, a) have their increments
-averaged (with ``num_envs=1`` this is the ordinary sequential update).
-Exploration is epsilon-greedy; epsilon is multiplied by ``epsilon_discount``
-after each finished episode while it is above ``epsilon_min``.
+Transitions of one member's block that hit the same (s, a) have their increments
+averaged (with ``num_envs=1`` this is the ordinary sequential update); members never
+share a pair. Exploration is epsilon-greedy, each member drawing from its own
+generator (one call per step); epsilon is multiplied by ``epsilon_discount`` after each
+of the member's finished episodes while it is above ``epsilon_min``. A member's policy
+(:meth:`QLearn.member`'s ``policy``) is a TensorDict module writing ``state_index``,
+``action_value`` and ``action``.
 
 The original learner's quirks are options, off by default:
 ``first_visit_reward`` (a pair's first update sets Q <- r),
@@ -34,16 +38,15 @@ add uniform noise of the Q-values' magnitude and act greedily on the result).
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Iterator, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 
-from learners.base import Loop, StateMismatch, train
+from learners.base import Member, StateMismatch, everyone, single
+from params.private_api import with_entries
 from params import require
 from params.declare import check_fields, param
 from tasks.base import Bounds
@@ -100,55 +103,12 @@ class Discretizer:
         }
 
 
-class QTablePolicy(TensorDictModuleBase):
-    """Reads ``observation``, writes ``state_index``, ``action_value`` and ``action``.
-
-    Acts epsilon-greedily (or greedily when ``epsilon`` is 0), breaking ties
-    between equal Q-values uniformly at random.
-    """
-
-    in_keys = ["observation"]
-    out_keys = ["state_index", "action_value", "action"]
-
-    def __init__(self, discretizer: Discretizer, n_actions: int, epsilon: float = 0.0,
-                 noise_exploration: bool = False, generator: torch.Generator | None = None) -> None:
-        super().__init__()
-        self.discretizer = discretizer
-        self.n_actions = int(n_actions)
-        self.register_buffer("table", torch.zeros(discretizer.n_states, n_actions, dtype=torch.float64))
-        self.register_buffer("visited", torch.zeros(discretizer.n_states, n_actions, dtype=torch.bool))
-        self.epsilon = float(epsilon)
-        self.noise_exploration = noise_exploration
-        self.generator = generator if generator is not None else torch.Generator()
-
-    def _rand(self, *shape: int) -> torch.Tensor:
-        return torch.rand(*shape, generator=self.generator, dtype=torch.float64)
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        state = self.discretizer(tensordict.get("observation"))
-        q = self.table.index_select(0, state.reshape(-1)).reshape(*state.shape, self.n_actions)
-        explore = self._rand(*state.shape) < self.epsilon
-        if self.noise_exploration:
-            magnitude = q.abs().amax(-1, keepdim=True)
-            noise = (self._rand(*q.shape) * 2 - 1) * magnitude
-            scored = torch.where(explore.unsqueeze(-1), q + noise, q)
-        else:
-            scored = q
-        # Random tie-break: among the maxima, pick by a random key.
-        best = scored == scored.amax(-1, keepdim=True)
-        action = torch.where(best, self._rand(*q.shape), -1.0).argmax(-1)
-        if not self.noise_exploration:
-            random_action = (self._rand(*state.shape) * self.n_actions).long().clamp_max(self.n_actions - 1)
-            action = torch.where(explore, random_action, action)
-        tensordict.set("state_index", state)
-        tensordict.set("action_value", q.to(torch.float32))
-        tensordict.set("action", action)
-        return tensordict
-
-
 @dataclass(eq=False)
 class QLearn:
-    """Tabular Q-learning; ``train`` runs it on a batched :class:`RobotTaskEnv`."""
+    """Tabular Q-learning over a member axis (see the module docstring).
+
+    Each member's Q-table is a slice of one ``[members, states, actions]`` tensor; acting,
+    the Q update and the epsilon decay are one call for every member."""
 
     alpha: float = param(0.1, "learning rate of the Q update", gt=0, le=1)
     gamma: float = param(0.7, "discount of the next state's value", ge=0, le=1)
@@ -166,147 +126,191 @@ class QLearn:
     noise_exploration: bool = param(False, "original quirk: explore by noisy Q-values")
     initial_q: float = param(0.0, "Q of unseen pairs (an optimistic value tries every action)")
 
+    kind = "qlearn"
+    out_keys = ("state_index", "action_value", "action")
+
     def __post_init__(self) -> None:
         check_fields(self, "learner")
-        self.epsilon_start = self.epsilon
         if isinstance(self.number_splits, Mapping):
             self.number_splits = {str(k): int(v) for k, v in self.number_splits.items()}
         elif isinstance(self.number_splits, (int, float, np.integer)):  # 1e3 on the command line
             self.number_splits = int(self.number_splits)
         else:
             self.number_splits = [int(v) for v in self.number_splits]
-        self.policy: QTablePolicy | None = None
+        self.members = 0
 
     # -- building ------------------------------------------------------------
-    def build(self, task, generator: torch.Generator | None = None) -> QTablePolicy:
-        """Creates the Q-table policy for ``task``'s tabular state and actions."""
-        discretizer = Discretizer(task.tabular_bounds, self.number_splits)
-        table_bytes = discretizer.n_states * task.n_actions * 9  # float64 values + visited flags
+    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None) -> None:
+        """The Q-tables of one member per generator (its stream) for ``task``'s tabular state
+        and actions."""
+        self.generators = single(generators)
+        self.members = len(self.generators)
+        self.discretizer = Discretizer(task.tabular_bounds, self.number_splits)
+        self.n_actions, self.n_states = int(task.n_actions), self.discretizer.n_states
+        table_bytes = self.members * self.n_states * self.n_actions * 9  # float64 values + visited flags
         require(table_bytes <= TABLE_BYTES,
-                f"learner.number_splits must keep the Q-table within {TABLE_BYTES / 2**30:g} GiB; "
-                f"{discretizer.splits} bins make {discretizer.n_states} states x {task.n_actions} "
-                f"actions = {table_bytes / 2**30:.3g} GiB", self.number_splits)
-        self.policy = QTablePolicy(discretizer, task.n_actions, self.epsilon_start,
-                                   self.noise_exploration, generator)
-        self.policy.table.fill_(self.initial_q)
-        return self.policy
+                f"learner.number_splits must keep the Q-tables within {TABLE_BYTES / 2**30:g} GiB; "
+                f"{self.discretizer.splits} bins make {self.members} x {self.n_states} states x "
+                f"{self.n_actions} actions = {table_bytes / 2**30:.3g} GiB", self.number_splits)
+        shape = (self.members, self.n_states, self.n_actions)
+        self.table = torch.full(shape, float(self.initial_q), dtype=torch.float64)
+        self.visited = torch.zeros(shape, dtype=torch.bool)
+        self.epsilons = [float(self.epsilon)] * self.members
+        self._offsets: torch.Tensor | None = None
 
-    @property
-    def stats(self) -> dict[str, float]:
-        return {"alpha": self.alpha, "gamma": self.gamma, "epsilon": self.policy.epsilon}
+    def member(self, b: int) -> Member:
+        return Member(self, b)
 
-    def train_stats(self, reset: bool = True) -> dict[str, float]:
-        """``train/*``: ``epsilon`` and ``visited_fraction``, the share of the table's
-        (state, action) pairs updated at least once (counted now: one pass over the visited
-        flags, less than one update's passes over the table). Reading changes nothing
-        (``reset`` is there for the learners' common signature)."""
-        visited = self.policy.visited
-        return {"epsilon": self.policy.epsilon,
-                "visited_fraction": int(visited.count_nonzero()) / visited.numel()}
+    def stats(self, b: int) -> dict[str, float]:
+        return {"alpha": self.alpha, "gamma": self.gamma, "epsilon": self.epsilons[b]}
+
+    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
+        """``train/*``: ``epsilon`` and ``visited_fraction``, the share of member ``b``'s
+        (state, action) pairs updated at least once. Reading changes nothing (``reset`` is
+        there for the learners' common signature)."""
+        visited = self.visited[b]
+        return {"epsilon": self.epsilons[b], "visited_fraction": int(visited.count_nonzero()) / visited.numel()}
+
+    # -- acting --------------------------------------------------------------
+    def begin(self) -> None:
+        """Before the first step of a training session: nothing to prepare."""
+
+    def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
+        """Every member's epsilon-greedy actions on its block; only ``live`` members draw."""
+        live = set(everyone(self, live))
+        return self.act_members(td, range(self.members), False,
+                                [g if b in live else None for b, g in enumerate(self.generators)])
+
+    def _draws(self, n: int, generators: Sequence[torch.Generator | None]) -> torch.Tensor:
+        """``[k, d]`` float64 uniforms, a row per block: one step's draws of its member, in one
+        call on its generator (torch's CPU generator fills serially: one call of d numbers is
+        the calls for explore, noise, ties and random actions one after another); zeros for a
+        block without a generator."""
+        a = self.n_actions
+        d = n + 2 * n * a if self.noise_exploration else 2 * n + n * a
+        draws = torch.zeros(len(generators), d, dtype=torch.float64)
+        for j, generator in enumerate(generators):
+            if generator is not None:
+                torch.rand(d, generator=generator, dtype=torch.float64, out=draws[j])
+        return draws
+
+    def act_members(self, td: TensorDictBase, members: Sequence[int], greedy: bool,
+                    generators: Sequence[torch.Generator | None]) -> TensorDictBase:
+        """The actions of ``members`` on their blocks of ``td`` (block ``j`` is member
+        ``members[j]``'s), ties broken by ``generators[j]``; epsilon-greedy unless ``greedy``.
+        Returns a new tensordict of ``td``'s entries and ``state_index``, ``action_value`` and
+        ``action``."""
+        members = list(members)
+        k, a = len(members), self.n_actions
+        state = self.discretizer(td.get("observation"))
+        n = state.shape[0] // k
+        q = self.table.view(-1, a).index_select(0, state.reshape(-1) + self._offset(members, n)).view(k, n, a)
+        draws = self._draws(n, generators)
+        epsilon = torch.zeros(k, 1, dtype=torch.float64) if greedy else torch.tensor(
+            [[self.epsilons[b]] for b in members], dtype=torch.float64)
+        explore = draws[:, :n] < epsilon
+        if self.noise_exploration:
+            magnitude = q.abs().amax(-1, keepdim=True)
+            noise = (draws[:, n:n + n * a].view(k, n, a) * 2 - 1) * magnitude
+            scored = torch.where(explore.unsqueeze(-1), q + noise, q)
+            tie = draws[:, n + n * a:]
+        else:
+            scored, tie = q, draws[:, n:n + n * a]
+        best = scored == scored.amax(-1, keepdim=True)  # random tie-break: the best by a random key
+        action = torch.where(best, tie.view(k, n, a), -1.0).argmax(-1)
+        if not self.noise_exploration:
+            random_action = (draws[:, n + n * a:] * a).long().clamp_max(a - 1)
+            action = torch.where(explore, random_action, action)
+        shape = td.batch_size
+        return with_entries(td, state_index=state.reshape(shape), action_value=q.reshape(*shape, a).to(torch.float32),
+                            action=action.reshape(shape))
+
+    def _offset(self, members: list[int], n: int) -> torch.Tensor:
+        """Each row's member's first row in the flat ``[members * states, actions]`` table."""
+        if members == list(range(self.members)):
+            if self._offsets is None or len(self._offsets) != self.members * n:
+                self._offsets = (torch.arange(self.members) * self.n_states).repeat_interleave(n)
+            return self._offsets
+        return (torch.as_tensor(members) * self.n_states).repeat_interleave(n)
 
     # -- learning ------------------------------------------------------------
-    def update(self, tensordict: TensorDictBase) -> None:
-        """One Q-update from a batch of transitions (``tensordict`` holds ``next``)."""
-        policy = self.policy
-        state = tensordict.get("state_index").reshape(-1)
-        action = tensordict.get("action").reshape(-1)
-        reward = tensordict.get(("next", "reward")).reshape(-1).to(torch.float64)
-        terminated = tensordict.get(("next", "terminated")).reshape(-1)
-        next_state = policy.discretizer(tensordict.get(("next", "observation"))).reshape(-1)
-        bootstrap = policy.table.index_select(0, next_state).amax(-1)
+    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
+        """One Q update of each live member's table from its block of ``td`` (holding
+        ``next``); each member's rows index its own slice of the table."""
+        live = everyone(self, live)
+        n = td.numel() // self.members
+        rows = None if len(live) == self.members else (
+            torch.as_tensor(live).unsqueeze(1) * n + torch.arange(n)).reshape(-1)
+
+        def pick(value: torch.Tensor) -> torch.Tensor:
+            value = value.reshape(self.members * n)
+            return value if rows is None else value.index_select(0, rows)
+
+        offset = pick(self._offset(list(range(self.members)), n))
+        state = pick(td.get("state_index")) + offset
+        action = pick(td.get("action"))
+        reward = pick(td.get(("next", "reward"))).to(torch.float64)
+        terminated = pick(td.get(("next", "terminated")))
+        next_state = pick(self.discretizer(td.get(("next", "observation")))) + offset
+        a = self.n_actions
+        bootstrap = self.table.view(-1, a).index_select(0, next_state).amax(-1)
         if not self.bootstrap_terminal:
             bootstrap.masked_fill_(terminated, 0.0)
         target = reward + self.gamma * bootstrap
-        pair = state * policy.n_actions + action  # (s, a)'s index in the flat table
-        old = policy.table.view(-1).index_select(0, pair)
+        pair = state * a + action  # (s, a)'s index in the flat table
+        old = self.table.view(-1).index_select(0, pair)
         new = old + self.alpha * (target - old)
         if self.first_visit_reward:
-            new = torch.where(policy.visited.view(-1).index_select(0, pair), new, reward)
-        self._add_mean_increments(pair, new - old)
+            new = torch.where(self.visited.view(-1).index_select(0, pair), new, reward)
+        self._add_mean_increments(pair, new - old, n)
 
-    def _add_mean_increments(self, pair: torch.Tensor, increment: torch.Tensor) -> None:
+    def _add_mean_increments(self, pair: torch.Tensor, increment: torch.Tensor, n: int) -> None:
         """Adds to each flat table entry in ``pair`` the mean of its ``increment``s and marks
-        it visited. Work in the batch's size, not the table's: distinct pairs by ``unique``
-        (the sums in batch order, as an ``index_add_`` over the whole table gave them)."""
-        table, visited = self.policy.table.view(-1), self.policy.visited.view(-1)
-        if pair.numel() > 1:
+        it visited. Members' pairs never meet (each indexes its own slice); within a block,
+        distinct pairs by ``unique``, their sums in the block's order. Work in the batch's
+        size, not the table's."""
+        table, visited = self.table.view(-1), self.visited.view(-1)
+        if n > 1:
             pair, slot, count = torch.unique(pair, return_inverse=True, return_counts=True)
             total = torch.zeros(len(pair), dtype=torch.float64).index_add_(0, slot, increment)
             increment = total / count
         table.index_add_(0, pair, increment)
         visited.index_fill_(0, pair, True)
 
-    @contextmanager
-    def greedy(self) -> Iterator[None]:
-        """Within the block the policy acts greedily (epsilon 0, no noise).
-
-        Ties between equal Q-values are broken by a generator of its own, seeded
-        the same each time: an evaluation neither draws from the training
-        stream (training goes on exactly as without it) nor varies between two
-        evaluations of the same table.
-        """
-        saved = self.policy.epsilon, self.policy.generator
-        self.policy.epsilon = 0.0
-        self.policy.generator = torch.Generator().manual_seed(0)
-        try:
-            yield
-        finally:
-            self.policy.epsilon, self.policy.generator = saved
-
-    def end_episode(self) -> None:
-        """After each finished episode: epsilon decays (down to ``epsilon_min``)."""
-        if self.policy.epsilon > self.epsilon_min:
-            self.policy.epsilon *= self.epsilon_discount
-
-    def begin(self) -> None:
-        """Before the first step of a training session: nothing to prepare."""
-
-    def act(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Epsilon-greedy on the table."""
-        return self.policy(tensordict)
-
-    def observe(self, tensordict: TensorDictBase) -> None:
-        """Learns from the batch of transitions."""
-        self.update(tensordict)
-
-    def train(self, env, run: Loop) -> None:
-        """Runs episodes on ``env`` until ``run`` is done (budget or win)."""
-        train(self, env, run)
+    def end_episodes(self, ended: Mapping[int, int]) -> None:
+        """After each finished episode of a member: its epsilon decays (down to ``epsilon_min``)."""
+        for b, count in ended.items():
+            for _ in range(count):
+                if self.epsilons[b] > self.epsilon_min:
+                    self.epsilons[b] *= self.epsilon_discount
 
     # -- persistence ---------------------------------------------------------
-    kind = "qlearn"
+    def model_state(self, b: int) -> dict:
+        """Member ``b``'s Q-table, its visited flags, epsilon and the state mapping (``model.pt``)."""
+        return {"kind": "qlearn", "table": self.table[b].clone(), "visited": self.visited[b].clone(),
+                "epsilon": self.epsilons[b], "discretizer": self.discretizer.describe(),
+                "n_actions": self.n_actions}
 
-    def training_state(self) -> dict:
-        """Everything the next update depends on (for resuming a run)."""
-        return {**self.model_state(), "generator": self.policy.generator.get_state()}
+    def training_state(self, b: int) -> dict:
+        """Everything member ``b``'s next update depends on (for resuming a run)."""
+        return {**self.model_state(b), "generator": self.generators[b].get_state()}
 
-    def load_training_state(self, state: dict) -> None:
-        self.load_model_state(state, "the training checkpoint")
-        self.policy.epsilon = float(state["epsilon"])
-        self.policy.generator.set_state(state["generator"])
-
-    def model_state(self) -> dict:
-        """The Q-table, its visited flags, epsilon and the state mapping (``model.pt``)."""
-        return {
-            "kind": "qlearn",
-            "table": self.policy.table.clone(),
-            "visited": self.policy.visited.clone(),
-            "epsilon": self.policy.epsilon,
-            "discretizer": self.policy.discretizer.describe(),
-            "n_actions": self.policy.n_actions,
-        }
-
-    def load_model_state(self, ckpt: Mapping, where: str) -> None:
-        """Loads a saved Q-table into the built policy, checking it fits; ``where`` names the
+    def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
+        """Loads a saved Q-table into member ``b``, checking it fits; ``where`` names the
         state's origin in a :class:`StateMismatch`."""
-        mine = self.policy.discretizer.describe()
-        if ckpt["discretizer"] != mine or ckpt["n_actions"] != self.policy.n_actions:
+        mine = self.discretizer.describe()
+        if ckpt["discretizer"] != mine or ckpt["n_actions"] != self.n_actions:
             raise StateMismatch(
                 f"checkpoint {where} does not fit this run: it has state {ckpt['discretizer']} "
-                f"x {ckpt['n_actions']} actions, this run has {mine} x {self.policy.n_actions}"
+                f"x {ckpt['n_actions']} actions, this run has {mine} x {self.n_actions}"
             )
-        self.policy.table.copy_(ckpt["table"])
-        self.policy.visited.copy_(ckpt["visited"])
+        self.table[b].copy_(ckpt["table"])
+        self.visited[b].copy_(ckpt["visited"])
+
+    def load_training_state(self, b: int, state: Mapping) -> None:
+        self.load_model_state(b, state, "the training checkpoint")
+        self.epsilons[b] = float(state["epsilon"])
+        self.generators[b].set_state(state["generator"])
 
 
-__all__ = ["Discretizer", "QTablePolicy", "QLearn"]
+__all__ = ["Discretizer", "QLearn"]

@@ -274,7 +274,10 @@ def load_training_state(path: Path, learner, env, run) -> TensorDictBase:
     state = read_training_state(path, run.run_dir, learner.kind)
     try:
         load_env_state(env, state["env"], path)
-        learner.load_training_state(state["learner"])
+        own = state["learner"]
+        if "generator" not in own:  # written before each learner had its own stream: the run's torch stream
+            own = {**own, "generator": state["rng"]["torch"]}
+        learner.load_training_state(own)
         run.load_state_dict(state["run"], reopen=False)
         load_global_rng_state(state["rng"])
         td = TensorDict(state["td"], batch_size=[env.num_envs])

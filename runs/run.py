@@ -9,16 +9,9 @@ the console (:mod:`runs.console`) and the logger (:mod:`runs.loggers`);
 ``close`` gives the summary (:mod:`runs.verdict`) and draws the reward
 curve (:mod:`runs.plot`).
 
-A learner's ``train`` is this loop (the :class:`learners.base.Loop` a Run is)::
-
-    td = run.start(env)
-    while not run.done:
-        td = policy(td)
-        td, td_next = env.step_and_maybe_reset(td)
-        learn(td)
-        for episode in run.record_step(env, td, stats):
-            ...  # per-episode updates (epsilon decay)
-        td = run.end_step(td_next)  # greedy evaluation and checkpoint when due
+The training loop (:func:`runs.loop.train`) hands a run its block of each step
+(:meth:`Run.record`) and then ends the step (:meth:`Run.end_step`: greedy evaluation and
+checkpoint when due).
 
 A run can be stopped at a step boundary (``request_stop``, e.g. on Ctrl-C)
 and saves its whole state every ``checkpoint_every`` episodes through the
@@ -210,13 +203,6 @@ class Run:
         self.first_step_s = process_age()
         return self.last_td
 
-    def record_step(self, env, td: TensorDictBase,
-                    stats: Mapping[str, float] | None = None) -> list[Episode]:
-        """Accounts the batched transition ``td`` (holding ``next``) that ``env`` just made;
-        returns the episodes it finished. ``stats``: the learner's numbers for their rows."""
-        self.divergences = getattr(env, "divergences", 0)
-        return self.record(td.get("next"), stats, getattr(env, "ended_info", None))
-
     def end_step(self, td: TensorDictBase) -> TensorDictBase:
         """At the step boundary before ``td``: a greedy evaluation every ``eval_every``
         episodes, then a checkpoint every ``checkpoint_every`` (so it holds the evaluation).
@@ -241,23 +227,14 @@ class Run:
         return td
 
     # -- episodes and evaluations ---------------------------------------------
-    def record(self, next_td: TensorDictBase, stats: Mapping[str, float] | None = None,
+    def record(self, reward: np.ndarray, done: np.ndarray, terminated: np.ndarray,
+               stats: Mapping[str, float] | None = None,
                ended_info: Mapping[str, np.ndarray] | None = None) -> list[Episode]:
-        """Accounts one batched step (``next_td``: its ``next``); returns the episodes it finished.
-
-        ``ended_info``: the env's ``ended_info`` after this step (the task's
-        ``episode_info`` of each copy whose episode just ended), where the
-        task's measure is read unless it is the episode length.
-        """
-        n = self.num_envs
-        return self.record_arrays(next_td.get("reward").reshape(n).numpy(), next_td.get("done").reshape(n).numpy(),
-                                  next_td.get("terminated").reshape(n).numpy(), stats, ended_info)
-
-    def record_arrays(self, reward: np.ndarray, done: np.ndarray, terminated: np.ndarray,
-                      stats: Mapping[str, float] | None = None,
-                      ended_info: Mapping[str, np.ndarray] | None = None) -> list[Episode]:
-        """:meth:`record` of the step's ``reward``, ``done`` and ``terminated`` arrays
-        (``(num_envs,)`` each; a seed batch hands each run its block's)."""
+        """Accounts one batched step from its ``reward``, ``done`` and ``terminated`` arrays
+        (``(num_envs,)`` each: the run's block of the step); returns the episodes it finished.
+        ``stats``: the learner's numbers for their rows. ``ended_info``: the env's
+        ``ended_info`` after this step (the task's ``episode_info`` of each copy whose episode
+        just ended), where the task's measure is read unless it is the episode length."""
         self._ret += reward
         self._len += 1
         self.env_steps += self.num_envs

@@ -26,11 +26,12 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from learners.base import Learner
+from learners.base import Member
 from runs.banner import banner_lines
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.evaluate import GreedyEvaluator, describe_evaluation, measure_of
 from runs.folder import model_path, start_run
+from runs.loop import train_single
 from runs.loggers import log_hparams, make_logger, run_scalar_names
 from runs.resume import load_training_state, save_training_state
 from runs.run import Hooks, Progress, Run
@@ -51,7 +52,7 @@ class Session:
 
     cfg: DictConfig
     run_dir: Path
-    learner: Learner
+    learner: Member  # the run's member of its learner
     env: RobotTaskEnv
     evaluator: GreedyEvaluator
 
@@ -76,7 +77,8 @@ def build(cfg: DictConfig, run_dir: Path, resume: bool = False) -> Session:
     generator = seed_everything(int(cfg.seed))
     learner = instantiate(cfg.learner, _convert_="all")
     env = build_env(cfg, int(cfg.num_envs), int(cfg.seed), learner.nsteps)
-    learner.build(env.task, generator)
+    learner.build(env.task, [generator])
+    learner = learner.member(0)  # a single run is a batch of one
     if cfg.checkpoint and not resume:
         load_model(model_path(cfg.checkpoint), learner)
     elif cfg.mode == "eval":
@@ -148,7 +150,7 @@ def _train(session: Session, run: Run) -> tuple[dict, dict | None]:
     result, finished = None, False
     try:
         with stop_on_signals(run) as signalled:
-            session.learner.train(session.env, run)
+            train_single(session.learner.learner, session.env, run)
             result = final_evaluation(session, run)
         finished = True
     finally:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -102,9 +101,8 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
                          f"{(str(cause).strip().splitlines() or [type(cause).__name__])[0]}") from None
     try:
         learner.build(env.task)
-        with warnings.catch_warnings():  # torchrl's target updater notes it is re-initialised
-            warnings.filterwarnings("ignore", message="Updated already initialized")
-            load_model(run_dir / "model.pt", learner)
+        learner = learner.member(0)
+        load_model(run_dir / "model.pt", learner)
         out = Path(out) if out else run_dir / "policy.mp4"
         with learner.greedy():
             record_video(env, learner.policy, out, n_steps=n_steps, **kwargs)

@@ -12,10 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
+from params.private_api import basic_sweeper
 from runs.summary import summarize_run
 from runs.catalog import GROUPS
 
@@ -54,7 +54,7 @@ def planned_jobs(sweep_dir: Path) -> Plan:
                                    "sweeper: jobs that never started cannot be listed")
         params = [f"{k}={v}" for k, v in (sweeper.get("params") or {}).items()]
         overrides = OverridesParser.create().parse_overrides([*params, *cfg.hydra.overrides.task])
-        jobs = [job for batch in BasicSweeper.split_arguments(overrides, None) for job in batch]
+        jobs = [job for batch in basic_sweeper().split_arguments(overrides, None) for job in batch]
         defaults = {k: cfg.hydra.runtime.choices.get(k) for k in PICKS}
     except Exception as err:
         return Plan(None, note=f"{path} is unreadable ({type(err).__name__}): "

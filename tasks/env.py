@@ -52,6 +52,7 @@ from tensordict import TensorDict, TensorDictBase, is_non_tensor, is_tensor_coll
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from params.private_api import get_entry, has_names, new_tensordict, set_entry
 from robots.physics import BatchedPhysics
 from tasks.base import Task, check_task
 
@@ -207,7 +208,7 @@ class RobotTaskEnv(EnvBase):
         if self.run_type_checks:
             next_td = self._step_proc_data(next_td)
         # Made here with the batch's shape and device: TensorDict's checks are skipped.
-        tensordict._set_str("next", next_td, validated=True, inplace=False, non_blocking=False)
+        set_entry(tensordict, "next", next_td)
         if not done.any():
             return tensordict, self._next_input(tensordict, entries, None)
         reset_obs = self._start_episodes(done, keep_ended_info=True)
@@ -226,13 +227,12 @@ class RobotTaskEnv(EnvBase):
         """The actions as a numpy array if ``_step_and_maybe_reset``'s one-pass path
         applies to ``tensordict`` (on this env's device), else None."""
         if (type(tensordict) is not TensorDict or tensordict.batch_size != self.batch_size
-                or self._post_step_mdp_hooks is not None or tensordict._has_names()
+                or self._post_step_mdp_hooks is not None or has_names(tensordict)
                 or self.__dict__.get("_torchrl_native_autoreset", False)):
             return None  # EnvBase's path handles it (or raises, as for a wrong batch size)
-        get = tensordict._get_str
-        action = get("action", None)
-        if (action is None or get("next", None) is not None or get("_step", None) is not None
-                or get("_reset", None) is not None):
+        action = get_entry(tensordict, "action")
+        if (action is None or get_entry(tensordict, "next") is not None
+                or get_entry(tensordict, "_step") is not None or get_entry(tensordict, "_reset") is not None):
             return None
         return action.numpy().reshape(self.num_envs)
 
@@ -311,7 +311,7 @@ class RobotTaskEnv(EnvBase):
         """A batch-sized tensordict of ``entries`` on ``device``, built without
         TensorDict's checks (every entry is made here, on the CPU, with the batch's
         shape). ``reset`` and ``step`` get no device, as ever (they place the result)."""
-        return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=device)
+        return new_tensordict(entries, self.batch_size, device)
 
     def _keep_ended_info(self, mask: np.ndarray) -> None:
         """Copies the task's ``episode_info`` of the ``mask`` copies into ``ended_info``."""

@@ -33,7 +33,7 @@ def test_every_robot_learner_pair_composes_and_builds(robot, learner):
     try:
         agent = instantiate(cfg.learner, _convert_="all")
         agent.build(env.task)
-        td = agent.policy(env.reset())
+        td = agent.member(0).policy(env.reset())
         assert env.step(td)["next", "observation"].shape[0] == 2
     finally:
         env.close()

@@ -13,6 +13,7 @@ from torchrl.envs.utils import check_env_specs
 
 from runs.evaluate import evaluate
 from learners.qlearn import QLearn
+from runs.loop import train_single
 from runs.run import Run
 from runs.seeding import seed_everything
 from robots.cartpole import CartPole
@@ -350,7 +351,8 @@ def test_hydra_composes_cube_with_its_task_and_tuned_learner():
     task = factory.build_task(cfg)
     assert task.tabular_bounds.names == ("wheel_speed", "y_speed", "yaw")
     learner = instantiate(cfg.learner, _convert_="all")
-    assert learner.build(task).discretizer.n_states == 21 * 5 * 3
+    learner.build(task)
+    assert learner.discretizer.n_states == 21 * 5 * 3
     with pytest.raises(Exception, match="one_disk_walk needs robot=cube"):
         factory.build_task(bad)
 
@@ -370,12 +372,13 @@ def train_and_evaluate(tmp_path, weight: float) -> float:
     learner.build(env.task, generator)
     run = Run(tmp_path / f"w{weight}", env.num_envs, learner.nepisodes,
               dataclasses.replace(env.task.success, threshold=math.inf), quiet=True)
-    learner.train(env, run)
+    train_single(learner, env, run)
     run.close()
     env.close()
     eval_env = RobotTaskEnv(task(), num_envs=8, seed=10_000)
-    with learner.greedy():
-        y = mean_y(eval_env, learner.policy)
+    member = learner.member(0)
+    with member.greedy():
+        y = mean_y(eval_env, member.policy)
     eval_env.close()
     return y
 

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from learners.qlearn import QLearn
+from runs.loop import train_single
 from runs.run import Run
 from robots.physics import BatchedPhysics
 
@@ -150,8 +151,8 @@ def test_qlearning_keeps_training_on_an_unstable_cartpole(make_cartpole_env, tmp
     q = QLearn(alpha=0.5, gamma=0.9, epsilon=0.5, nepisodes=300, number_splits=4)
     q.build(env.task, torch.Generator().manual_seed(0))
     run = Run(tmp_path, env.num_envs, q.nepisodes, env.task.success, quiet=True,
-              extra_fields=tuple(q.stats))
-    q.train(env, run)
+              extra_fields=tuple(q.stats(0)))
+    train_single(q, env, run)
     summary = run.close()
     assert summary["episodes"] == q.nepisodes  # ran to the end of its budget
     assert env.divergences > 20
@@ -163,4 +164,4 @@ def test_qlearning_keeps_training_on_an_unstable_cartpole(make_cartpole_env, tmp
     # (no episode reaches the time limit here; the last step may end some unrecorded ones)
     assert env.divergences - env.num_envs < truncated <= env.divergences
     assert all(np.isfinite(float(row["reward"])) for row in rows)
-    assert torch.isfinite(q.policy.table).all() and q.policy.visited.any()
+    assert torch.isfinite(q.table).all() and q.visited.any()

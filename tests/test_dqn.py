@@ -13,6 +13,7 @@ from runs.checkpoint import CheckpointError, load_model, save_model
 from learners.base import StateMismatch
 from learners.dqn import DQN, Transitions, unpack
 from runs.evaluate import evaluate
+from runs.loop import train_single
 from runs.run import Run
 from learners.schedules import LinearEpsilon
 from runs.seeding import seed_everything
@@ -50,7 +51,7 @@ def fill_buffer(learner: DQN, env: RobotTaskEnv, steps: int) -> TensorDict:
     (``[steps * num_envs]``, in the order stored)."""
     td, seen = env.reset(), []
     for _ in range(steps):
-        td, nxt = env.step_and_maybe_reset(learner.explorer(td))
+        td, nxt = env.step_and_maybe_reset(learner.act(td))
         learner.store(td)
         seen.append(td)
         td = nxt
@@ -63,7 +64,8 @@ def test_n1try_learning_rate_decays_like_keras():
     env = RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0)
     fill_buffer(learner, env, steps=20)
     learner.optimize(10)
-    assert learner.optimizer.param_groups[0]["lr"] == pytest.approx(0.01 / (1 + 0.01 * 10))
+    assert learner.lr_of(0) == pytest.approx(0.01 / (1 + 0.01 * 10))
+    assert learner.stats(0)["alpha"] == learner.lr_of(0)
 
 
 def test_terminal_reward_replacement_only_on_termination():
@@ -71,7 +73,7 @@ def test_terminal_reward_replacement_only_on_termination():
     learner.build(StayUp(CartPole()))
     env = RobotTaskEnv(StayUp(CartPole(), max_episode_steps=6), num_envs=8, seed=0)
     seen = fill_buffer(learner, env, steps=30)
-    data = learner.buffer.transitions()
+    data = learner.buffers[0].transitions()
     term = data.terminated.squeeze(-1)
     reward = data.reward.squeeze(-1)
     trunc = seen["next", "done"] & ~seen["next", "terminated"]
@@ -85,7 +87,7 @@ def test_reward_scale_multiplies_stored_rewards_after_the_terminal_replacement()
     learner.build(StayUp(CartPole()))
     env = RobotTaskEnv(StayUp(CartPole(), max_episode_steps=6), num_envs=8, seed=0)
     fill_buffer(learner, env, steps=30)
-    data = learner.buffer.transitions()
+    data = learner.buffers[0].transitions()
     term = data.terminated.squeeze(-1)
     reward = data.reward.squeeze(-1)
     assert term.any()
@@ -97,12 +99,12 @@ def test_the_buffer_gives_back_what_was_stored_and_samples_like_torchrl():
     learner = variant("dqn", batch_size=32)
     learner.build(StayUp(CartPole()))
     seen = fill_buffer(learner, RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0), steps=25)
-    for ours, theirs in zip(learner.buffer.transitions(), Transitions.of(seen)):
+    for ours, theirs in zip(learner.buffers[0].transitions(), Transitions.of(seen)):
         assert torch.equal(ours, theirs)
     torch.manual_seed(7)
-    ours = learner.buffer.sample_transitions(len(learner.buffer))
+    ours = learner.buffers[0].sample_transitions(len(learner.buffers[0]))
     torch.manual_seed(7)
-    theirs = unpack(learner.buffer.sample())  # TorchRL's RandomSampler: the same draw
+    theirs = unpack(learner.buffers[0].sample())  # TorchRL's RandomSampler: the same draw
     assert all(torch.equal(a, b) for a, b in zip(ours, theirs))
 
 
@@ -124,11 +126,12 @@ def train_and_eval(learner: DQN, tmp_path, num_envs: int, seed: int = 0) -> floa
     learner.build(task, gen)
     run = Run(tmp_path, num_envs, learner.nepisodes, task.success, quiet=True,
               extra_fields=("alpha", "gamma", "epsilon"))
-    learner.train(env, run)
+    train_single(learner, env, run)
     run.close()
-    with learner.greedy():
+    member = learner.member(0)
+    with member.greedy():
         return evaluate(RobotTaskEnv(StayUp(CartPole()), num_envs=20, seed=seed + 10_000),
-                        learner.policy)["mean_length"]
+                        member.policy)["mean_length"]
 
 
 def test_dqn_learns_cartpole(tmp_path):
@@ -148,25 +151,24 @@ def test_n1try_learns_cartpole(tmp_path):
 def test_checkpoint_rebuilds_the_network_and_rejects_mismatch(tmp_path):
     task = StayUp(CartPole())
     a = variant("dqn")
-    a.build(task)
-    save_model(tmp_path / "model.pt", a, meta={})
+    a.build(task, torch.Generator().manual_seed(1))
+    save_model(tmp_path / "model.pt", a.member(0), meta={})
     b = variant("dqn")
-    b.build(task)
-    load_model(tmp_path / "model.pt", b)
-    obs = torch.randn(5, 4)
-    from tensordict import TensorDict
-    qa = a.actor(TensorDict(observation=obs, batch_size=[5]))["action_value"]
-    qb = b.actor(TensorDict(observation=obs, batch_size=[5]))["action_value"]
-    assert torch.equal(qa, qb)
+    b.build(task, torch.Generator().manual_seed(2))
+    obs = torch.randn(1, 5, 4)
+    assert not torch.equal(a.net.q(a.params, obs), b.net.q(b.params, obs))
+    load_model(tmp_path / "model.pt", b.member(0))
+    assert torch.equal(a.net.q(a.params, obs), b.net.q(b.params, obs))
+    assert torch.equal(b.target, b.params)  # the target network starts as the loaded one
     c = variant("n1try")
     c.build(task)
     with pytest.raises(CheckpointError, match="does not fit"):
-        load_model(tmp_path / "model.pt", c)
+        load_model(tmp_path / "model.pt", c.member(0))
     from learners.qlearn import QLearn
     q = QLearn()
     q.build(task)
     with pytest.raises(CheckpointError, match="'dqn' learner"):
-        load_model(tmp_path / "model.pt", q)
+        load_model(tmp_path / "model.pt", q.member(0))
 
 
 def test_bad_dqn_values_are_one_line_errors():
@@ -191,16 +193,21 @@ def test_td_loss_equals_torchrl_dqnloss(loss, double, tau):
     learner.build(StayUp(CartPole()))
     env = RobotTaskEnv(StayUp(CartPole()), num_envs=8, seed=0)
     batch = fill_buffer(learner, env, steps=40)  # 320 transitions, some terminated
-    with torch.no_grad():  # make online and target networks differ
-        for p in learner.target_net.parameters() if tau else ():
-            p.add_(0.1 * torch.randn_like(p))
+    if tau:  # make online and target networks differ
+        learner.target.add_(0.1 * torch.randn_like(learner.target))
+    learner.net.load(learner.params[0])  # the actor holds member 0's network
     reference = DQNLoss(learner.actor, loss_function=learner.loss_function, delay_value=bool(tau),
                         double_dqn=double, action_space=learner.actor.spec)
     reference.make_value_estimator(gamma=learner.gamma)
-    for name, p in learner.target_net.named_parameters() if tau else ():
+    target_net = {k: v.clone() for k, v in learner.net.load(learner.target[0]).state_dict().items()}
+    learner.net.load(learner.params[0])
+    for name, p in target_net.items() if tau else ():
         reference.target_value_network_params["module", "0", "module", *name.split(".")].data.copy_(p)
     assert batch.get(("next", "terminated")).any()
-    ours = td_loss(learner.net, learner.target_net, Transitions.of(batch), learner.gamma, double,
+
+    def q_of(params):
+        return lambda x: learner.net.q(params, x.unsqueeze(0)).squeeze(0)
+    ours = td_loss(q_of(learner.params), q_of(learner.target), Transitions.of(batch), learner.gamma, double,
                    learner.loss_function)
     theirs = reference(batch)["loss"]
     torch.testing.assert_close(ours, theirs)
@@ -236,15 +243,16 @@ def test_training_state_roundtrip_and_old_format_refused():
     a.build(task)
     fill_buffer(a, RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0), steps=10)
     a.optimize(3)
-    state = a.training_state()
+    state = a.training_state(0)
     b = variant("dqn", batch_size=16)
     b.build(task)
-    b.load_training_state(state)
-    assert len(b.buffer) == 40 and torch.equal(b.buffer.rows, a.buffer.rows)
-    assert b.optimizer_steps == 3
+    b.load_training_state(0, state)
+    assert len(b.buffers[0]) == 40 and torch.equal(b.buffers[0].rows, a.buffers[0].rows)
+    assert b.steps[0] == 3 and torch.equal(b.params, a.params) and torch.equal(b.exp_avg_sq, a.exp_avg_sq)
+    assert torch.equal(b.target, a.target) and torch.equal(b.generators[0].get_state(), a.generators[0].get_state())
     old = {k: v for k, v in state.items() if k != "format"}  # saved before format 2
     with pytest.raises(StateMismatch, match="format 1"):
-        b.load_training_state(old)
+        b.load_training_state(0, old)
 
 
 def test_device_cuda_without_a_gpu_is_a_one_line_error():
@@ -278,7 +286,7 @@ def test_device_auto_is_the_gpu_where_torch_sees_one_else_the_cpu():
     learner = variant("dqn", device="auto", batch_size=16)
     assert learner.device == ("cuda" if torch.cuda.is_available() else "cpu")
     learner.build(StayUp(CartPole()))
-    assert all(p.device.type == learner.device for p in learner.net.parameters())
+    assert learner.params.device.type == learner.device
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
@@ -287,8 +295,8 @@ def test_device_cuda_keeps_networks_and_buffer_on_the_gpu():
     learner.build(StayUp(CartPole()))
     seen = fill_buffer(learner, RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0), steps=10)
     learner.optimize(3)
-    assert learner.buffer.rows.is_cuda and all(p.is_cuda for p in learner.net.parameters())
-    assert seen["action"].device.type == "cpu" and learner.train_stats()["updates"] == 3
+    assert learner.buffers[0].rows.is_cuda and learner.params.is_cuda and learner.exp_avg.is_cuda
+    assert seen["action"].device.type == "cpu" and learner.train_stats(0)["updates"] == 3
 
 
 def test_obs_scale_multiplies_named_observations_before_the_network(tmp_path):
@@ -304,19 +312,18 @@ def test_obs_scale_multiplies_named_observations_before_the_network(tmp_path):
     plain = variant("dqn")
     plain.build(task)
     # the layers after the scale are plain's layers: copy them over and compare the values
-    scaled.net.load_state_dict({"0.scale": scaled.net[0].scale, **{
-        f"{int(k.split('.')[0]) + 1}.{k.split('.', 1)[1]}": v for k, v in plain.net.state_dict().items()}})
-    obs = torch.randn(7, len(names))
+    scaled.params.copy_(plain.params)
+    obs = torch.randn(1, 7, len(names))
     factor = torch.ones(len(names))
     factor[0], factor[2] = 0.5, 10.0
-    assert torch.allclose(scaled.net(obs), plain.net(obs * factor))
-    save_model(tmp_path / "model.pt", scaled, meta={})
+    assert torch.allclose(scaled.net.q(scaled.params, obs), plain.net.q(plain.params, obs * factor))
+    save_model(tmp_path / "model.pt", scaled.member(0), meta={})
     again = variant("dqn", obs_scale={names[0]: 0.5, names[2]: 10.0})
     again.build(task)
-    load_model(tmp_path / "model.pt", again)
-    assert torch.equal(again.net(obs), scaled.net(obs))
+    load_model(tmp_path / "model.pt", again.member(0))
+    assert torch.equal(again.net.q(again.params, obs), scaled.net.q(scaled.params, obs))
     with pytest.raises(CheckpointError, match="does not fit"):
-        load_model(tmp_path / "model.pt", plain)
+        load_model(tmp_path / "model.pt", plain.member(0))
     with pytest.raises(ConfigError, match=f"learner.obs_scale names no observation of this task; its "
                                           f"observations: {', '.join(names)}"):
         variant("dqn", obs_scale={"wheel": 2.0}).build(task)

@@ -41,7 +41,7 @@ CLIENT = """
     learner.build(factory.build_task(cfg))
     Path("run").mkdir()
     OmegaConf.save(cfg, "run/config.yaml", resolve=True)
-    save_model(Path("run/model.pt"), learner, meta={})
+    save_model(Path("run/model.pt"), learner.member(0), meta={})
     sys.argv = ["runs.video", "run", "--steps", "3", "--width", "1280", "--height", "720"]
     runpy.run_module("runs.video", run_name="__main__", alter_sys=True)  # python -m
 """

@@ -12,6 +12,7 @@ from omegaconf import OmegaConf
 from learners.dqn import UpdateStats
 from runs.evaluate import greedy_evaluation
 from runs.loggers import flat_config, log_hparams, make_logger, run_scalar_names
+from runs.loop import train_single
 from runs.run import Hooks, Run
 from runs.seeding import seed_everything
 from tasks.factory import build_env
@@ -32,13 +33,14 @@ def train(run_dir: Path, learner: str, logger: str, overrides: list[str]):
     logger = make_logger(cfg.logger.kind, run_dir, exp_name="run")
     success = env.task.success
     log_hparams(logger, cfg, run_scalar_names(success.measure, success.window))
-    hooks = Hooks(greedy_eval=lambda: greedy_evaluation(learner, eval_env, int(cfg.seed) + 10_000),
-                  train_stats=learner.train_stats)
+    member = learner.member(0)
+    hooks = Hooks(greedy_eval=lambda: greedy_evaluation(member, eval_env, int(cfg.seed) + 10_000),
+                  train_stats=member.train_stats)
     record = Run(run_dir, env.num_envs, learner.nepisodes, env.task.success, logger=logger,
-                 extra_fields=tuple(learner.stats), quiet=True, eval_every=int(cfg.eval_every),
+                 extra_fields=tuple(member.stats), quiet=True, eval_every=int(cfg.eval_every),
                  hooks=hooks)
     try:
-        learner.train(env, record)
+        train_single(learner, env, record)
         record.close()
     finally:
         env.close()
@@ -161,9 +163,8 @@ def test_logging_changes_no_training_result(tmp_path):
     logged = train(tmp_path / "csv", "dqn", "csv", DQN_SHORT)
     for name in ("metrics.csv", "evals.csv"):
         assert (tmp_path / "none" / name).read_bytes() == (tmp_path / "csv" / name).read_bytes()
-    for a, b in zip(quiet.net.parameters(), logged.net.parameters()):
-        assert torch.equal(a, b)
-    assert logged.optimizer_steps == quiet.optimizer_steps > 0
+    assert torch.equal(quiet.params, logged.params)
+    assert logged.steps == quiet.steps and quiet.steps[0] > 0
     scalars = tmp_path / "csv" / "logs" / "run" / "scalars"
     assert (scalars / "train" / "loss.csv").read_text().strip()
     hparams = (tmp_path / "csv" / "logs" / "run" / "texts" / "hparams0.txt").read_text()
@@ -198,7 +199,7 @@ def test_update_stats_average_each_interval_without_per_update_syncs():
 
 
 def test_dqn_train_stats_without_clipping_measure_the_latest_gradient():
-    from learners.dqn import DQN, grad_norm_of
+    from learners.dqn import DQN
     from learners.schedules import LinearEpsilon
     from robots.cartpole import CartPole
     from tasks.env import RobotTaskEnv
@@ -206,17 +207,18 @@ def test_dqn_train_stats_without_clipping_measure_the_latest_gradient():
 
     learner = DQN(epsilon=LinearEpsilon(1.0, 0.1, 100), grad_clip=0.0, batch_size=8)
     learner.build(StayUp(CartPole()))
-    assert set(learner.train_stats()) == {"epsilon", "lr", "updates", "updates_per_s"}
+    assert set(learner.train_stats(0)) == {"epsilon", "lr", "updates", "updates_per_s"}
     env = RobotTaskEnv(StayUp(CartPole()), num_envs=4, seed=0)
     td = env.reset()
     for _ in range(4):
-        td, nxt = env.step_and_maybe_reset(learner.explorer(td))
+        td, nxt = env.step_and_maybe_reset(learner.act(td))
         learner.store(td)
         td = nxt
     env.close()
     learner.optimize(3)
-    stats = learner.train_stats()
-    assert stats["grad_norm"] == pytest.approx(float(grad_norm_of(learner._params)))
+    stats = learner.train_stats(0)
+    assert stats["grad_norm"] == pytest.approx(float(torch.linalg.vector_norm(learner.grads[0])))
+    assert learner.grads[0].abs().sum() > 0
     assert stats["updates"] == 3 and stats["loss"] > 0
 
 

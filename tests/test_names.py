@@ -35,9 +35,8 @@ def feed(run: Run, episodes: list[tuple[int, float, float]]) -> None:
     """One-copy episodes ``(length, reward per step, distance walked)``, as the env reports them."""
     for length, reward, walked in episodes:
         for t in range(1, length + 1):
-            end = torch.tensor([[t == length]])
-            run.record(TensorDict(reward=torch.full((1, 1), reward), done=end, terminated=end, batch_size=[1]),
-                       ended_info={"distance_walked": np.array([walked])})
+            end = np.array([t == length])
+            run.record(np.array([reward]), end, end, ended_info={"distance_walked": np.array([walked])})
 
 
 EPISODES = [(10, 1.0, 0.1), (20, 0.5, 0.4), (5, 2.0, 0.2), (8, 1.0, 0.9), (12, -1.0, 0.3), (6, 3.0, 0.5)]

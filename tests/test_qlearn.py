@@ -8,6 +8,7 @@ from tensordict import TensorDict
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.evaluate import evaluate
 from learners.qlearn import Discretizer, QLearn
+from runs.loop import train_single
 from runs.run import Run
 from runs.seeding import seed_everything
 from robots.cartpole import CartPole
@@ -61,80 +62,79 @@ def learner(**kw):
 
 def apply(q, *args):
     td = transition(*args)
-    q.policy(td.select("observation").update({"action": td["action"]}))
-    td["state_index"] = q.policy.discretizer(td["observation"])
-    q.update(td)
+    td["state_index"] = q.discretizer(td["observation"])
+    q.observe(td)
 
 
 def test_update_bootstraps_from_the_best_next_action():
     q = learner()
-    q.policy.table[2] = torch.tensor([3.0, 5.0])
+    q.table[0][2] = torch.tensor([3.0, 5.0])
     apply(q, [[0.5, 0, 0]], [1], [1.0], [[2.5, 0, 0]], [False])
-    assert q.policy.table[0, 1].item() == pytest.approx(0.5 * (1.0 + 0.9 * 5.0))
-    assert q.policy.table[0, 0].item() == 0.0
+    assert q.table[0][0, 1].item() == pytest.approx(0.5 * (1.0 + 0.9 * 5.0))
+    assert q.table[0][0, 0].item() == 0.0
 
 
 def test_no_bootstrap_through_terminal_unless_asked():
     for flag, expected in ((False, 0.5 * 1.0), (True, 0.5 * (1.0 + 0.9 * 5.0))):
         q = learner(bootstrap_terminal=flag)
-        q.policy.table[2] = torch.tensor([3.0, 5.0])
+        q.table[0][2] = torch.tensor([3.0, 5.0])
         apply(q, [[0.5, 0, 0]], [1], [1.0], [[2.5, 0, 0]], [True])
-        assert q.policy.table[0, 1].item() == pytest.approx(expected)
+        assert q.table[0][0, 1].item() == pytest.approx(expected)
 
 
 def test_first_visit_sets_q_to_reward_when_asked():
     q = learner(first_visit_reward=True)
-    q.policy.table[2] = torch.tensor([3.0, 5.0])
+    q.table[0][2] = torch.tensor([3.0, 5.0])
     apply(q, [[0.5, 0, 0]], [1], [7.0], [[2.5, 0, 0]], [False])
-    assert q.policy.table[0, 1].item() == 7.0
+    assert q.table[0][0, 1].item() == 7.0
     apply(q, [[0.5, 0, 0]], [1], [7.0], [[2.5, 0, 0]], [False])
-    assert q.policy.table[0, 1].item() == pytest.approx(7.0 + 0.5 * (7.0 + 4.5 - 7.0))
+    assert q.table[0][0, 1].item() == pytest.approx(7.0 + 0.5 * (7.0 + 4.5 - 7.0))
 
 
 def test_duplicate_pairs_in_a_batch_average_their_increments():
     q = learner()
     apply(q, [[0.5, 0, 0], [0.6, 0, 0]], [1, 1], [2.0, 4.0], [[3.5, 0, 0], [3.5, 0, 0]], [True, True])
-    assert q.policy.table[0, 1].item() == pytest.approx(0.5 * 3.0)
+    assert q.table[0][0, 1].item() == pytest.approx(0.5 * 3.0)
 
 
 def test_greedy_action_and_epsilon_decay_with_floor():
     q = learner(epsilon_discount=0.5, epsilon_min=0.2)
-    q.policy.table[1] = torch.tensor([0.0, 1.0])
+    q.table[0][1] = torch.tensor([0.0, 1.0])
     td = TensorDict({"observation": torch.tensor([[1.5, 0, 0]] * 50)}, batch_size=[50])
-    assert (q.policy(td)["action"] == 1).all()
-    q.policy.epsilon = 0.9
+    assert (q.member(0).policy(td)["action"] == 1).all()
+    q.epsilons[0] = 0.9
     for expected in (0.45, 0.225, 0.1125, 0.1125):
-        q.end_episode()
-        assert q.policy.epsilon == pytest.approx(expected)
+        q.end_episodes({0: 1})
+        assert q.epsilons[0] == pytest.approx(expected)
 
 
 def test_epsilon_one_explores_uniformly_and_noise_option_too():
     for noise in (False, True):
         q = learner(noise_exploration=noise)
-        q.policy.table[1] = torch.tensor([0.0, 1.0])
-        q.policy.epsilon = 1.0
+        q.table[0][1] = torch.tensor([0.0, 1.0])
+        q.epsilons[0] = 1.0
         td = TensorDict({"observation": torch.tensor([[1.5, 0, 0]] * 2000)}, batch_size=[2000])
-        share = q.policy(td)["action"].float().mean().item()
+        share = q.member(0).policy(td)["action"].float().mean().item()
         # Plain epsilon: uniform (0.5). Noise of the Q magnitude: still favours the best action.
         assert (0.45 < share < 0.55) if not noise else (0.6 < share < 0.9), share
 
 
 def test_checkpoint_roundtrip_and_clear_errors(tmp_path):
     q = learner()
-    q.policy.table.uniform_()
-    save_model(tmp_path / "model.pt", q, meta={})
+    q.table[0].uniform_()
+    save_model(tmp_path / "model.pt", q.member(0), meta={})
     q2 = learner()
-    load_model(tmp_path / "model.pt", q2)
-    assert torch.equal(q2.policy.table, q.policy.table)
+    load_model(tmp_path / "model.pt", q2.member(0))
+    assert torch.equal(q2.table[0], q.table[0])
     with pytest.raises(CheckpointError, match="does not exist"):
-        load_model(tmp_path / "missing.pt", q2)
+        load_model(tmp_path / "missing.pt", q2.member(0))
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="not a readable checkpoint"):
-        load_model(tmp_path / "bad.pt", q2)
+        load_model(tmp_path / "bad.pt", q2.member(0))
     other = QLearn(number_splits=3)
     other.build(FakeTask())
     with pytest.raises(CheckpointError, match="does not fit"):
-        load_model(tmp_path / "model.pt", other)
+        load_model(tmp_path / "model.pt", other.member(0))
 
 
 def random_policy(n_actions, seed):
@@ -160,8 +160,8 @@ def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
     env = RobotTaskEnv(task, num_envs=1, seed=seed)
     q = instantiate(cfg.learner, _convert_="all")
     q.build(task, gen)
-    run = Run(tmp_path, 1, q.nepisodes, task.success, quiet=True, extra_fields=tuple(q.stats))
-    q.train(env, run)
+    run = Run(tmp_path, 1, q.nepisodes, task.success, quiet=True, extra_fields=tuple(q.stats(0)))
+    train_single(q, env, run)
     run.close()
     trained = np.mean(run.lengths[-50:])
     random_env = RobotTaskEnv(StayUp(CartPole()), num_envs=50, seed=seed)
@@ -171,10 +171,10 @@ def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
 
 def full_table_update(q, td):
     """The update as it was first written, with work in the table's size: the reference."""
-    table, n = q.policy.table, q.policy.n_actions
+    table, n = q.table[0], q.n_actions
     state, action = td["state_index"].reshape(-1), td["action"].reshape(-1)
     reward = td["next", "reward"].reshape(-1).to(torch.float64)
-    bootstrap = table[q.policy.discretizer(td["next", "observation"]).reshape(-1)].amax(-1)
+    bootstrap = table[q.discretizer(td["next", "observation"]).reshape(-1)].amax(-1)
     target = reward + q.gamma * torch.where(td["next", "terminated"].reshape(-1), 0.0, bootstrap)
     old = table[state, action]
     new = old + q.alpha * (target - old)
@@ -191,12 +191,12 @@ def full_table_update(q, td):
 def test_batched_update_matches_the_full_table_arithmetic_bit_for_bit(batch):
     q = learner()
     gen = torch.Generator().manual_seed(batch)
-    q.policy.table.uniform_(-1, 1, generator=gen)
+    q.table[0].uniform_(-1, 1, generator=gen)
     obs, next_obs = (torch.rand(batch, 3, generator=gen) * 4 for _ in range(2))
     td = transition(obs.tolist(), torch.randint(0, 2, (batch,), generator=gen).tolist(),
                     torch.randn(batch, generator=gen).tolist(), next_obs.tolist(),
                     (torch.rand(batch, generator=gen) < 0.2).tolist())
-    td["state_index"] = q.policy.discretizer(td["observation"])
+    td["state_index"] = q.discretizer(td["observation"])
     expected = full_table_update(q, td)
-    q.update(td)
-    assert torch.equal(q.policy.table, expected)
+    q.observe(td)
+    assert torch.equal(q.table[0], expected)

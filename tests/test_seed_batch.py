@@ -1,8 +1,7 @@
 """Seeds in one process (runs/batch.py, the ``seeds`` launcher): a seed trained in a batch
-is the run it makes alone, file for file (wall-clock numbers aside), bit for bit for
-qlearn and dqn, stacked (learners/stack.py) or seed by seed; a failing seed ends alone,
-also inside the stack; a failed stacked call ends every seed with its trace; the launcher
-batches a multirun's seeds."""
+(a member of one learner) is the run it makes alone, file for file (wall-clock numbers
+aside), bit for bit for qlearn and dqn; a seed whose own work fails ends alone; a failed
+learner call ends every seed with its trace; the launcher batches a multirun's seeds."""
 
 from __future__ import annotations
 
@@ -64,12 +63,9 @@ def run_alone(learner: str, root: Path, seeds=SEEDS) -> None:
             execute(job.cfg, job.run_dir, choices=job.choices)
 
 
-@pytest.mark.parametrize("learner, stacked", [("qlearn", True), ("dqn", True), ("qlearn", False)])
-def test_a_seed_in_a_batch_is_its_run_alone(tmp_path, monkeypatch, learner, stacked):
-    """Stacked (the seeds' learners in one stack) or seed by seed (a learner kind without
-    one), every seed's files are its run's alone."""
-    if not stacked:
-        monkeypatch.setattr(batch_module, "stack", lambda *a: None)
+@pytest.mark.parametrize("learner", ["qlearn", "dqn"])
+def test_a_seed_in_a_batch_is_its_run_alone(tmp_path, learner):
+    """Every seed's files are its run's alone."""
     batch = jobs(learner, tmp_path, "batch")
     execute_batch(batch)
     run_alone(learner, tmp_path)
@@ -180,71 +176,44 @@ def test_a_stopped_sweep_resumes_as_one_batch_to_each_seeds_uninterrupted_run(tm
 
 
 def test_a_failing_seed_ends_alone(tmp_path, monkeypatch):
-    """A seed's own call failing (here its per-episode epsilon decay, after 10 episodes)
-    ends it alone, with its files; the other seed trains on."""
-    built = []
-    real_build, real_end_episode = QLearn.build, QLearn.end_episode
-    monkeypatch.setattr(QLearn, "build", lambda self, *a: built.append(self) or real_build(self, *a))
-    ended = []
+    """A seed's own work failing (here its run's booking, after 10 episodes) ends it alone,
+    with its files; the other seed trains on, its files still its run's alone."""
+    real_record = Run.record
 
-    def end_episode(self):
-        ended.append(self)
-        if self is built[0] and ended.count(self) > 10:
-            raise FloatingPointError("the Q-table diverged")
-        real_end_episode(self)
+    def record(self, *args, **kwargs):
+        if self.run_dir.name == f"batch{SEEDS[0]}" and self.n_episodes >= 10:
+            raise FloatingPointError("the metrics diverged")
+        return real_record(self, *args, **kwargs)
 
-    monkeypatch.setattr(QLearn, "end_episode", end_episode)
+    monkeypatch.setattr(Run, "record", record)
     summaries = execute_batch(jobs("qlearn", tmp_path, "batch"))
     failed, healthy = (tmp_path / f"batch{s}" for s in SEEDS)
-    assert "FloatingPointError: the Q-table diverged" in (failed / "error.txt").read_text()
-    assert summaries[0]["failed"] == "FloatingPointError: the Q-table diverged"
+    assert "FloatingPointError: the metrics diverged" in (failed / "error.txt").read_text()
+    assert summaries[0]["failed"] == "FloatingPointError: the metrics diverged"
     assert not (healthy / "error.txt").exists() and summaries[1]["episodes"] == 60
     assert (failed / "model.pt").is_file() and (healthy / "eval.json").is_file()
-
-
-def test_a_seed_failing_inside_the_stack_ends_alone_and_the_others_train_on_exactly(tmp_path, monkeypatch):
-    """A DQN seed whose own part of a stacked call fails (its replay buffer, at its 30th
-    store) ends alone, with its files; the other seed's files are still its run's alone."""
-    from learners.dqn import RowReplayBuffer
-
-    real_put, calls = RowReplayBuffer.put, {}
-
-    def put(self, rows):
-        calls[id(self)] = calls.get(id(self), 0) + 1
-        if len(calls) == 2 and id(self) == next(iter(calls)) and calls[id(self)] >= 30:
-            raise MemoryError("the replay buffer of the first seed is full")
-        real_put(self, rows)
-
-    monkeypatch.setattr(RowReplayBuffer, "put", put)
-    summaries = execute_batch(jobs("dqn", tmp_path, "batch"))
-    failed = tmp_path / f"batch{SEEDS[0]}"
-    assert summaries[0]["failed"] == "MemoryError: the replay buffer of the first seed is full"
-    assert "MemoryError" in (failed / "error.txt").read_text() and (failed / "model.pt").is_file()
-    assert "failed" not in summaries[1] and not (tmp_path / f"batch{SEEDS[1]}" / "error.txt").exists()
-    monkeypatch.setattr(RowReplayBuffer, "put", real_put)
-    run_alone("dqn", tmp_path, seeds=SEEDS[1:])
+    monkeypatch.setattr(Run, "record", real_record)
+    run_alone("qlearn", tmp_path, seeds=SEEDS[1:])
     same_files(tmp_path, SEEDS[1:])
 
 
-def test_a_failed_stacked_call_ends_every_seed_with_its_trace(tmp_path, monkeypatch):
-    """The seeds share a stacked call's state: when the call itself fails, each seed ends
-    there (its files, its error.txt with the trace), none trains on."""
-    from learners.stack import QLearnStack
-
-    real_observe, calls = QLearnStack.observe, []
+def test_a_failed_learner_call_ends_every_seed_with_its_trace(tmp_path, monkeypatch):
+    """The seeds share a learner call's state: when the call fails, each seed ends there
+    (its files, its error.txt with the trace), none trains on."""
+    real_observe, calls = QLearn.observe, []
 
     def observe(self, *args):
         calls.append(1)
         if len(calls) == 40:
-            raise RuntimeError("no memory for the stacked table")
+            raise RuntimeError("no memory for the Q-tables")
         real_observe(self, *args)
 
-    monkeypatch.setattr(QLearnStack, "observe", observe)
+    monkeypatch.setattr(QLearn, "observe", observe)
     summaries = execute_batch(jobs("qlearn", tmp_path, "batch"))
     for seed, summary in zip(SEEDS, summaries):
         folder = tmp_path / f"batch{seed}"
-        assert summary["failed"] == "RuntimeError: no memory for the stacked table", summary
-        assert "stacked learner failed" in (folder / "error.txt").read_text()
+        assert summary["failed"] == "RuntimeError: no memory for the Q-tables", summary
+        assert "the seeds' learner failed" in (folder / "error.txt").read_text()
         assert (folder / "model.pt").is_file() and summary["episodes"] < 60
 
 

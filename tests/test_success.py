@@ -62,7 +62,10 @@ def judge(tmp_path, make_task, policy, episodes: int, num_envs: int = 2, eval_co
     td = run.start(env)
     while not run.done:
         td, td_next = env.step_and_maybe_reset(policy(td))
-        run.record_step(env, td)
+        nxt = td["next"]
+        run.divergences = env.divergences
+        run.record(*(nxt[key].reshape(-1).numpy() for key in ("reward", "done", "terminated")),
+                   ended_info=env.ended_info)
         td = run.end_step(td_next)
     if run.solved_at is None:
         run.evaluate_greedy()  # the policy after the budget, as train.py's final evaluation
@@ -125,8 +128,8 @@ def feed(run: Run, lengths: list[int]) -> None:
     """Records one-copy episodes of the given lengths, as the env would report them."""
     for length in lengths:
         for t in range(1, length + 1):
-            end = torch.tensor([[t == length]])
-            run.record(TensorDict(reward=torch.ones(1, 1), done=end, terminated=end, batch_size=[1]))
+            end = np.array([t == length])
+            run.record(np.ones(1), end, end)
 
 
 def test_stay_up_keeps_the_seeds_rule_on_training_episodes(tmp_path):

@@ -14,6 +14,7 @@ from torchrl.envs.utils import check_env_specs
 
 from runs.evaluate import evaluate
 from learners.qlearn import QLearn
+from runs.loop import train_single
 from runs.run import Run
 from runs.seeding import seed_everything
 from robots.cartpole import CartPole
@@ -389,13 +390,14 @@ def test_q_learning_drives_round_the_ring_far_longer_than_random(tmp_path):
     learner.build(env.task, generator)
     run = Run(tmp_path, env.num_envs, learner.nepisodes,
               dataclasses.replace(env.task.success, threshold=math.inf), quiet=True)
-    learner.train(env, run)
+    train_single(learner, env, run)
     run.close()
     env.close()
     eval_env = build_env(cfg, 20, seed=10_000, max_episode_steps=learner.nsteps)
     try:
-        with learner.greedy():
-            greedy = evaluate(eval_env, learner.policy)
+        member = learner.member(0)
+        with member.greedy():
+            greedy = evaluate(eval_env, member.policy)
         rng = np.random.default_rng(0)
 
         def random_policy(td):

@@ -42,7 +42,7 @@ def dqn_on_cartpole():
     learner = instantiate(cfg.learner, _convert_="all")
     env = factory.build_env(cfg, num_envs=1, seed=0)
     learner.build(env.task)
-    yield cfg, learner, env
+    yield cfg, learner.member(0), env
     env.close()
 
 

@@ -1,0 +1,68 @@
+"""The private torch, tensordict, TorchRL and Hydra APIs the project relies on, in one place.
+
+Each is reached only through this module, with why it is used. ``tests/test_private_api.py``
+checks every one and fails naming the one an upgrade removed or changed. (This module sits
+in the lowest layer, ``params``, so that every package may use it.)
+
+- tensordict ``TensorDict._new_unsafe``: a tensordict of given entries without
+  TensorDict's checks. The env makes each step's tensordicts from entries it made itself,
+  and the learners add their actions to a step as a *new* tensordict (the step's own stays
+  what a run holds for its checkpoint); the checked constructor or ``copy()`` cost many
+  times more per step.
+- tensordict ``TensorDictBase._set_str``, ``_get_str``, ``_has_names``: the env's one-pass
+  step sets and reads entries by a plain string key without the checks of ``set``/``get``.
+- TorchRL ``ReplayBuffer._storage``: every path of a ``ReplayBuffer`` (length, sample,
+  extend, state) reads its storage through this attribute; :class:`learners.dqn.
+  RowReplayBuffer` makes it a property that first writes the rows it queued.
+- TorchRL ``EnvBase._step_and_maybe_reset``, ``_post_step_mdp_hooks``, ``_step_proc_data``
+  and the ``_torchrl_native_autoreset`` flag: the env's one-pass step overrides the method
+  and falls back to it whenever one of the others says ``EnvBase``'s own path applies.
+- Hydra ``hydra._internal.core_plugins.basic_sweeper.BasicSweeper``: a sweep's job list
+  is expanded as Hydra's basic sweeper expands it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+
+# TorchRL's names (checked by tests/test_private_api.py).
+REPLAY_BUFFER_STORAGE = "_storage"
+ENV_BASE_NAMES = ("_step_and_maybe_reset", "_step_proc_data")
+ENV_BASE_FLAGS = ("_post_step_mdp_hooks", "_torchrl_native_autoreset")
+
+
+def new_tensordict(entries: dict[str, Any], batch_size: torch.Size | tuple[int, ...],
+                   device: torch.device | None = None) -> TensorDictBase:
+    """A tensordict of ``entries`` (each already of ``batch_size`` and on ``device``),
+    made without TensorDict's checks."""
+    return TensorDict._new_unsafe(entries, batch_size=batch_size, device=device)
+
+
+def with_entries(td: TensorDictBase, **entries: torch.Tensor) -> TensorDictBase:
+    """A new tensordict of ``td``'s entries and ``entries`` (``td`` unchanged), unchecked."""
+    return new_tensordict({**dict(td.items()), **entries}, td.batch_size, td.device)
+
+
+def set_entry(td: TensorDictBase, key: str, value: Any) -> None:
+    """``td[key] = value`` without checks (``value`` made with ``td``'s shape and device)."""
+    td._set_str(key, value, validated=True, inplace=False, non_blocking=False)
+
+
+def get_entry(td: TensorDictBase, key: str, default: Any = None) -> Any:
+    """``td.get(key, default)`` for a plain string key, without the key's parsing."""
+    return td._get_str(key, default)
+
+
+def has_names(td: TensorDictBase) -> bool:
+    """Whether ``td``'s dimensions are named."""
+    return td._has_names()
+
+
+def basic_sweeper():
+    """Hydra's ``BasicSweeper`` class."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+
+    return BasicSweeper

@@ -1,0 +1,173 @@
+"""One learner over a member axis (learners/): every member of a learner of several acts and
+learns bit for bit as the same seed in a learner of one (actions, networks or table,
+optimizer state, replay buffer, schedule, counters, statistics, random streams), for
+qlearn and every DQN variant, per-step and per-episode updates, one copy a member or
+several; members not due for an update are left as they are; a member's saved state is
+its own."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from hydra.utils import instantiate
+
+from runs.catalog import compose
+from runs.seeding import seed_everything
+from tasks.factory import build_env
+
+SEEDS = (3, 8, 5)
+LIMIT = 25  # steps per episode: episodes end often, so per-episode updates come at many steps
+
+
+def tensors_equal(a, b) -> bool:
+    if isinstance(a, torch.Tensor):
+        return isinstance(b, torch.Tensor) and a.dtype == b.dtype and torch.equal(a, b)
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(tensors_equal(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(tensors_equal(x, y) for x, y in zip(a, b))
+    return a == b
+
+
+def config(learner: str, overrides=()):
+    return compose("cartpole", learner=learner, overrides=list(overrides))
+
+
+def made(cfg, seeds):
+    """A learner of one member per seed, each stream seeded as a run of that seed seeds it."""
+    generators = [seed_everything(seed) for seed in seeds]
+    learner = instantiate(cfg.learner, _convert_="all")
+    learner.build(build_env(cfg, 1, seeds[0]).task, generators)
+    return learner
+
+
+def trained(cfg, seeds, n: int, steps: int):
+    """A learner of ``seeds`` trained on ``n`` copies a member (the loop of runs.loop.train
+    without runs): the learner and each member's actions per step."""
+    learner = made(cfg, seeds)
+    env = build_env(cfg, n * len(seeds), list(seeds) if len(seeds) > 1 else seeds[0], LIMIT)
+    learner.begin()
+    td, actions = env.reset(), []
+    for _ in range(steps):
+        td = learner.act(td)
+        actions.append(td.get("action").clone().view(len(seeds), n))
+        td, nxt = env.step_and_maybe_reset(td)
+        learner.observe(td)
+        done = td.get(("next", "done")).reshape(len(seeds), n).sum(1)
+        learner.end_episodes({b: int(count) for b, count in enumerate(done) if count})
+        td = nxt
+    env.close()
+    return learner, actions
+
+
+def same_as_alone(cfg, n: int, steps: int) -> None:
+    together, actions = trained(cfg, SEEDS, n, steps)
+    for b, seed in enumerate(SEEDS):
+        single, single_actions = trained(cfg, (seed,), n, steps)
+        for t, (a, s) in enumerate(zip(actions, single_actions)):
+            assert torch.equal(a[b], s[0]), (seed, "action", t)
+        assert tensors_equal(together.training_state(b), single.training_state(0)), seed
+        assert tensors_equal(together.model_state(b), single.model_state(0)), seed
+        stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
+                 for x, i in ((together, b), (single, 0))]
+        assert stats[0] == stats[1], seed
+        if together.kind == "dqn":
+            assert together.steps[b] > 0
+
+
+DQN_CASES = {
+    # the tuned cart-pole DQN: per-episode updates, 16 copies (here 4), Huber, Polyak target, clip
+    "dqn per episode": ("dqn", 4, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100"]),
+    # the default's per-transition updates, one copy a seed (acting products below BLAS size)
+    "dqn per step, 1 copy": ("dqn", 1, ["~tuned", "learner.learning_starts=40", "learner.batch_size=16"]),
+    # tanh, l2, Keras lr decay, no target network, one update per episode
+    "n1try": ("n1try", 2, ["learner.batch_size=32"]),
+    # l2, hard target copy every 100 updates (here 20), -200 at a termination, minibatch
+    # products below BLAS size (a batch of 8)
+    "mbalunovic": ("mbalunovic", 2, ["learner.target_update=20", "learner.batch_size=8"]),
+    # l2, no target network, per episode, replay of 2000
+    "ruippeixotog": ("ruippeixotog", 3, []),
+    # a fixed input factor before the first layer (conf/tuned/cube_dqn.yaml's kind)
+    "dqn with obs_scale": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
+                                      "+learner.obs_scale={cart_pos: 0.5, pole_vel: 3.0}"]),
+}
+
+
+@pytest.mark.parametrize("case", DQN_CASES)
+def test_a_dqn_member_learns_bit_for_bit_as_alone(case):
+    name, n, overrides = DQN_CASES[case]
+    same_as_alone(config(name, overrides), n, steps=120)
+
+
+@pytest.mark.parametrize("n, overrides", [
+    (8, []),  # the tuned file: 8 copies (their pairs collide: averaged increments)
+    (1, []),
+    (3, ["learner.noise_exploration=true", "learner.first_visit_reward=true", "learner.bootstrap_terminal=true"]),
+])
+def test_a_qlearn_member_learns_bit_for_bit_as_alone(n, overrides):
+    same_as_alone(config("qlearn", overrides), n, steps=150)
+
+
+def snapshot(learner, b: int) -> dict:
+    state = learner.training_state(b)
+    return {k: v for k, v in state.items() if k != "buffer"} | {"updates": learner.trackers[b].count}
+
+
+def test_members_not_due_keep_their_parameters_and_optimizer_state():
+    """Per-episode updates: a round takes the members that owe one; the others' networks,
+    target networks, Adam moments and steps, counters and streams do not change."""
+    cfg = config("dqn", ["learner.batch_size=32", "learner.learning_starts=0", "learner.train_every=episode",
+                         "learner.updates=1"])
+    learner = made(cfg, SEEDS)
+    env = build_env(cfg, 2 * len(SEEDS), list(SEEDS), LIMIT)
+    td = learner.act(env.reset())
+    for _ in range(20):
+        td, nxt = env.step_and_maybe_reset(td)
+        learner.observe(td)
+        td = learner.act(nxt)
+    learner.end_episodes({0: 3, 2: 1})  # every member's first updates: its optimizer state starts
+    before = [snapshot(learner, b) for b in range(len(SEEDS))]
+    stream = learner.generators[1].get_state()
+    learner.end_episodes({0: 2})
+    assert tensors_equal(snapshot(learner, 1), before[1]) and tensors_equal(snapshot(learner, 2), before[2])
+    assert torch.equal(learner.generators[1].get_state(), stream)
+    assert learner.steps == [5, 0, 1]
+    assert learner.training_state(1)["optimizer"]["state"] == {}
+    assert not tensors_equal(snapshot(learner, 0)["net"], before[0]["net"])
+    env.close()
+
+
+def test_a_members_saved_state_is_its_own():
+    """Views of the members' tensors would save every member's: a member's states hold copies."""
+    for name in ("dqn", "qlearn"):
+        learner = made(config(name), SEEDS)
+        for state in (learner.model_state(1), learner.training_state(1)):
+            tensors = [v for v in _leaves(state) if isinstance(v, torch.Tensor)]
+            assert tensors and all(t.untyped_storage().nbytes() == t.nbytes for t in tensors), name
+
+
+def _leaves(state):
+    if isinstance(state, dict):
+        for value in state.values():
+            yield from _leaves(value)
+    elif isinstance(state, (list, tuple)):
+        for value in state:
+            yield from _leaves(value)
+    else:
+        yield state
+
+
+def test_a_member_loads_another_members_state_and_acts_as_it():
+    """A state saved from member 2 of a learner of three, loaded into a learner of one, gives
+    the same greedy actions (the state is the member's, the layout the same)."""
+    for name in ("dqn", "qlearn"):
+        cfg = config(name)
+        together, _ = trained(cfg, SEEDS, 2, 60)
+        single = made(cfg, (0,))
+        single.load_training_state(0, together.training_state(2))
+        env = build_env(cfg, 4, 11)
+        td = env.reset()
+        mine, theirs = single.member(0), together.member(2)
+        with mine.greedy(), theirs.greedy():
+            assert torch.equal(mine.policy(td)["action"], theirs.policy(td)["action"]), name
+        env.close()

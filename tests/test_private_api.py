@@ -1,0 +1,53 @@
+"""The private torch, tensordict, TorchRL and Hydra APIs the project relies on
+(params/private_api.py) are still there and still do what it needs: each check names the
+one an upgrade removed or changed."""
+
+from __future__ import annotations
+
+import inspect
+
+import torch
+from tensordict import TensorDict
+from torchrl.envs import EnvBase
+
+from params import private_api
+
+
+def test_unchecked_tensordicts_hold_their_entries():
+    td = private_api.new_tensordict({"a": torch.zeros(3, 2)}, torch.Size([3]))
+    assert isinstance(td, TensorDict) and td.batch_size == torch.Size([3]) and td["a"].shape == (3, 2)
+    more = private_api.with_entries(td, b=torch.ones(3))
+    assert set(more.keys()) == {"a", "b"} and set(td.keys()) == {"a"}  # td unchanged
+    private_api.set_entry(td, "c", torch.ones(3))
+    assert torch.equal(private_api.get_entry(td, "c"), torch.ones(3))
+    assert private_api.get_entry(td, "missing") is None and not private_api.has_names(td)
+
+
+def test_torchrl_replay_buffer_reads_its_storage_through_the_attribute():
+    from learners.dqn import RowReplayBuffer
+
+    buffer = RowReplayBuffer(8, 3, batch_size=2)
+    assert private_api.REPLAY_BUFFER_STORAGE in type(buffer).__dict__  # our property overrides it
+    from torchrl.data import ReplayBuffer
+
+    assert f"self.{private_api.REPLAY_BUFFER_STORAGE}" in inspect.getsource(ReplayBuffer.__len__), \
+        "TorchRL's ReplayBuffer no longer reads self._storage: RowReplayBuffer's queue would not flush"
+    buffer.put(torch.ones(2, 3))
+    assert len(buffer) == 2  # the queued rows written through the property
+
+
+def test_torchrl_env_base_has_the_hooks_the_one_pass_step_checks():
+    for name in private_api.ENV_BASE_NAMES:
+        assert callable(getattr(EnvBase, name, None)), f"torchrl.envs.EnvBase.{name} is gone"
+    source = inspect.getsource(EnvBase)
+    for name in private_api.ENV_BASE_FLAGS:
+        assert name in source, f"torchrl.envs.EnvBase no longer uses {name}"
+
+
+def test_hydra_basic_sweeper_splits_arguments():
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    sweeper = private_api.basic_sweeper()
+    overrides = OverridesParser.create().parse_overrides(["a=1,2", "b=3"])
+    jobs = [job for batch in sweeper.split_arguments(overrides, None) for job in batch]
+    assert jobs == [["a=1", "b=3"], ["a=2", "b=3"]]
