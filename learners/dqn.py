@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
@@ -62,6 +63,9 @@ _DISTANCES = {"l2": nn.functional.mse_loss, "smooth_l1": nn.functional.smooth_l1
 # The training state's layout. 2: the replay buffer holds one float row per transition
 # (``pack``) and there is no ``last_loss``; 1 (unmarked): a TensorDict storage.
 FORMAT = 2
+# The layers' gradients are views of one tensor (StackedMLP.layers), strided as their
+# parameters are; autograd adds into them in place and notes that this is not its layout.
+warnings.filterwarnings("ignore", message="grad and param do not obey the gradient layout contract")
 ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8  # torch.optim.Adam's defaults
 
 
@@ -230,31 +234,51 @@ class StackedMLP:
     def __init__(self, template: nn.Sequential) -> None:
         self.template = template
         self.scale: torch.Tensor | None = None
-        self.layers: list = []  # (offset, out, in) of a linear layer, or an activation function
+        self.plan: list = []  # (offset, out, in) of a linear layer, or an activation function
         offset = 0
         for layer in template:
             if isinstance(layer, ObsScale):
                 self.scale = layer.scale
             elif isinstance(layer, nn.Linear):
                 out, inp = layer.weight.shape
-                self.layers.append((offset, out, inp))
+                self.plan.append((offset, out, inp))
                 offset += out * inp + out
             else:
-                self.layers.append(_FUNCTIONS[type(layer)])
+                self.plan.append(_FUNCTIONS[type(layer)])
         self.size = offset
 
-    def q(self, params: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        k = len(params)
-        if self.scale is not None:
-            x = x * self.scale
-        for layer in self.layers:
+    def layers(self, params: torch.Tensor, grads: torch.Tensor | None = None) -> list:
+        """Each linear layer's ``(weight [k, out, in], bias [k, out])`` as views of ``params``
+        (``[k, P]``). With ``grads`` (``[k, P]``) they are autograd leaves whose gradients
+        are views of ``grads``: a backward adds every layer's gradient into that one tensor
+        (zero it first), where clipping and Adam take them all at once."""
+        k, found = len(params), []
+        for layer in self.plan:
             if callable(layer):
-                x = layer(x)
                 continue
             offset, out, inp = layer
             weight = params[:, offset:offset + out * inp].view(k, out, inp)
             bias = params[:, offset + out * inp:offset + out * inp + out]
-            x = torch.baddbmm(bias.unsqueeze(1), x, weight.transpose(1, 2))
+            if grads is not None:
+                weight.requires_grad_(True)
+                bias.requires_grad_(True)
+                weight.grad = grads[:, offset:offset + out * inp].view(k, out, inp)
+                bias.grad = grads[:, offset + out * inp:offset + out * inp + out]
+            found.append((weight, bias.unsqueeze(1)))
+        return found
+
+    def q(self, params: torch.Tensor | list, x: torch.Tensor) -> torch.Tensor:
+        """Each member's Q-values of its ``x`` (``[k, n, n_obs]``); ``params``: ``[k, P]`` or
+        its :meth:`layers`."""
+        layers = iter(self.layers(params) if isinstance(params, torch.Tensor) else params)
+        if self.scale is not None:
+            x = x * self.scale
+        for layer in self.plan:
+            if callable(layer):
+                x = layer(x)
+            else:
+                weight, bias = next(layers)
+                x = torch.baddbmm(bias, x, weight.transpose(1, 2))
         return x
 
     def vector(self) -> torch.Tensor:
@@ -454,7 +478,12 @@ class DQN:
         self.target = self.params.clone() if self.has_target else self.params
         self.exp_avg = torch.zeros_like(self.params)
         self.exp_avg_sq = torch.zeros_like(self.params)
-        self.grads: torch.Tensor | None = None  # each member's latest gradients
+        self.grads = torch.zeros_like(self.params)  # each member's latest gradients
+        # Every member's layers, and the target network's (without one: the online network
+        # values the next state), as views (an update's autograd leaves are made anew each
+        # round: a leaf whose storage Adam changed in place would not stay one).
+        self._online = self.net.layers(self.params)
+        self._valued = self.net.layers(self.target)
         self.steps = [0] * m  # optimizer steps per member
         self.credit = [0.0] * m  # updates owed, fractions carried over
         self.owed = [0] * m  # whole updates owed, run by settle
@@ -495,7 +524,7 @@ class DQN:
         wall-clock second since the last reset). ``reset=False`` reads without starting a
         new interval (for a progress bar shown between the logger's reads)."""
         stats = self.trackers[b].read(self.steps[b], reset)
-        if self.grad_clip == 0 and self.grads is not None and self.steps[b]:
+        if self.grad_clip == 0 and self.steps[b]:
             stats["grad_norm"] = float(torch.linalg.vector_norm(self.grads[b]))
         return {**stats, "epsilon": float(self.schedules[b].value), "lr": self.lr_of(b)}
 
@@ -520,7 +549,7 @@ class DQN:
         new tensordict of ``td``'s entries and ``action``."""
         members = list(members)
         k = len(members)
-        params = self.params if members == list(range(self.members)) else self.params[members]
+        params = self._online if k == self.members and members == list(range(k)) else self.params[members]
         observation = td.get("observation")
         with torch.no_grad():
             q = self.net.q(params, observation.reshape(k, -1, self.n_obs).to(self.device))
@@ -609,17 +638,20 @@ class DQN:
         for j, b in enumerate(due):
             self.buffers[b].sample_rows(stored[b], self.generators[b], out=self._minibatch[j])
         batch = unpack(self._minibatch[:k])
-        everyone_due = k == self.members
-        index = None if everyone_due else torch.tensor(due, device=self.params.device)
-        params = self.params if everyone_due else self.params.index_select(0, index)
-        target = self.target if everyone_due or not self.has_target else self.target.index_select(0, index)
-        leaf = params.detach().requires_grad_(True)
-        online = lambda x: self.net.q(leaf, x)  # noqa: E731
-        valued = (lambda x: self.net.q(target, x)) if self.has_target else (lambda x: self.net.q(leaf.detach(), x))
-        q, td_target = td_terms(online, valued, batch, self.gamma, self.double_dqn)
+        if k == self.members:  # every member: its own tensors, in place
+            index, params, target, grads, valued = None, self.params, self.target, self.grads, self._valued
+            grads.zero_()
+        else:  # the due members' rows, written back after the step
+            index = torch.tensor(due, device=self.params.device)
+            params = self.params.index_select(0, index)
+            grads = torch.zeros_like(params)
+            target = self.target.index_select(0, index) if self.has_target else params
+            valued = self.net.layers(target)
+        online = self.net.layers(params, grads)
+        q, td_target = td_terms(lambda x: self.net.q(online, x), lambda x: self.net.q(valued, x), batch,
+                                self.gamma, self.double_dqn)
         loss = _DISTANCES[self.loss_function](q, td_target, reduction="none").mean((1, 2))
         loss.sum().backward()
-        grads = leaf.grad
         with torch.no_grad():
             norms = torch.linalg.vector_norm(grads, dim=1)
             if self.grad_clip > 0:
@@ -632,7 +664,8 @@ class DQN:
     def _step(self, due: list[int], index: torch.Tensor | None, params: torch.Tensor, target: torch.Tensor,
               grads: torch.Tensor) -> None:
         """Adam and the target networks of the ``due`` members (``index``: their rows, None
-        for all); the gradients kept where ``train_stats`` reads them."""
+        for all, whose tensors ``params``, ``target`` and ``grads`` then are); the others'
+        rows written back."""
         for b in due:
             self.steps[b] += 1
         lrs = [self.lr * (1.0 / (1.0 + self.lr_decay * (self.steps[b] - 1))) if self.lr_decay else self.lr
@@ -646,10 +679,7 @@ class DQN:
             for j, b in enumerate(due):
                 if self.steps[b] % self.target_update == 0:
                     target[j].copy_(params[j])
-        if self.grads is None:
-            self.grads = torch.zeros_like(self.params)
         if index is None:
-            self.grads.copy_(grads)
             return
         for whole, part in ((self.params, params), (self.exp_avg, exp_avg), (self.exp_avg_sq, exp_avg_sq),
                             (self.grads, grads)):
@@ -678,6 +708,7 @@ class DQN:
                  "initial_lr": self.lr, "params": list(range(len(shapes)))}
         return {"state": state, "param_groups": [group]}
 
+    @torch.no_grad()
     def _load_optimizer(self, b: int, state: Mapping) -> None:
         """Member ``b``'s Adam moments from an Adam ``state_dict`` (none before a first step)."""
         moments = state.get("state", {})
@@ -700,6 +731,7 @@ class DQN:
             "generator": self.generators[b].get_state(),
         }
 
+    @torch.no_grad()
     def load_training_state(self, b: int, state: Mapping) -> None:
         if state.get("format", 1) != FORMAT:
             raise StateMismatch(
@@ -737,6 +769,7 @@ class DQN:
             "optimizer_steps": self.steps[b],
         }
 
+    @torch.no_grad()
     def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
         """Loads saved weights (and optimiser, schedule) into member ``b``; ``where`` names the
         state's origin in a :class:`StateMismatch`."""

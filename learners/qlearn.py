@@ -157,6 +157,7 @@ class QLearn:
         self.visited = torch.zeros(shape, dtype=torch.bool)
         self.epsilons = [float(self.epsilon)] * self.members
         self._offsets: torch.Tensor | None = None
+        self._draw_buffer: torch.Tensor | None = None
 
     def member(self, b: int) -> Member:
         return Member(self, b)
@@ -188,10 +189,14 @@ class QLearn:
         block without a generator."""
         a = self.n_actions
         d = n + 2 * n * a if self.noise_exploration else 2 * n + n * a
-        draws = torch.zeros(len(generators), d, dtype=torch.float64)
+        if self._draw_buffer is None or self._draw_buffer.shape != (len(generators), d):
+            self._draw_buffer = torch.zeros(len(generators), d, dtype=torch.float64)
+        draws = self._draw_buffer
         for j, generator in enumerate(generators):
             if generator is not None:
                 torch.rand(d, generator=generator, dtype=torch.float64, out=draws[j])
+            else:
+                draws[j].zero_()
         return draws
 
     def act_members(self, td: TensorDictBase, members: Sequence[int], greedy: bool,
@@ -206,8 +211,8 @@ class QLearn:
         n = state.shape[0] // k
         q = self.table.view(-1, a).index_select(0, state.reshape(-1) + self._offset(members, n)).view(k, n, a)
         draws = self._draws(n, generators)
-        epsilon = torch.zeros(k, 1, dtype=torch.float64) if greedy else torch.tensor(
-            [[self.epsilons[b]] for b in members], dtype=torch.float64)
+        epsilon = torch.zeros(k, 1, dtype=torch.float64) if greedy else torch.from_numpy(
+            np.array([[self.epsilons[b]] for b in members], dtype=np.float64))
         explore = draws[:, :n] < epsilon
         if self.noise_exploration:
             magnitude = q.abs().amax(-1, keepdim=True)
@@ -225,9 +230,10 @@ class QLearn:
         return with_entries(td, state_index=state.reshape(shape), action_value=q.reshape(*shape, a).to(torch.float32),
                             action=action.reshape(shape))
 
-    def _offset(self, members: list[int], n: int) -> torch.Tensor:
-        """Each row's member's first row in the flat ``[members * states, actions]`` table."""
-        if members == list(range(self.members)):
+    def _offset(self, members: list[int] | None, n: int) -> torch.Tensor:
+        """Each row's member's first row in the flat ``[members * states, actions]`` table
+        (``members`` None: all)."""
+        if members is None or (len(members) == self.members and members == list(range(self.members))):
             if self._offsets is None or len(self._offsets) != self.members * n:
                 self._offsets = (torch.arange(self.members) * self.n_states).repeat_interleave(n)
             return self._offsets
@@ -237,16 +243,15 @@ class QLearn:
     def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
         """One Q update of each live member's table from its block of ``td`` (holding
         ``next``); each member's rows index its own slice of the table."""
-        live = everyone(self, live)
         n = td.numel() // self.members
-        rows = None if len(live) == self.members else (
-            torch.as_tensor(live).unsqueeze(1) * n + torch.arange(n)).reshape(-1)
+        rows = None if live is None or len(live) == self.members else (
+            torch.as_tensor(list(live)).unsqueeze(1) * n + torch.arange(n)).reshape(-1)
 
         def pick(value: torch.Tensor) -> torch.Tensor:
             value = value.reshape(self.members * n)
             return value if rows is None else value.index_select(0, rows)
 
-        offset = pick(self._offset(list(range(self.members)), n))
+        offset = pick(self._offset(None, n))
         state = pick(td.get("state_index")) + offset
         action = pick(td.get("action"))
         reward = pick(td.get(("next", "reward"))).to(torch.float64)

@@ -63,7 +63,8 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
         td, next_td = env.step_and_maybe_reset(td)
         _together(live, lambda: learner.observe(td, _indices(_sound(live))))
         ended = _book(learner, _sound(live), td)
-        _together(_sound(live), lambda: learner.end_episodes(ended))
+        if ended:
+            _together(_sound(live), lambda: learner.end_episodes(ended))
         for lane in _sound(live):
             lane.guarded(lambda lane=lane: lane.run.end_step(next_td))
         acting = _acting(live)
@@ -82,8 +83,11 @@ def _book(learner: Learner, lanes: list[Lane], td: TensorDictBase) -> dict[int, 
         rows = slice(lane.index * n, (lane.index + 1) * n)
         view, finished = lane.env, done[rows]
         lane.run.divergences = getattr(view, "divergences", 0)
-        info = getattr(view, "ended_info", None) if finished.any() else None
-        count = len(lane.run.record(reward[rows], finished, terminated[rows], learner.stats(lane.index), info))
+        if not finished.any():  # most steps: the run only counts the step
+            lane.run.record(reward[rows], finished, terminated[rows])
+            return
+        count = len(lane.run.record(reward[rows], finished, terminated[rows], learner.stats(lane.index),
+                                    getattr(view, "ended_info", None)))
         if count:
             ended[lane.index] = count
 
