@@ -1,5 +1,5 @@
 """The README's generated tables: parameters, made from the declarations
-(:mod:`params.declare`), what there is to pick (:mod:`runs.catalog`), and the names of the
+(:mod:`params.declare`), what there is to pick (:mod:`tasks.catalog`), and the names of the
 numbers a run reports (:mod:`runs.summary`).
 
     python -m readme_tables            # prints the tables
@@ -21,8 +21,8 @@ from hydra.utils import get_object
 from omegaconf import OmegaConf
 
 from params.declare import specs, table
-from runs import catalog
-from runs.gym_env import env_id
+from tasks import catalog
+from adapters.gym_env import env_id
 from runs.summary import MeasureKeys
 from tasks.base import Task
 

@@ -36,15 +36,15 @@ from omegaconf import DictConfig, OmegaConf
 
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError, did_you_mean
-from runs.banner import tuned_changes
-from runs.catalog import (GROUPS, compose, locate_model, run_choices, unreadable_conf_file, use_config_dirs,
+from runs.console import tuned_changes
+from tasks.catalog import (GROUPS, compose, locate_model, run_choices, unreadable_conf_file, use_config_dirs,
                           with_tuned_layers)
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
 from runs.folder import (check_output_folder, eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
                          with_run_choices)
 from runs.batch import BatchJob
-from runs.resume import read_run_json
+from runs.training_state import read_run_json
 from runs.session import execute
 from runs.settings import check_run_config
 from sweeps.resume import is_sweep_folder, resume_sweep

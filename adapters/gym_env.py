@@ -1,8 +1,8 @@
 """Gymnasium environments: every robot with its default task, built from conf/.
 
-:func:`register_envs` (called by importing :mod:`runs.register_gym`) registers one id
+:func:`register_envs` (called by importing :mod:`adapters.register_gym`) registers one id
 per robot in ``conf/robot/`` (with the task that robot's config picks), in the
-``MujocoRL`` namespace, each with the string entry point ``runs.gym_env:MujocoRLEnv``:
+``MujocoRL`` namespace, each with the string entry point ``adapters.gym_env:MujocoRLEnv``:
 
 ``MujocoRL/<Robot><Task>-v0``, such as ``MujocoRL/CartPoleStayUp-v0`` (cartpole /
 stay_up); the README's "What there is" lists them. ``register_envs(config_dirs=[...])``
@@ -10,17 +10,17 @@ adds the robots of a user's config folders.
 
 ::
 
-    import gymnasium, runs.register_gym
+    import gymnasium, adapters.register_gym
     env = gymnasium.make("MujocoRL/CartPoleStayUp-v0", pos_step=0.5)
-    env = gymnasium.make("runs.register_gym:MujocoRL/CartPoleStayUp-v0")  # imports it first
+    env = gymnasium.make("adapters.register_gym:MujocoRL/CartPoleStayUp-v0")  # imports it first
 
 Gymnasium 1.x loads no plugins, so a process knows the ids once it has imported
-``runs.register_gym`` (or called :func:`register_envs`). Subprocess workers (SB3's
+``adapters.register_gym`` (or called :func:`register_envs`). Subprocess workers (SB3's
 ``SubprocVecEnv``, ``AsyncVectorEnv``) do when the script that starts them imports
 it at its top: a forked worker inherits the registry, a spawned one (TorchRL makes
 spawn the default) and a forkserver one (SB3's default) import the main script
 again before they run. Without a script to import again (``python -c``, a
-notebook) write the id with the prefix, ``"runs.register_gym:MujocoRL/..."``:
+notebook) write the id with the prefix, ``"adapters.register_gym:MujocoRL/..."``:
 ``gymnasium.make`` in the worker imports that module first. ``gymnasium.make_vec``
 sends workers the spec itself.
 
@@ -49,7 +49,7 @@ from gymnasium import spaces
 from omegaconf import DictConfig, OmegaConf
 
 from tasks import factory
-from runs import catalog
+from tasks import catalog
 from tasks.base import Task
 from tasks.env import RobotTaskEnv
 
@@ -249,7 +249,7 @@ def register_envs(config_dirs: Sequence[str] = ()) -> list[str]:
     ``config_dirs``: config folders besides ``conf/`` whose robots get ids too (a user's
     ``~/my_robots``, as ``train.py --config-dir`` reads it); their envs are made with them.
 
-    Each id's entry point is the string ``runs.gym_env:MujocoRLEnv`` (a process that
+    Each id's entry point is the string ``adapters.gym_env:MujocoRLEnv`` (a process that
     makes it imports this module) and its ``max_episode_steps`` (Gymnasium's
     ``TimeLimit``) the task's from the config; ``gymnasium.make(id, max_episode_steps=N)``
     changes it. Both come from the YAML files where they say them plainly, as every

@@ -102,7 +102,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
     """The jobs asked for; :class:`BadInput` for anything that cannot run."""
-    from runs import catalog
+    from tasks import catalog
 
     tasks = args.tasks or list(plan["tasks"])
     unknown = [t for t in tasks if t not in plan["tasks"]]
@@ -149,7 +149,7 @@ def overrides(job: Job) -> list[str]:
 def tuned_files(job: Job) -> list[str]:
     """The tuned files ``job``'s runs apply, by name: the robot's, then the task's (either
     may be missing)."""
-    from runs import catalog
+    from tasks import catalog
 
     return catalog.tuned_layers(job.robot, job.task_name, job.learner)
 
@@ -178,7 +178,7 @@ def applied_tuned(job: Job, rows: list[dict]) -> str:
 def check_budget(job: Job) -> None:
     """:class:`BadInput` when the budget cannot let every copy finish one full-length episode."""
     from params import ConfigError
-    from runs import catalog
+    from tasks import catalog
 
     try:
         cfg = catalog.compose(overrides=overrides(job))

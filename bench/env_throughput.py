@@ -52,7 +52,7 @@ import torch  # noqa: E402
 from mujoco import rollout  # noqa: E402
 
 from tasks import factory  # noqa: E402
-from runs import catalog
+from tasks import catalog
 from robots.physics import default_threads  # noqa: E402
 
 SIZES = (1, 16, 64, 256, 1024)

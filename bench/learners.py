@@ -26,8 +26,8 @@ from pathlib import Path
 from sweep import fmt, job_summaries, run_sweep
 
 from runs.evaluate import evaluate, measure_of
-from runs import catalog
-from runs.catalog import make_env
+from tasks import catalog
+from tasks.catalog import make_env
 
 ROBOTS = catalog.robot_names()  # every robot in conf/robot/
 LEARNERS = ["qlearn", "n1try", "mbalunovic", "ruippeixotog", "dqn"]

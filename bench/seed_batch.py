@@ -113,7 +113,7 @@ def physics_floor(learner: str, n: str, seeds: int, folder: Path) -> float:
     rollout pool's threads as the env uses them. Below this no batch can go here."""
     sys.path.insert(0, str(ROOT))
     from robots.physics import BatchedPhysics
-    from runs import catalog
+    from tasks import catalog
 
     env = catalog.make_env("cartpole")
     model, substeps = env.physics.model, env.task.n_substeps

@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from runs import run as run_module  # noqa: E402
-from runs.catalog import compose  # noqa: E402
+from tasks.catalog import compose  # noqa: E402
 from runs.session import execute  # noqa: E402
 
 BASE = ["learner=dqn", "task.max_episode_steps=10", "learner.buffer_size=5000", "stop_when_solved=false",

@@ -41,7 +41,7 @@ from tensordict import TensorDict  # noqa: E402
 
 from learners.qlearn import QLearn  # noqa: E402
 from robots.cartpole import CartPole  # noqa: E402
-from runs.catalog import compose  # noqa: E402
+from tasks.catalog import compose  # noqa: E402
 from tasks.stay_up import StayUp  # noqa: E402
 
 BATCHES = (64, 4096)

@@ -36,9 +36,9 @@ from stable_baselines3.common.monitor import Monitor  # noqa: E402
 from tasks.base import Success  # noqa: E402
 from runs.summary import measure_keys, summarize_run  # noqa: E402
 from tasks.factory import build_task  # noqa: E402
-from runs.catalog import compose  # noqa: E402
+from tasks.catalog import compose  # noqa: E402
 
-ENV_ID = "runs.register_gym:MujocoRL/CartPoleStayUp-v0"
+ENV_ID = "adapters.register_gym:MujocoRL/CartPoleStayUp-v0"
 # rl-baselines3-zoo hyperparams/dqn.yml, CartPole-v1 ("Almost Tuned").
 ZOO_N_TIMESTEPS = 50_000
 ZOO = dict(learning_rate=2.3e-3, batch_size=64, buffer_size=100_000, learning_starts=1000,

@@ -61,8 +61,8 @@ def missing_name(kind: str, name: str, names: list[str], where: str) -> ConfigEr
 
 
 #: Config folders a relative ``model`` path is looked up in, after the working folder; the
-#: shipped ``conf/`` first (``runs.catalog`` adds a user's config folders). A run's config
-#: holds the absolute path (``runs.catalog.locate_model``): this serves other compositions.
+#: shipped ``conf/`` first (``tasks.catalog`` adds a user's config folders). A run's config
+#: holds the absolute path (``tasks.catalog.locate_model``): this serves other compositions.
 MODEL_FOLDERS: list[Path] = [Path(str(resources.files("conf")))]
 
 

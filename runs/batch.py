@@ -40,14 +40,14 @@ from tensordict import TensorDictBase
 
 from params import ConfigError
 from runs import session as solo
-from runs.banner import banner_lines
+from runs.console import banner_lines
 from runs.console import Tee
 from runs.evaluate import GreedyEvaluator, greedy_evaluations
 from runs.folder import run_lock, start_run
 from runs.loop import train
-from runs.resume import save_training_state
+from runs.training_state import save_training_state
 from runs.run import Run
-from runs.seeding import seed_everything
+from runs.training_state import seed_everything
 from tasks.env import RobotTaskEnv
 from tasks.factory import build_env
 
@@ -178,7 +178,7 @@ class _Slot:
         (self.job.run_dir / "error.txt").write_text(trace)
 
     def save(self, path, learner, env, run, td: TensorDictBase) -> None:
-        """:func:`runs.resume.save_training_state` with this seed's random states in place
+        """:func:`runs.training_state.save_training_state` with this seed's random states in place
         (a checkpoint holds them) and ``td`` its block (a step of the batch hands the batch's)."""
         if td.batch_size[0] != env.num_envs:
             td = td[env.rows]

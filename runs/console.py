@@ -15,13 +15,15 @@ import math
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Callable, Iterator, Mapping
+from typing import IO, Callable, Iterator, Mapping, Sequence
 
+from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from runs.episode import Episode
-from runs.metrics_files import rolling_field
+from params import dotted
+from runs.metrics_files import Episode, rolling_field
 from tasks.base import Success
+from tasks.catalog import GROUPS, TASK_TUNED, TUNED_PICKS, compose
 
 SUMMARY_LINES = 20  # summary lines per run when log_every is 0
 
@@ -166,3 +168,71 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str):
         print(f"error: {message}; see {self.prog} --help", file=sys.stderr)
         sys.exit(2)
+
+
+# -- the banner: the lines a run prints before its first step --
+PICKS = (*GROUPS, "tuned", TASK_TUNED)  # the config groups' keys, not values
+SHOWN_CHANGES = 5  # values a tuned file changed, named on its line (the rest counted)
+
+
+def tuned_changes(cfg: DictConfig, choices: Mapping[str, str | None],
+                  overrides: Sequence[str]) -> list[str] | None:
+    """``key before -> after`` for each value the tuned files (the robot's and the task's)
+    changed in ``cfg`` (the same command composed with ``~tuned``, which leaves out both);
+    ``[]`` when no tuned file applies, ``None`` when the command does not compose without
+    them (an override of a key only they add)."""
+    if not tuned_files(choices):
+        return []
+    kept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in PICKS]
+    try:
+        plain = compose(choices.get("robot"), choices.get("task"), choices.get("learner"),
+                        [*kept, "~tuned"])
+    except Exception:  # noqa: BLE001 - the banner still names the file
+        return None
+    before = dotted(OmegaConf.to_container(plain, resolve=True))
+    after = dotted(OmegaConf.to_container(cfg, resolve=True))
+    return [f"{key} {before.get(key)} -> {value}" for key, value in after.items()
+            if before.get(key) != value]
+
+
+def tuned_files(choices: Mapping[str, str | None]) -> list[str]:
+    """The tuned files a run applied, ``conf/tuned/<name>.yaml``, the robot's first."""
+    return [f"conf/tuned/{choices[key]}.yaml" for key in TUNED_PICKS if choices.get(key)]
+
+
+def solved_when(success: Success) -> str:
+    """``mean <description> of the last N training episodes >= T <unit>`` or the greedy form."""
+    unit = f" {success.unit}" if success.unit else ""
+    if success.judge == "greedy":
+        return (f"the greedy policy's mean {success.description} >= {success.threshold:g}{unit} "
+                f"(evaluated every eval_every episodes)")
+    return (f"mean {success.description} of the last {success.window} training episodes "
+            f">= {success.threshold:g}{unit} (after >= {success.min_episodes} episodes), and the "
+            f"greedy policy's too")
+
+
+def banner_lines(cfg: DictConfig, choices: Mapping[str, str | None], changes: Sequence[str] | None,
+                 success: Success, run_dir: Path, episodes: int) -> list[str]:
+    """The start banner: robot / task / learner and the run's scale, the tuned file and what
+    it changed (``changes``; ``None``: not worked out, e.g. a resumed run), what "solved" means
+    here, the run folder."""
+    copies = int(cfg.num_envs)
+    what = "evaluate " if cfg.mode == "eval" else ""
+    lines = [f"{what}{choices.get('robot')} / {choices.get('task')} / {choices.get('learner')}, "
+             f"seed {cfg.seed}, {copies} cop{'y' if copies == 1 else 'ies'}"
+             + (f", up to {episodes} episodes" if cfg.mode == "train" else "")
+             + (f" or {int(cfg.max_env_steps)} env steps" if cfg.mode == "train" and cfg.get("max_env_steps") else "")
+             + (", training past 'solved'" if cfg.mode == "train" and not cfg.get("stop_when_solved", True) else "")
+             + (f", Optuna trial {cfg.trial}" if cfg.get("trial") is not None else "")]
+    files = tuned_files(choices)
+    if files:
+        if changes is None:
+            what = "applied"
+        else:
+            more = f" and {len(changes) - SHOWN_CHANGES} more" if len(changes) > SHOWN_CHANGES else ""
+            what = "changed " + (", ".join(changes[:SHOWN_CHANGES]) + more
+                                 or "nothing (overridden on the command line)")
+        lines.append(f"tuned: {' + '.join(files)} {what} ('~tuned' leaves {'them' if len(files) > 1 else 'it'} out)")
+    lines.append(f"solved when: {solved_when(success)}")
+    lines.append(f"run folder: {run_dir} (full log: train.log)")
+    return lines

@@ -17,9 +17,9 @@ from typing import Iterator, Mapping
 from omegaconf import DictConfig, OmegaConf
 
 from params import ConfigError
-from runs.catalog import GROUPS
+from tasks.catalog import GROUPS
 from runs.checkpoint import CheckpointError
-from runs.resume import check_checkpoint, check_targets, load_run_config, new_run_identity, read_run_json
+from runs.training_state import check_checkpoint, check_targets, load_run_config, new_run_identity, read_run_json
 
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
 RESUME_OVERRIDES = ("resume", "quiet", "verbose", "log_every", "torch_threads", "video", "video_steps",

@@ -31,7 +31,7 @@ from typing import Any, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from runs.episode import Episode
+from runs.metrics_files import Episode
 from runs.metrics_files import rolling_field
 from runs.summary import measure_keys
 from params import ConfigError

@@ -15,10 +15,27 @@ resumed run cuts metrics.csv and timing.csv back to its checkpoint's episodes
 from __future__ import annotations
 
 import csv
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from runs.episode import Episode
 from tasks.base import Success
+
+
+@dataclass
+class Episode:
+    """One finished training episode, as the run's outputs report it (the metrics files, the
+    console and the logger each read what they show from it)."""
+
+    episode: int  # 1-based, in the order episodes finished (ties by copy index)
+    env_index: int  # which copy of the batched env ran it
+    reward: float  # its return
+    length: int  # its steps
+    terminated: bool  # ended by the task (not by a time limit or a physics divergence)
+    env_steps: int  # env steps of all copies so far
+    wall_s: float  # seconds since the run started, to the millisecond
+    value: float  # the task's success measure for this episode
+    rolling: float  # its mean over the last ``success.window`` episodes
+    extra: dict = field(default_factory=dict)  # the learner's numbers (alpha, gamma, epsilon)
 
 BASE_FIELDS = ("episode", "env_index", "reward", "length", "terminated", "env_steps")
 TIMING_FIELDS = ("episode", "wall_s")

@@ -2,11 +2,11 @@
 evaluate, checkpoint and stop.
 
 Episodes in a batch end at different times; :class:`Run` turns each batched
-step into one :class:`~runs.episode.Episode` per finished episode, in the
+step into one :class:`~runs.metrics_files.Episode` per finished episode, in the
 order they finish (ties by copy index), so the metrics read the same for any
 ``num_envs``. Each episode goes to the CSV files (:mod:`runs.metrics_files`),
 the console (:mod:`runs.console`) and the logger (:mod:`runs.loggers`);
-``close`` gives the summary (:mod:`runs.verdict`) and draws the reward
+``close`` gives the summary (:mod:`runs.summary`) and draws the reward
 curve (:mod:`runs.plot`).
 
 The training loop (:func:`runs.loop.train`) hands a run its block of each step
@@ -15,7 +15,7 @@ checkpoint when due).
 
 A run can be stopped at a step boundary (``request_stop``, e.g. on Ctrl-C)
 and saves its whole state every ``checkpoint_every`` episodes through the
-``checkpoint`` hook ``end_step`` calls (see :mod:`runs.resume`).
+``checkpoint`` hook ``end_step`` calls (see :mod:`runs.training_state`).
 """
 
 from __future__ import annotations
@@ -34,12 +34,12 @@ import torch
 from tensordict import TensorDictBase
 
 from runs.console import Console
-from runs.episode import Episode
+from runs.metrics_files import Episode
 from runs.evaluate import measure_of
 from runs.loggers import csv_sizes, cut_csv_files, finish_log, log_episode, log_evaluation, log_train
 from runs.metrics_files import MetricsFiles
 from runs.plot import plot_reward_curve
-from runs.verdict import run_summary
+from runs.summary import run_summary
 from tasks.base import Success
 
 # Every this many episodes the C heap's free pages go back to the system (glibc's malloc_trim):

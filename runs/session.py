@@ -27,16 +27,16 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from learners.base import Member
-from runs.banner import banner_lines
+from runs.console import banner_lines
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.evaluate import GreedyEvaluator, describe_evaluation, measure_of
 from runs.folder import model_path, start_run
 from runs.loop import train_single
 from runs.loggers import log_hparams, make_logger, run_scalar_names
-from runs.resume import load_training_state, save_training_state
+from runs.training_state import load_training_state, save_training_state
 from runs.run import Hooks, Progress, Run
-from runs.seeding import seed_everything
-from runs.verdict import verdict_lines
+from runs.training_state import seed_everything
+from runs.summary import verdict_lines
 from runs.video import record_video
 from tasks.base import Success
 from tasks.env import RobotTaskEnv
@@ -90,7 +90,7 @@ def build(cfg: DictConfig, run_dir: Path, resume: bool = False) -> Session:
 def make_run(session: Session, resume: bool, progress: Progress | None,
              save: Callable[..., None] | None = None) -> Run:
     """Training's :class:`Run` with its logger and hooks (``save``: writes the training
-    state, :func:`runs.resume.save_training_state`'s arguments); a resumed run continues
+    state, :func:`runs.training_state.save_training_state`'s arguments); a resumed run continues
     from its checkpoint (its metrics files cut back to it)."""
     cfg, learner, env = session.cfg, session.learner, session.env
     logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name,

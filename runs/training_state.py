@@ -292,3 +292,13 @@ def load_training_state(path: Path, learner, env, run) -> TensorDictBase:
         raise CheckpointError(f"checkpoint {path} does not fit this run ({type(err).__name__}: "
                               f"{str(err).splitlines()[0] if str(err) else ''})") from None
     return td
+
+
+def seed_everything(seed: int) -> torch.Generator:
+    """Seeds torch, numpy and Python's ``random`` globals; returns a dedicated torch generator."""
+    torch.manual_seed(seed)
+    np.random.seed(seed % (2**32))
+    random.seed(seed)
+    gen = torch.Generator()
+    gen.manual_seed(seed)
+    return gen

@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 
 from params.private_api import basic_sweeper
 from runs.summary import summarize_run
-from runs.catalog import GROUPS
+from tasks.catalog import GROUPS
 
 PICKS = GROUPS  # config groups with their own columns, never in ``swept``
 

@@ -20,7 +20,7 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
-from runs.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name
+from tasks.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name
 from runs.settings import check_run_config
 from runs.summary import measure_keys, summarize_run
 from sweeps.tuning import (Plan, check_space, check_sweeper_settings, current_trial, load_space, make_pruner,

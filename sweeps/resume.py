@@ -18,7 +18,7 @@ from params import ConfigError
 from runs.batch import BatchJob, execute_batch, same_batch
 from runs.checkpoint import CheckpointError
 from runs.folder import is_finished, is_run_folder, resumed_config
-from runs.resume import read_run_json
+from runs.training_state import read_run_json
 from runs.settings import check_run_config
 from sweeps.comparison import NotASweep, report
 from sweeps.folder import job_folders

@@ -3,10 +3,10 @@
 Everything that needs an environment comes here: the run, the Gymnasium ids,
 the video tool, evaluation and the benches::
 
-    cfg = runs.catalog.compose("cartpole", learner="dqn")
+    cfg = tasks.catalog.compose("cartpole", learner="dqn")
     env = build_env(cfg, 4, seed=0)
 
-Composing the config from ``conf/`` is :mod:`runs.catalog`'s. (Robots and tasks
+Composing the config from ``conf/`` is :mod:`tasks.catalog`'s. (Robots and tasks
 are dataclasses, which Hydra's ``instantiate`` would turn back into configs when
 one is passed to another as a keyword: build them here.)
 """

@@ -111,7 +111,7 @@ def test_the_tuned_setting_names_and_uses_a_task_tuned_file(tmp_path):
     """A task's tuned file (conf/tuned/<robot>_<task>_<learner>.yaml) counts as a tuned file of
     the job, applies on top of the robot's in what the job's runs compose, is named in the
     table's setting; the published setting leaves both files out."""
-    from runs import catalog
+    from tasks import catalog
 
     (tmp_path / "tuned").mkdir()
     (tmp_path / "tuned" / "cartpole_stay_up_mbalunovic.yaml").write_text("# @package _global_\nlearner:\n  gamma: 0.9\n")
@@ -145,7 +145,7 @@ def test_the_tuned_setting_names_and_uses_a_task_tuned_file(tmp_path):
 def test_a_tuned_budget_is_its_benchmark_tasks_budget():
     """A tuned file that sets max_env_steps (the cube's, the wall dqn's) sets the benchmark's
     budget for that task, so `python train.py` with it trains as the table's row did."""
-    from runs import catalog
+    from tasks import catalog
 
     plan = benchmark.load_plan(quick=False)
     budgets = {(spec["robot"], spec["task"]): int(spec["budget_steps"]) for spec in plan["tasks"].values()}

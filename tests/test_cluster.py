@@ -13,7 +13,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from params import ConfigError
-from runs.catalog import conf_dir
+from tasks.catalog import conf_dir
 from sweeps import launchers
 from sweeps.launchers import check_launcher
 

@@ -9,7 +9,7 @@ from omegaconf import OmegaConf
 
 import train
 from hydra.utils import instantiate
-from runs import catalog
+from tasks import catalog
 from tasks import factory
 from params import ConfigError
 

@@ -13,7 +13,7 @@ from hydra.core.global_hydra import GlobalHydra
 
 import train
 from runs.console import Console, Tee, summary_line, tee_console
-from runs.episode import Episode
+from runs.metrics_files import Episode
 from tasks.base import Success
 
 SUCCESS = Success(measure="length", unit="steps", description="steps balanced", threshold=250,
@@ -106,7 +106,7 @@ def test_tee_copies_stdout_and_stderr_into_the_log(tmp_path, capsys):
 
 def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypatch, capsys):
     """cartpole x mbalunovic has no conf/tuned file: no "tuned:" line, and run.json says none."""
-    from runs.catalog import conf_dir, run_choices
+    from tasks.catalog import conf_dir, run_choices
 
     assert not (conf_dir() / "tuned" / "cartpole_mbalunovic.yaml").exists()
     assert run_choices({"robot": "cartpole", "learner": "mbalunovic", "tuned": "cartpole_mbalunovic"})["tuned"] is None
@@ -123,7 +123,7 @@ def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypat
 def test_the_banner_names_a_task_tuned_file_on_top_of_the_robot_one(tmp_path, monkeypatch, capsys):
     """conf/tuned/<robot>_<task>_<learner>.yaml (here from a --config-dir) is named after the
     robot's file, its values among what they changed; '~tuned' leaves out both."""
-    from runs.catalog import use_config_dirs
+    from tasks.catalog import use_config_dirs
 
     layer = tmp_path / "conf"
     (layer / "tuned").mkdir(parents=True)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from runs.resume import env_state
+from runs.training_state import env_state
 from robots.base import CONTRACT as ROBOT_CONTRACT
 from robots.base import Robot, check_robot
 from tasks import factory
-from runs import catalog
+from tasks import catalog
 from tasks.base import CONTRACT as TASK_CONTRACT
 from tasks.base import Task, check_task
 

@@ -15,7 +15,7 @@ from runs.evaluate import evaluate
 from learners.qlearn import QLearn
 from runs.loop import train_single
 from runs.run import Run
-from runs.seeding import seed_everything
+from runs.training_state import seed_everything
 from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.physics import BatchedPhysics

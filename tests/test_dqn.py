@@ -16,7 +16,7 @@ from runs.evaluate import evaluate
 from runs.loop import train_single
 from runs.run import Run
 from learners.schedules import LinearEpsilon
-from runs.seeding import seed_everything
+from runs.training_state import seed_everything
 from robots.cartpole import CartPole
 from tasks.env import RobotTaskEnv
 from tasks.stay_up import StayUp
@@ -266,7 +266,7 @@ def test_device_cuda_without_a_gpu_is_a_one_line_error():
 @pytest.mark.parametrize("learner", ["dqn", "mbalunovic", "n1try", "ruippeixotog"])
 def test_device_is_a_declared_setting_of_every_dqn_checked_before_anything_is_built(learner):
     from params import ConfigError
-    from runs.catalog import compose
+    from tasks.catalog import compose
     from runs.settings import check_run_config
 
     assert compose(overrides=[f"learner={learner}"]).learner.device == "cpu"  # a setting, no '+' needed

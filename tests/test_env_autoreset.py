@@ -12,7 +12,7 @@ from torchrl.collectors import Collector
 from torchrl.envs import EnvBase
 
 from tasks import factory
-from runs import catalog
+from tasks import catalog
 from tasks.env import RobotTaskEnv
 
 
@@ -151,7 +151,7 @@ def test_outputs_are_fresh_tensors_every_call(make_cartpole_env):
 
 def test_step_alone_never_resets(make_cartpole_env):
     """Only ``step_and_maybe_reset`` restarts copies: ``step`` leaves an ended episode
-    as it ended (this is no TorchRL auto-reset env), as ``runs.gym_env`` and the
+    as it ended (this is no TorchRL auto-reset env), as ``adapters.gym_env`` and the
     evaluation rely on."""
     env = make_cartpole_env(2, seed=0)
     td = env.reset()

@@ -17,9 +17,9 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
-import runs.register_gym  # noqa: F401  (registers the MujocoRL ids)
-from runs import catalog
-from runs.gym_env import MujocoRLEnv, default_tasks, env_id, register_envs
+import adapters.register_gym  # noqa: F401  (registers the MujocoRL ids)
+from tasks import catalog
+from adapters.gym_env import MujocoRLEnv, default_tasks, env_id, register_envs
 
 ROOT = Path(__file__).resolve().parents[1]
 BIG = np.finfo(np.float32).max  # the bound of an entry the task knows no bound for
@@ -71,11 +71,11 @@ def test_every_robot_is_registered_with_its_default_task():
 
 
 def test_importing_the_packages_registers_nothing():
-    """Only an explicit call (``register_envs``, or importing ``runs.register_gym``)
+    """Only an explicit call (``register_envs``, or importing ``adapters.register_gym``)
     registers the ids: importing ``tasks``, ``runs`` or ``learners`` does not."""
-    code = ("import gymnasium as gym, tasks, runs.gym_env, runs.run, learners.dqn\n"
+    code = ("import gymnasium as gym, tasks, adapters.gym_env, runs.run, learners.dqn\n"
             "print(sorted(k for k in gym.registry if k.startswith('MujocoRL/')))\n"
-            "runs.gym_env.register_envs()\n"
+            "adapters.gym_env.register_envs()\n"
             "print(len([k for k in gym.registry if k.startswith('MujocoRL/')]))\n")
     assert run_python(["-c", code])[-2:] == ["[]", str(len(EXPECTED))]
 
@@ -83,7 +83,7 @@ def test_importing_the_packages_registers_nothing():
 def test_registration_reads_what_a_composition_gives():
     """The ids are registered from the YAML files without composing: the same default task
     and time limit as the composed config of every robot."""
-    from runs.gym_env import _plain_default
+    from adapters.gym_env import _plain_default
 
     for robot in catalog.robot_names():
         task, cfg = catalog.robot_default(robot)
@@ -185,7 +185,7 @@ def run_python(args: list[str], cwd: Path | str = "/", timeout: int = 300) -> li
 
 
 def run_script(tmp_path: Path, source: str) -> list[str]:
-    """Runs ``source`` as a client's script file (workers import it again: see runs.gym_env)."""
+    """Runs ``source`` as a client's script file (workers import it again: see adapters.gym_env)."""
     script = tmp_path / "client.py"
     script.write_text(textwrap.dedent(source))
     return run_python([str(script)], cwd=tmp_path)
@@ -193,15 +193,15 @@ def run_script(tmp_path: Path, source: str) -> list[str]:
 
 def test_plain_gymnasium_user_makes_it_after_the_import_or_with_the_prefix():
     """No script file (``python -c``): a spawned worker has nothing to import again, so it
-    takes the prefixed id, which imports runs.register_gym there too."""
+    takes the prefixed id, which imports adapters.register_gym there too."""
     code = textwrap.dedent("""
         import gymnasium as gym
-        env = gym.make("runs.register_gym:MujocoRL/TurtleBot2Maze-v0")  # imports runs.register_gym first
+        env = gym.make("adapters.register_gym:MujocoRL/TurtleBot2Maze-v0")  # imports adapters.register_gym first
         obs, _ = env.reset(seed=1)
         print(env.spec.id, obs.shape, obs in env.observation_space)
-        import runs.register_gym
+        import adapters.register_gym
         print(gym.make("MujocoRL/CartPoleStayUp-v0").spec.id)
-        envs = gym.vector.AsyncVectorEnv([lambda: gym.make("runs.register_gym:MujocoRL/CartPoleStayUp-v0")])
+        envs = gym.vector.AsyncVectorEnv([lambda: gym.make("adapters.register_gym:MujocoRL/CartPoleStayUp-v0")])
         print(envs.reset(seed=0)[0].shape)
         envs.close()
         """)
@@ -215,7 +215,7 @@ def test_sb3_dqn_trains_on_the_bare_id_in_subprocess_workers(tmp_path):
         import os
         import torch
         torch.set_num_threads(1)
-        import runs.register_gym  # registers the MujocoRL ids: here, and in each worker importing this file
+        import adapters.register_gym  # registers the MujocoRL ids: here, and in each worker importing this file
         from stable_baselines3 import DQN
         from stable_baselines3.common.env_util import make_vec_env
         from stable_baselines3.common.vec_env import SubprocVecEnv
@@ -238,7 +238,7 @@ def test_async_vector_env_makes_the_bare_id_in_spawned_workers(tmp_path):
     out = run_script(tmp_path, """
         import multiprocessing
         import gymnasium as gym
-        import runs.register_gym  # registers the MujocoRL ids: here, and in each worker importing this file
+        import adapters.register_gym  # registers the MujocoRL ids: here, and in each worker importing this file
 
         def make():
             return gym.make("MujocoRL/TurtleBot2Maze-v0")

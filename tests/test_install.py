@@ -25,16 +25,16 @@ CLIENT = """
     import learners
     from runs.checkpoint import save_model
     from tasks import factory
-    from runs import catalog
+    from tasks import catalog
 
     site = Path(sys.argv[1])
     for module in (factory, learners):
         assert Path(module.__file__).is_relative_to(site), module.__file__  # not the source tree
-    env = gym.make("runs.register_gym:MujocoRL/CartPoleStayUp-v0")
+    env = gym.make("adapters.register_gym:MujocoRL/CartPoleStayUp-v0")
     env.reset(seed=0)
     obs, reward, *_ = env.step(1)
     print(env.spec.id, obs.shape, reward)
-    acro = gym.make("runs.register_gym:MujocoRL/AcrobotSwingup-v0")  # its model ships in conf/models
+    acro = gym.make("adapters.register_gym:MujocoRL/AcrobotSwingup-v0")  # its model ships in conf/models
     print(acro.spec.id, acro.reset(seed=0)[0].shape, Path(acro.unwrapped.config.robot.model).is_relative_to(site))
     cfg = catalog.compose("cartpole", learner="dqn")  # a run folder: its config and model
     learner = instantiate(cfg.learner, _convert_="all")

@@ -1,7 +1,7 @@
 """Import layering of the project, read statically with ``ast`` (nothing is imported).
 
 Layers, bottom to top: ``params`` <- ``robots`` <- ``tasks`` <- ``learners`` <- ``runs`` <-
-``sweeps`` <- the entry points (``train.py``, ``compare.py``, ``bench/*.py``, the Hydra plugins
+``adapters`` and ``sweeps`` (one floor, neither importing the other) <- the entry points (``train.py``, ``compare.py``, ``bench/*.py``, the Hydra plugins
 ``hydra_plugins/``). A module imports from its own
 layer or lower ones only; project modules form no import cycle; the packages neither
 import an entry point nor edit ``sys.path``. Every import counts, also one inside a
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("params", "robots", "tasks", "learners", "runs", "sweeps")
+PACKAGES = ("params", "robots", "tasks", "learners", "runs", "adapters", "sweeps")
 ENTRY_POINTS = ("train", "compare", "bench", "hydra_plugins")
-LAYER = {"params": 0, "robots": 1, "tasks": 2, "learners": 3, "runs": 4, "sweeps": 5, "train": 6,
+LAYER = {"params": 0, "robots": 1, "tasks": 2, "learners": 3, "runs": 4, "adapters": 5, "sweeps": 5, "train": 6,
          "compare": 6, "bench": 6, "hydra_plugins": 6}
 LIST_EDITS = {"insert", "append", "extend", "remove", "pop", "clear", "reverse", "sort"}
 

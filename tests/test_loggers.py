@@ -14,9 +14,9 @@ from runs.evaluate import greedy_evaluation
 from runs.loggers import flat_config, log_hparams, make_logger, run_scalar_names
 from runs.loop import train_single
 from runs.run import Hooks, Run
-from runs.seeding import seed_everything
+from runs.training_state import seed_everything
 from tasks.factory import build_env
-from runs.catalog import compose
+from tasks.catalog import compose
 
 DQN_SHORT = ["learner.nepisodes=24", "learner.learning_starts=32", "learner.batch_size=32",
              "eval_every=10"]

@@ -11,8 +11,8 @@ import pytest
 import torch
 from hydra.utils import instantiate
 
-from runs.catalog import compose
-from runs.seeding import seed_everything
+from tasks.catalog import compose
+from runs.training_state import seed_everything
 from tasks.factory import build_env
 
 SEEDS = (3, 8, 5)

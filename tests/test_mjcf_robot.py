@@ -17,8 +17,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from runs import catalog
-from runs.gym_env import register_envs
+from tasks import catalog
+from adapters.gym_env import register_envs
 from tasks.factory import build_env
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,7 +18,7 @@ from params import ConfigError
 from runs.loggers import finish_log, make_logger, run_scalar_names
 from runs.run import Run
 from runs.summary import measure_keys
-from runs.verdict import verdict_lines
+from runs.summary import verdict_lines
 from tasks.base import Success
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,7 +126,7 @@ def test_a_checkpoint_saved_before_the_returns_were_kept_reads_them_from_metrics
 
 # -- the Optuna objective -------------------------------------------------------------------
 def objective(task_overrides: list[str]) -> str:
-    from runs.catalog import compose
+    from tasks.catalog import compose
     from sweeps.optuna_sweep import _check_builds, _objective
 
     cfg = compose(overrides=task_overrides)

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 import readme_tables as doc
 from params import ConfigError
 from params.declare import check_values, param, specs, table
-from runs.catalog import conf_dir
+from tasks.catalog import conf_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 

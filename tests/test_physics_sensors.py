@@ -7,7 +7,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from runs.catalog import make_env
+from tasks.catalog import make_env
 
 
 def test_sensors_in_the_last_substep_read_what_every_substep_would():

@@ -10,7 +10,7 @@ from runs.evaluate import evaluate
 from learners.qlearn import Discretizer, QLearn
 from runs.loop import train_single
 from runs.run import Run
-from runs.seeding import seed_everything
+from runs.training_state import seed_everything
 from robots.cartpole import CartPole
 from tasks.base import Bounds
 from tasks import factory

@@ -16,7 +16,7 @@ import torch
 from omegaconf import OmegaConf
 
 from runs.checkpoint import CheckpointError, content_checksum, load_checkpoint, save_checkpoint
-from runs.resume import check_targets, new_run_identity, read_run_json, run_identity
+from runs.training_state import check_targets, new_run_identity, read_run_json, run_identity
 from params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -234,7 +234,7 @@ def test_check_targets_allows_the_project_classes_only():
                     "epsilon": {"_target_": "learners.schedules.LinearEpsilon"}}}))
     for target in ("subprocess.Popen", "runs.checkpoint.torch.load",
                    "runs.checkpoint.save_checkpoint",
-                   "runs.resume.importlib.import_module", "robots", "learners..qlearn.QLearn",
+                   "runs.training_state.importlib.import_module", "robots", "learners..qlearn.QLearn",
                    "learners.nothing.Here", "${oc.env:HOME}", 3, None):
         for cfg in ({"learner": {"_target_": target}}, {"a": [{"b": {"_target_": target}}]}):
             with pytest.raises(ConfigError, match="is not allowed"):

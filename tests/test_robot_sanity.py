@@ -20,7 +20,7 @@ import pytest
 import torch
 
 from tasks import factory
-from runs import catalog
+from tasks import catalog
 
 ROBOTS = catalog.robot_names()
 STEPS = 200

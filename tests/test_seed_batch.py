@@ -17,8 +17,8 @@ import torch
 from learners.qlearn import QLearn
 from runs import batch as batch_module
 from runs.batch import BatchJob, check_batch, execute_batch
-from runs.catalog import compose
-from runs.resume import load_run_config, read_run_json
+from tasks.catalog import compose
+from runs.training_state import load_run_config, read_run_json
 from runs.run import Run
 from runs.session import EVAL_SEED_OFFSET, execute
 from runs.settings import check_run_config

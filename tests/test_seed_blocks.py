@@ -8,7 +8,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from runs.catalog import compose, robot_names
+from tasks.catalog import compose, robot_names
 from tasks.factory import build_env
 
 SEEDS = (3, 7, 11)

@@ -20,7 +20,7 @@ from tensordict import TensorDict
 
 from runs.evaluate import evaluate
 from runs.run import Hooks, Run
-from runs.verdict import verdict_lines
+from runs.summary import verdict_lines
 from robots.cartpole import CartPole
 from robots.cube import Cube
 from robots.turtlebot import TurtleBot

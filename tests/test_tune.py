@@ -16,7 +16,7 @@ from runs.settings import check_run_config
 from sweeps.tuning import (TrialLink, check_space, current_trial, load_space, open_storage, parse_space,
                              tuned_text)
 from params import ConfigError
-from runs.catalog import compose, conf_dir
+from tasks.catalog import compose, conf_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 LEARNERS = sorted(p.stem for p in (conf_dir() / "learner").glob("*.yaml"))
@@ -85,7 +85,7 @@ def test_every_learner_has_a_search_space():
 @pytest.mark.parametrize("name", sorted(p.stem for p in (conf_dir() / "search").glob("*.yaml")))
 def test_every_search_space_fits_its_learner(name):
     """conf/search/<learner>, <robot>_<learner> or <robot>_<task>_<learner> (a task's space)."""
-    from runs.catalog import names, robot_names
+    from tasks.catalog import names, robot_names
 
     robot, _, learner = name.rpartition("_") if name not in LEARNERS else ("", "", name)
     task = None

@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 
 from hydra.utils import instantiate
 from tasks import factory
-from runs import catalog
+from tasks import catalog
 from runs import video
 from runs.checkpoint import save_model
 

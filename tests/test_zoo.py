@@ -1,5 +1,5 @@
 """rl-baselines3-zoo on our ids: the hyperparameter file the project ships (conf/zoo/dqn.yml)
-is SB3 DQN settings for registered ids, and ``python -m runs.zoo <script>`` registers the
+is SB3 DQN settings for registered ids, and ``python -m adapters.zoo <script>`` registers the
 ids before it runs the zoo's script (the zoo itself is not a dependency: a stand-in
 ``rl_zoo3`` package here records what the real one would be given)."""
 
@@ -15,8 +15,8 @@ import gymnasium as gym
 import pytest
 import yaml
 
-import runs.register_gym  # noqa: F401  (registers the MujocoRL ids)
-from runs.catalog import conf_dir
+import adapters.register_gym  # noqa: F401  (registers the MujocoRL ids)
+from tasks.catalog import conf_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 ZOO_ONLY = ("n_timesteps", "policy", "normalize", "n_envs", "frame_stack", "env_wrapper", "callback")
@@ -62,7 +62,7 @@ def fake_zoo(folder: Path) -> Path:
 
 def zoo_cli(*args: str, path: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "PYTHONPATH": f"{path}{os.pathsep}{ROOT}"}
-    return subprocess.run([sys.executable, "-m", "runs.zoo", *args], cwd=ROOT, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "adapters.zoo", *args], cwd=ROOT, capture_output=True,
                           text=True, timeout=300, env=env)
 
 
@@ -78,15 +78,15 @@ def test_runs_zoo_registers_the_ids_then_runs_the_zoo_script(tmp_path):
 
 
 def test_runs_zoo_refuses_an_unknown_script_and_names_a_missing_zoo(monkeypatch, capsys):
-    from runs import zoo
+    from adapters import zoo
 
     with pytest.raises(SystemExit) as stop:
         zoo.main(["fly"])
     assert stop.value.code == 2
-    assert capsys.readouterr().err.startswith("usage: python -m runs.zoo {train,enjoy,record_video")
+    assert capsys.readouterr().err.startswith("usage: python -m adapters.zoo {train,enjoy,record_video")
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "rl_zoo3" else real(name, *a))
     with pytest.raises(SystemExit) as stop:
         zoo.main(["enjoy", "--algo", "dqn"])
     assert stop.value.code == 2
-    assert capsys.readouterr().err.strip() == "error: runs.zoo needs rl-baselines3-zoo: pip install rl_zoo3"
+    assert capsys.readouterr().err.strip() == "error: adapters.zoo needs rl-baselines3-zoo: pip install rl_zoo3"
