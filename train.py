@@ -43,9 +43,9 @@ from runs.checkpoint import CheckpointError
 from runs.console import tee_console
 from runs.folder import (check_output_folder, eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
                          with_run_choices)
-from runs.batch import BatchJob
+from runs.lifecycle import Job
 from runs.training_state import read_run_json
-from runs.session import execute
+from runs.lifecycle import execute
 from runs.settings import check_run_config
 from sweeps.resume import is_sweep_folder, resume_sweep
 from sweeps.seed_batch import collect
@@ -109,7 +109,7 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> dict:
     check_run_config(cfg)
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if not resume and collect(BatchJob(cfg, run_dir, choices, overrides, changes)):
+    if not resume and collect(Job(cfg, run_dir, choices, overrides, changes)):
         return {}  # trained with the other seeds of its group (hydra/launcher=seeds)
     with run_lock(run_dir), tee_console(run_dir / "train.log"):
         # A resumed trial job trains without reporting: its study has moved on.

@@ -3,7 +3,7 @@ memory printed every 500 episodes (about 4 minutes on a busy 2-core machine).
 
     python bench/soak.py [--episodes 8000] [--every 500] [--trace] [--trim] [overrides ...]
 
-The run is ``train.py``'s (``runs.session.execute``: the CSV logger, metrics files,
+The run is ``train.py``'s (``runs.lifecycle.execute``: the CSV logger, metrics files,
 checkpoints and greedy evaluations every 1,000 episodes) on cartpole with
 ``task.max_episode_steps=10`` (many episodes per second), a 5,000-transition replay
 buffer (full within the first samples: the warm-up) and ``stop_when_solved=false``, in a
@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 from runs import run as run_module  # noqa: E402
 from tasks.catalog import compose  # noqa: E402
-from runs.session import execute  # noqa: E402
+from runs.lifecycle import execute  # noqa: E402
 
 BASE = ["learner=dqn", "task.max_episode_steps=10", "learner.buffer_size=5000", "stop_when_solved=false",
         "quiet=true", "checkpoint_every=1000", "eval_every=1000", "eval_episodes=4"]

@@ -1,4 +1,6 @@
-"""What a training run prints while it runs.
+"""What a training run prints: its banner before the first step (:func:`banner_lines`:
+what was chosen, what a tuned file changed, when it is solved, where it goes), then while
+it runs.
 
 By default: a tqdm bar over the episode budget (on a terminal only) whose
 postfix shows the task's measure, epsilon, the loss and steps/s, and a summary

@@ -54,11 +54,11 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
     learner.begin()
     starts = [lane.run.start(lane.env) for lane in lanes]
     td = starts[0] if len(starts) == 1 else torch.cat(starts)
-    live = _acting(list(lanes))
-    td = _together(live, lambda: learner.act(td, _indices(live)))
-    while True:
-        live = end_done(live)
-        if not live:
+    live = end_done(list(lanes))  # a run resumed at its end ends here
+    while live:
+        td = _together(live, lambda: learner.act(td, _indices(live)))
+        if td is None:  # the call failed: every live lane with it
+            end_done(live)
             return
         td, next_td = env.step_and_maybe_reset(td)
         _together(live, lambda: learner.observe(td, _indices(_sound(live))))
@@ -67,8 +67,8 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
             _together(_sound(live), lambda: learner.end_episodes(ended))
         for lane in _sound(live):
             lane.guarded(lambda lane=lane: lane.run.end_step(next_td))
-        acting = _acting(live)
-        td = _together(acting, lambda: learner.act(next_td, _indices(acting)))
+        td = next_td
+        live = end_done(live)
 
 
 def _book(learner: Learner, lanes: list[Lane], td: TensorDictBase) -> dict[int, int]:
@@ -106,11 +106,6 @@ def _together(lanes: list[Lane], work):
             if lane.failed is None:
                 lane.fail(error, trace)
         return None
-
-
-def _acting(lanes: list[Lane]) -> list[Lane]:
-    """The lanes that act at the next step (one done at a step's end acts no more)."""
-    return [lane for lane in lanes if not lane.done]
 
 
 def _sound(lanes: list[Lane]) -> list[Lane]:

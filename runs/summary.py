@@ -1,5 +1,6 @@
-"""summary.json's names, and reading run folders back: what a comparison, a tuning study
-or a benchmark needs.
+"""summary.json: made at a run's end (:func:`run_summary`, with the verdict printed from it,
+:func:`verdict_lines`), its names, and reading run folders back: what a comparison, a
+tuning study or a benchmark needs.
 
 Every number a run reports is named for what it is, the same in ``summary.json``, the
 console verdict (its ``VERDICT`` line too), the loggers' ``run/*`` scalars, the

@@ -1,4 +1,5 @@
-"""The whole state of a training run at a step boundary, to save and to resume.
+"""The whole state of a training run at a step boundary, to save and to resume, and the
+seeding of the run's global random streams (:func:`seed_everything`) it holds.
 
 A training checkpoint (``checkpoint.pt`` in the run folder) holds everything
 the next step depends on, so a resumed run continues bit for bit:

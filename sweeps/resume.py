@@ -1,7 +1,7 @@
 """A stopped sweep resumed as a whole: ``python train.py resume=<sweep folder>``.
 
 Every unfinished job folder of the sweep with a checkpoint continues from it, the jobs
-alike but their seed trained together as one seed batch (:func:`runs.batch.execute_batch`),
+alike but their seed trained together as one seed batch (:func:`runs.lifecycle.run_jobs`),
 each exactly as ``resume=<job folder>`` continues it alone; then the sweep's comparison is
 made again. Jobs that cannot continue (no checkpoint.pt, a damaged one) are listed with
 their one-line reason and left as they are; finished jobs are not touched.
@@ -15,7 +15,7 @@ from typing import Sequence
 from omegaconf import DictConfig
 
 from params import ConfigError
-from runs.batch import BatchJob, execute_batch, same_batch
+from runs.lifecycle import Job, run_jobs, same_batch
 from runs.checkpoint import CheckpointError
 from runs.folder import is_finished, is_run_folder, resumed_config
 from runs.training_state import read_run_json
@@ -30,7 +30,7 @@ def is_sweep_folder(path) -> bool:
     return bool(path) and (Path(str(path)) / "multirun.yaml").is_file()
 
 
-def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[BatchJob], list[str]]:
+def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Job], list[str]]:
     """The unfinished job folders of the sweep ``cfg.resume``, each as its resumed job, and a
     line for each that cannot continue. :class:`CheckpointError` if none can."""
     folder = Path(str(cfg.resume))
@@ -48,7 +48,7 @@ def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Batc
         except (CheckpointError, ConfigError) as err:
             skipped.append((run_dir.name, str(err).splitlines()[0]))
             continue
-        jobs.append(BatchJob(saved, run_dir, read_run_json(run_dir), resume=True))
+        jobs.append(Job(saved, run_dir, read_run_json(run_dir), resume=True))
     if not jobs:
         raise CheckpointError(f"resume={folder}: none of its {len(unfinished)} unfinished runs can continue "
                               f"(the first: {skipped[0][1]})")
@@ -67,7 +67,7 @@ def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
         batch = [jobs[i] for i in members]
         print(f"resuming {len(batch)} job{'s' * (len(batch) != 1)} of {folder} together: "
               f"{', '.join(job.run_dir.name for job in batch)}")
-        summaries += execute_batch(batch)
+        summaries += run_jobs(batch)
     try:
         report(folder)
     except NotASweep as err:  # pragma: no cover - the folder held the jobs just resumed

@@ -1,5 +1,5 @@
 """The ``seeds`` launcher's work: a sweep's jobs grouped by every override but ``seed``, each
-group of fresh training runs trained as one seed batch (:func:`runs.batch.execute_batch`).
+group of fresh training runs trained as one seed batch (:func:`runs.lifecycle.run_jobs`).
 
 Every job still goes through Hydra's ``run_job`` (its folder, ``.hydra/`` files, logging)
 and ``train.py``'s checks; a batchable job then hands its checked config to the batch
@@ -22,16 +22,16 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
 
 from params import ConfigError
-from runs.batch import BatchJob, batchable, execute_batch
+from runs.lifecycle import Job, batchable, run_jobs
 
 log = logging.getLogger(__name__)
-_COLLECTING: list[list[BatchJob]] = []  # the batch being collected, innermost last
+_COLLECTING: list[list[Job]] = []  # the batch being collected, innermost last
 
 
 @contextmanager
-def collecting() -> Iterator[list[BatchJob]]:
+def collecting() -> Iterator[list[Job]]:
     """Within: batchable jobs are collected into the yielded list instead of trained."""
-    jobs: list[BatchJob] = []
+    jobs: list[Job] = []
     _COLLECTING.append(jobs)
     try:
         yield jobs
@@ -39,7 +39,7 @@ def collecting() -> Iterator[list[BatchJob]]:
         _COLLECTING.pop()
 
 
-def collect(job: BatchJob) -> bool:
+def collect(job: Job) -> bool:
     """Hands ``job`` to the batch being collected; False (train it now) when no batch is
     being collected or ``job`` is not a fresh training run."""
     if not _COLLECTING or not batchable(job.cfg):
@@ -132,10 +132,10 @@ class SeedBatchLaunch:
         return returns
 
 
-def _batch(jobs: list[BatchJob]) -> list[dict]:
+def _batch(jobs: list[Job]) -> list[dict]:
     """Trains ``jobs`` as one batch; a refusal is one line, kept in each job's ``error.txt``."""
     try:
-        return execute_batch(jobs)
+        return run_jobs(jobs)
     except ConfigError as err:
         message = f"error: {err}"
         print(message, file=sys.stderr)

@@ -19,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from runs import session  # noqa: E402
+from runs import lifecycle as session  # noqa: E402
 
 
 def die(*_args, **_kwargs) -> None:

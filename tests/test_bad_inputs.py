@@ -17,7 +17,7 @@ import torch
 from hydra.core.global_hydra import GlobalHydra
 
 import train
-from runs import session
+from runs import lifecycle as session
 from test_validation import CASES
 
 TRIED = [

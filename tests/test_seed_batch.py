@@ -1,4 +1,4 @@
-"""Seeds in one process (runs/batch.py, the ``seeds`` launcher): a seed trained in a batch
+"""Seeds in one process (runs/lifecycle.py, the ``seeds`` launcher): a seed trained in a batch
 (a member of one learner) is the run it makes alone, file for file (wall-clock numbers
 aside), bit for bit for qlearn and dqn; a seed whose own work fails ends alone; a failed
 learner call ends every seed with its trace; the launcher batches a multirun's seeds."""
@@ -15,12 +15,12 @@ import pytest
 import torch
 
 from learners.qlearn import QLearn
-from runs import batch as batch_module
-from runs.batch import BatchJob, check_batch, execute_batch
+from runs import lifecycle as batch_module
+from runs.lifecycle import Job, check_batch, run_jobs
 from tasks.catalog import compose
 from runs.training_state import load_run_config, read_run_json
 from runs.run import Run
-from runs.session import EVAL_SEED_OFFSET, execute
+from runs.lifecycle import EVAL_SEED_OFFSET, execute
 from runs.settings import check_run_config
 from params import ConfigError
 
@@ -35,14 +35,14 @@ BUDGETS = {
 }
 
 
-def jobs(learner: str, root: Path, prefix: str, extra=()) -> list[BatchJob]:
+def jobs(learner: str, root: Path, prefix: str, extra=()) -> list[Job]:
     choices = {"robot": "cartpole", "task": "stay_up", "learner": learner, "tuned": f"cartpole_{learner}"}
     found = []
     for seed in SEEDS:
         cfg = compose("cartpole", learner=learner, overrides=[f"seed={seed}", "quiet=true",
                                                                *BUDGETS[learner], *extra])
         check_run_config(cfg)
-        found.append(BatchJob(cfg, root / f"{prefix}{seed}", choices))
+        found.append(Job(cfg, root / f"{prefix}{seed}", choices))
     return found
 
 
@@ -67,7 +67,7 @@ def run_alone(learner: str, root: Path, seeds=SEEDS) -> None:
 def test_a_seed_in_a_batch_is_its_run_alone(tmp_path, learner):
     """Every seed's files are its run's alone."""
     batch = jobs(learner, tmp_path, "batch")
-    execute_batch(batch)
+    run_jobs(batch)
     run_alone(learner, tmp_path)
     same_files(tmp_path, SEEDS)
 
@@ -82,7 +82,7 @@ def test_seeds_that_end_at_one_step_are_evaluated_together_as_each_alone(tmp_pat
     together, real = [], batch_module.greedy_evaluations
     monkeypatch.setattr(batch_module, "greedy_evaluations",
                         lambda learners, env, seeds: together.append(list(seeds)) or real(learners, env, seeds))
-    execute_batch(jobs(learner, tmp_path, "batch"))
+    run_jobs(jobs(learner, tmp_path, "batch"))
     assert together == [[seed + EVAL_SEED_OFFSET for seed in SEEDS]]
     run_alone(learner, tmp_path)
     same_files(tmp_path, SEEDS)
@@ -120,7 +120,7 @@ def test_a_stopped_batch_seed_resumes_alone_to_its_uninterrupted_run(tmp_path, m
         return td
 
     monkeypatch.setattr(Run, "end_step", end_step)
-    summaries = execute_batch(jobs("qlearn", tmp_path, "batch"))
+    summaries = run_jobs(jobs("qlearn", tmp_path, "batch"))
     assert all(s["interrupted"] for s in summaries)
     monkeypatch.setattr(Run, "end_step", real_end_step)
     folder = tmp_path / f"batch{SEEDS[1]}"
@@ -152,7 +152,7 @@ def test_a_stopped_sweep_resumes_as_one_batch_to_each_seeds_uninterrupted_run(tm
     sweep.mkdir()
     (sweep / "multirun.yaml").write_text("{}\n")  # what makes a folder a sweep's
     monkeypatch.setattr(Run, "end_step", end_step)
-    summaries = execute_batch(jobs(learner, sweep, "batch"))
+    summaries = run_jobs(jobs(learner, sweep, "batch"))
     assert all(s["interrupted"] for s in summaries)
     if learner == "dqn":
         state = torch.load(sweep / f"batch{SEEDS[0]}" / "checkpoint.pt", weights_only=True)["learner"]
@@ -186,7 +186,7 @@ def test_a_failing_seed_ends_alone(tmp_path, monkeypatch):
         return real_record(self, *args, **kwargs)
 
     monkeypatch.setattr(Run, "record", record)
-    summaries = execute_batch(jobs("qlearn", tmp_path, "batch"))
+    summaries = run_jobs(jobs("qlearn", tmp_path, "batch"))
     failed, healthy = (tmp_path / f"batch{s}" for s in SEEDS)
     assert "FloatingPointError: the metrics diverged" in (failed / "error.txt").read_text()
     assert summaries[0]["failed"] == "FloatingPointError: the metrics diverged"
@@ -209,7 +209,7 @@ def test_a_failed_learner_call_ends_every_seed_with_its_trace(tmp_path, monkeypa
         real_observe(self, *args)
 
     monkeypatch.setattr(QLearn, "observe", observe)
-    summaries = execute_batch(jobs("qlearn", tmp_path, "batch"))
+    summaries = run_jobs(jobs("qlearn", tmp_path, "batch"))
     for seed, summary in zip(SEEDS, summaries):
         folder = tmp_path / f"batch{seed}"
         assert summary["failed"] == "RuntimeError: no memory for the Q-tables", summary
@@ -228,7 +228,7 @@ def test_a_batch_of_unlike_jobs_is_refused_before_any_work(tmp_path, change, mes
     with pytest.raises(ConfigError, match=message):
         check_batch(batch)
     with pytest.raises(ConfigError, match=message):
-        execute_batch(batch)
+        run_jobs(batch)
     assert not any(job.run_dir.exists() for job in batch)
 
 
@@ -265,5 +265,5 @@ def test_a_seed_given_twice_is_one_line_and_nothing_runs(tmp_path):
 def test_a_batch_that_would_not_fit_in_memory_is_one_line_before_training(tmp_path, monkeypatch):
     monkeypatch.setattr(batch_module, "available_bytes", lambda: 2**20)
     with pytest.raises(ConfigError, match=r"a batch of 2 seeds x 16 copies needs about .* GiB free"):
-        execute_batch(jobs("dqn", tmp_path, "batch"))
+        run_jobs(jobs("dqn", tmp_path, "batch"))
     assert not any((job.run_dir / "metrics.csv").exists() for job in jobs("dqn", tmp_path, "batch"))

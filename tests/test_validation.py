@@ -2,7 +2,7 @@
 the key, the value and what is allowed (runs/settings.py and the constructors).
 
 No env is built here (that compiles MuJoCo): a config is checked with
-``check_run_config`` and then built as far as runs.session.build builds it before the env
+``check_run_config`` and then built as far as runs.lifecycle._build builds it before the env
 (learner, robot and task, the learner's tables or networks for that task).
 """
 
@@ -50,7 +50,7 @@ def default_task(robot: str):
 
 
 def build(cfg, parts: str = "all") -> None:
-    """What runs.session.build does with ``cfg`` before it builds the env."""
+    """What runs.lifecycle._build does with ``cfg`` before it builds the env."""
     check_run_config(cfg)
     if parts in ("all", "task"):
         task = factory.build_task(cfg)

@@ -1,0 +1,615 @@
+"""A run's life, from its config to its verdict: one run, or seeds side by side, the same way.
+
+    summary = execute(cfg, run_dir, choices=..., overrides=[...])   # train.py: a single run
+    summaries = run_jobs([Job(cfg_0, dir_0, ...), Job(cfg_1, dir_1, ...)])   # a seed batch
+
+Every run, alone or in a batch, goes through the same steps: build (:func:`_build`: seed
+each member's streams, one learner with a member per seed, one env holding every seed's
+copies as seed blocks, each seed's greedy evaluator; every value checked before the first
+file is written), start (:func:`_start`: each seed's folder, banner and
+:class:`~runs.run.Run`), train (:func:`runs.loop.train`), finish (:func:`_finish`: its
+final greedy evaluation, checkpoint, ``model.pt``, video on request and verdict). A single
+run is a batch of one (``solo``): the process's own console, its failures raised, no
+other seed to hold. What a job is (fresh, resumed, evaluating a checkpoint, reporting to a
+tuning trial) is a property of the :class:`Job`, not another path.
+
+In a batch each seed keeps its own run with its own folder, files, checkpoints and
+verdict, so a seed's run is the run ``python train.py seed=<s>`` makes, file for file
+(wall-clock numbers aside), and each folder resumes alone (``resume=<folder>``). A seed
+that is done (solved, out of budget, stopped) ends at that step, its copies held
+(``BatchedPhysics.hold``) while the others go on; the final evaluations of seeds ending at
+one step run together. A seed whose own work fails ends alone, its trace in its
+``error.txt``; a learner call that fails ends every seed still training (they share its
+state). Each seed's console goes to its ``train.log`` and, its lines prefixed with
+``[seed N]``, to the terminal. A tuning trial's report (``progress``) is handed in: this
+package never imports the sweeps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import random
+import signal
+import sys
+import threading
+import traceback
+from contextlib import ExitStack, contextmanager
+from functools import partial
+from pathlib import Path
+from typing import IO, Callable, Iterator, Mapping, Sequence
+
+import numpy as np
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+
+from learners.base import Member
+from params import ConfigError
+from runs.checkpoint import CheckpointError, load_model, save_model
+from runs.console import Tee, banner_lines
+from runs.evaluate import GreedyEvaluator, describe_evaluation, greedy_evaluations, measure_of
+from runs.folder import model_path, run_lock, start_run
+from runs.loggers import log_hparams, make_logger, run_scalar_names
+from runs.loop import train
+from runs.run import Hooks, Progress, Run
+from runs.summary import verdict_lines
+from runs.training_state import load_training_state, save_training_state, seed_everything
+from runs.video import record_video
+from tasks.base import Success
+from tasks.env import RobotTaskEnv
+from tasks.factory import build_env
+
+EVAL_SEED_OFFSET = 10_000  # greedy evaluations start from seed + this (never the training streams)
+VIDEO_SEED_OFFSET = 20_000  # the policy video's env
+# Settings a batched job may not have: each makes a run that is not a fresh training run.
+NOT_BATCHED = ("resume", "checkpoint", "trial")
+
+
+@dataclasses.dataclass
+class Job:
+    """One run to make: its checked config, folder, choices (for the banner and run.json),
+    command-line overrides and what its tuned file changed; ``resume``: it continues the
+    stopped run in ``run_dir`` (its cfg: the folder's, resume= set); ``progress``: a tuning
+    trial's report."""
+
+    cfg: DictConfig
+    run_dir: Path
+    choices: Mapping[str, str | None]
+    overrides: Sequence[str] = ()
+    changes: Sequence[str] | None = None
+    resume: bool = False
+    progress: Progress | None = None
+
+
+@dataclasses.dataclass
+class Session:
+    """The parts of one seed's run: its config, folder, member of the learner, env (its
+    block of the batch's) and greedy evaluator."""
+
+    cfg: DictConfig
+    run_dir: Path
+    learner: Member
+    env: RobotTaskEnv
+    evaluator: GreedyEvaluator
+
+    @property
+    def success(self) -> Success:
+        return self.env.task.success
+
+    @property
+    def state_path(self) -> Path:
+        return self.run_dir / "checkpoint.pt"
+
+    @property
+    def final_episodes(self) -> int:
+        """Episodes of the final greedy evaluation (ruippeixotog's run phase, else eval_episodes)."""
+        return int(getattr(self.learner, "run_episodes", 0) or self.cfg.eval_episodes)
+
+
+# -- what may share a batch ----------------------------------------------------
+def batchable(cfg: DictConfig) -> bool:
+    """Whether a job with ``cfg`` can train in a seed batch (a fresh training run)."""
+    return cfg.mode == "train" and not any(cfg.get(key) not in (None, "", False) for key in NOT_BATCHED)
+
+
+def check_batch(jobs: Sequence[Job]) -> None:
+    """One line unless ``jobs`` are fresh training runs whose configs differ only in an
+    integer seed, each seed once."""
+    seeds = [job.cfg.seed for job in jobs]
+    if any(type(s) is not int for s in seeds):
+        raise ConfigError(f"seed must be an integer in a seed batch; got {seeds}")
+    twice = sorted({s for s in seeds if seeds.count(s) > 1})
+    if twice:
+        raise ConfigError(f"seed {twice[0]} appears twice in one sweep; give each seed once")
+    if not all(batchable(job.cfg) for job in jobs if not job.resume) or not all(
+            job.cfg.mode == "train" and not job.cfg.get("checkpoint") for job in jobs if job.resume):
+        raise ConfigError(f"a seed batch trains fresh or resumed runs only (no {', '.join(NOT_BATCHED[1:])})")
+    first = _without_seed(jobs[0].cfg)
+    for job in jobs[1:]:
+        if _without_seed(job.cfg) != first:
+            raise ConfigError(f"jobs {jobs[0].run_dir.name} and {job.run_dir.name} differ in more "
+                              "than their seed: they cannot share a seed batch")
+
+
+def _without_seed(cfg: DictConfig) -> dict:
+    """The config but its seed (and a resumed run's own folder)."""
+    return {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ("seed", "resume")}
+
+
+def same_batch(cfgs: Sequence[DictConfig]) -> list[list[int]]:
+    """Indices of ``cfgs`` grouped by their config but the seed (first-seen order): the
+    batches they may train in."""
+    groups: dict[str, list[int]] = {}
+    for i, cfg in enumerate(cfgs):
+        groups.setdefault(repr(_without_seed(cfg)), []).append(i)
+    return list(groups.values())
+
+
+# -- a seed in the lifecycle -----------------------------------------------------
+@dataclasses.dataclass
+class _Slot:
+    """One seed: its job, member, run, global random streams and console (a
+    :class:`runs.loop.Lane`). ``solo``: a single run's (its failures raised)."""
+
+    job: Job
+    index: int  # its member of the learner, its block of the env
+    solo: bool = False
+    session: Session | None = None
+    run: Run | None = None
+    # The seed's global random streams as its run alone leaves them: torch's (a generator
+    # holding its state), numpy's and ``random``'s. Training draws from none of them (the
+    # learner's members have their own streams); a checkpoint holds them.
+    streams: tuple = ()
+    failed: str | None = None
+    result: dict | None = None  # the final greedy evaluation
+    summary: dict = dataclasses.field(default_factory=dict)
+    console: IO[str] | None = None
+    closed: bool = False  # its model saved and its files closed
+
+    @property
+    def seed(self) -> int:
+        return int(self.job.cfg.seed)
+
+    @property
+    def env(self):
+        """Its block of the env (a single run: the env)."""
+        return self.session.env
+
+    @property
+    def done(self) -> bool:
+        return self.failed is not None or self.run is None or self.run.done
+
+    @contextmanager
+    def active(self, full: bool = False) -> Iterator[None]:
+        """This seed's console inside (``full``: its global random streams too, the others'
+        kept outside)."""
+        if full:
+            torch.set_rng_state(self.streams[0].get_state())
+            np.random.set_state(self.streams[1])
+            random.setstate(self.streams[2])
+        out, err = sys.stdout, sys.stderr
+        sys.stdout = sys.stderr = self.console or out
+        try:
+            yield
+        finally:
+            sys.stdout, sys.stderr = out, err
+            if full:
+                self.streams[0].set_state(torch.get_rng_state())
+                self.streams = (self.streams[0], np.random.get_state(), random.getstate())
+
+    def guarded(self, work: Callable[[], object], full: bool = False) -> bool:
+        """Runs ``work`` in the seed's context; in a batch an exception ends this seed alone
+        (``error.txt``). Whether the seed is still sound. (Twice a step for every seed: the
+        console is swapped inline, the random streams only when ``full``.)"""
+        if full:
+            with self.active(full):
+                return self._run(work)
+        out, err = sys.stdout, sys.stderr
+        sys.stdout = sys.stderr = self.console or out
+        try:
+            return self._run(work)
+        finally:
+            sys.stdout, sys.stderr = out, err
+
+    def _run(self, work: Callable[[], object]) -> bool:
+        if self.solo:
+            work()
+            return True
+        try:
+            work()
+        except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
+            self._failed(traceback.format_exc())
+        return self.failed is None
+
+    def fail(self, error: BaseException, trace: str) -> None:
+        """A learner call shared with other seeds failed: this seed ends with its trace."""
+        if self.solo:
+            raise error
+        with self.active():
+            self._failed(f"the seeds' learner failed:\n{trace}")
+
+    def _failed(self, trace: str) -> None:
+        self.failed = trace
+        print(trace, file=sys.stderr)
+        (self.job.run_dir / "error.txt").write_text(trace)
+
+    def save(self, path, learner, env, run, td: TensorDictBase) -> None:
+        """:func:`runs.training_state.save_training_state` with this seed's random states in
+        place (a checkpoint holds them) and ``td`` its block (a batch's step hands the batch's)."""
+        if td.batch_size[0] != env.num_envs:
+            td = td[env.rows]
+        outside = torch.get_rng_state(), np.random.get_state(), random.getstate()
+        torch.set_rng_state(self.streams[0].get_state())
+        np.random.set_state(self.streams[1])
+        random.setstate(self.streams[2])
+        try:
+            save_training_state(path, learner, env, run, td)
+        finally:
+            torch.set_rng_state(outside[0])
+            np.random.set_state(outside[1])
+            random.setstate(outside[2])
+
+
+class _Prefixed:
+    """A terminal stream that starts each line with ``prefix`` (never a tty: no progress bar)."""
+
+    def __init__(self, stream: IO[str], prefix: str) -> None:
+        self.stream, self.prefix, self._fresh = stream, prefix, True
+
+    def write(self, text: str) -> int:
+        for piece in text.splitlines(keepends=True):
+            self.stream.write((self.prefix if self._fresh else "") + piece)
+            self._fresh = piece.endswith("\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def isatty(self) -> bool:
+        return False
+
+
+# -- the lifecycle ----------------------------------------------------------------
+def execute(cfg: DictConfig, run_dir: Path, resume: bool = False, choices: Mapping[str, str | None] | None = None,
+            changes: Sequence[str] | None = None, overrides: Sequence[str] = (),
+            progress: Progress | None = None) -> dict:
+    """A single run (train.py's): trains, or evaluates ``checkpoint=`` with ``mode=eval``, as
+    ``cfg`` says; returns the summary (and prints the verdict). ``resume``: continue the run
+    in ``run_dir`` from its ``checkpoint.pt``; else the folder is started (config.yaml,
+    run.json) once every part is built. The caller holds the folder's lock and console."""
+    job = Job(cfg, run_dir, dict(choices or {}), overrides, changes, resume, progress)
+    return run_jobs([job], solo=True)[0]
+
+
+def run_jobs(jobs: Sequence[Job], solo: bool = False) -> list[dict]:
+    """Makes every run of ``jobs`` (a batch: checked by :func:`check_batch`) in one env;
+    returns each seed's summary, in order (a failed seed's says ``failed``). ``solo``: one
+    job, a single run."""
+    if not solo:
+        check_batch(jobs)
+    torch.set_num_threads(int(jobs[0].cfg.torch_threads))
+    slots = [_Slot(job, b, solo) for b, job in enumerate(jobs)]
+    with ExitStack() as stack:
+        if not solo:
+            _consoles(slots, stack)
+        learner, env = _build(slots)
+        finals = _FinalEvaluations(jobs[0].cfg)
+        stack.callback(env.close)
+        stack.callback(finals.close)
+        _start(slots, env)
+        if jobs[0].cfg.mode == "eval":
+            _evaluate(slots[0])
+        else:
+            _train(learner, slots, env, finals)
+    return [slot.summary for slot in slots]
+
+
+def _consoles(slots: list[_Slot], stack: ExitStack) -> None:
+    """A batch's seeds: each folder locked, each console its train.log and the terminal."""
+    for slot in slots:
+        slot.job.run_dir.mkdir(parents=True, exist_ok=True)
+        stack.enter_context(run_lock(slot.job.run_dir))
+        log = stack.enter_context(open(slot.job.run_dir / "train.log", "a", encoding="utf-8"))
+        slot.console = Tee(_Prefixed(sys.stdout, f"[seed {slot.seed}] "), log)
+
+
+def _build(slots: list[_Slot]):
+    """The learner of all seeds (each member's streams seeded as its run alone seeds them),
+    the one env of all seeds and each seed's parts; ``checkpoint=``'s model loaded into a
+    fresh run. Writes nothing."""
+    generators = []
+    for slot in slots:
+        generators.append(seed_everything(slot.seed))
+        stream = torch.Generator()
+        stream.set_state(torch.get_rng_state())
+        slot.streams = (stream, np.random.get_state(), random.getstate())
+    cfg, solo = slots[0].job.cfg, slots[0].solo
+    learner = instantiate(cfg.learner, _convert_="all")
+    seeds = slots[0].seed if solo else [slot.seed for slot in slots]
+    env = build_env(cfg, len(slots) * int(cfg.num_envs), seeds, learner.nsteps)
+    if not solo:
+        _check_memory(env, cfg, len(slots))
+    learner.build(env.task, generators)
+    for slot in slots:
+        member = learner.member(slot.index)
+        if slot.job.cfg.checkpoint and not slot.job.resume:
+            load_model(model_path(slot.job.cfg.checkpoint), member)
+        elif slot.job.cfg.mode == "eval":
+            raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
+        evaluator = GreedyEvaluator(slot.job.cfg, member, slot.seed + EVAL_SEED_OFFSET)
+        slot.session = Session(slot.job.cfg, slot.job.run_dir, member, env if solo else env.seed_block(slot.index),
+                               evaluator)
+    return learner, env
+
+
+def available_bytes() -> int | None:
+    """``MemAvailable`` of ``/proc/meminfo`` (None where there is none)."""
+    try:
+        with open("/proc/meminfo") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        return None
+
+
+def _tensor_bytes(state) -> int:
+    if isinstance(state, torch.Tensor):
+        return state.nbytes
+    if isinstance(state, dict):
+        return sum(_tensor_bytes(v) for v in state.values())
+    if isinstance(state, (list, tuple)):
+        return sum(_tensor_bytes(v) for v in state)
+    return 0
+
+
+def _check_memory(env: RobotTaskEnv, cfg: DictConfig, seeds: int) -> None:
+    """One line, before any training, when ``seeds`` members of ``cfg``'s learner (one
+    member's training state's tensors, measured on a learner of one) and ``env``'s physics
+    buffers would take most of the free memory."""
+    one = instantiate(cfg.learner, _convert_="all")
+    one.build(env.task, [torch.Generator()])
+    physics = env.physics
+    per_step = physics.nstate + physics.model.nsensordata + physics.model.nu
+    need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + seeds * _tensor_bytes(one.training_state(0))
+    del one
+    free = available_bytes()
+    if free is not None and need > 0.8 * free:
+        raise ConfigError(f"a batch of {seeds} seeds x {env.block_size} copies needs about {need / 2**30:.3g} "
+                          f"GiB, more than 80% of the {free / 2**30:.3g} GiB free: fewer seeds per batch "
+                          "(hydra.launcher.max_seeds=...) or fewer copies (num_envs=...)")
+
+
+def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
+    """Each seed's folder, banner and run (none to evaluate a checkpoint), from its block of
+    the first reset (a resumed seed: from its checkpoint)."""
+    first = env.reset() if slots[0].job.cfg.mode == "train" else None
+    for slot in slots:
+        job, session = slot.job, slot.session
+        with slot.active(full=True):
+            if not job.resume:
+                start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
+            for line in banner_lines(job.cfg, dict(job.choices), job.changes, session.success,
+                                     job.run_dir, session.learner.nepisodes):
+                print(line)
+            write_success(session)
+            if first is None:
+                continue
+            slot.run = make_run(session, resume=job.resume, progress=job.progress, save=slot.save)
+            if not job.resume:
+                slot.run.continue_from(first if slot.solo else first[env.block(slot.index)])
+
+
+def write_success(session: Session) -> None:
+    """``success.json``: the task's rule, as the run judges it."""
+    (session.run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(session.success), indent=1))
+
+
+def make_run(session: Session, resume: bool, progress: Progress | None,
+             save: Callable[..., None] | None = None) -> Run:
+    """Training's :class:`Run` with its logger and hooks (``save``: writes the training
+    state, :func:`runs.training_state.save_training_state`'s arguments); a resumed run continues
+    from its checkpoint (its metrics files cut back to it)."""
+    cfg, learner, env = session.cfg, session.learner, session.env
+    logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name,
+                         **{k: v for k, v in cfg.logger.items() if k != "kind"})
+    hooks = Hooks(checkpoint=partial(save or save_training_state, session.state_path, learner, env),
+                  greedy_eval=partial(session.evaluator, int(cfg.eval_episodes)) if cfg.eval_episodes else None,
+                  train_stats=learner.train_stats, progress=progress)
+    run = Run(session.run_dir, env.num_envs, learner.nepisodes, session.success, logger=logger,
+              extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
+              log_every=int(cfg.get("log_every", 0)), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
+              eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume,
+              max_env_steps=int(cfg.get("max_env_steps", 0)),
+              stop_when_solved=bool(cfg.get("stop_when_solved", True)), hooks=hooks)
+    if resume:
+        run.continue_from(load_training_state(session.state_path, learner, env, run))
+        print(f"resuming {session.run_dir} after episode {run.n_episodes} ({run.env_steps} env steps)")
+    log_hparams(logger, cfg, run_scalar_names(session.success.measure, session.success.window))
+    return run
+
+
+def _evaluate(slot: _Slot) -> None:
+    """``mode=eval``: the checkpoint's greedy policy judged, reported."""
+    session = slot.session
+    result = session.evaluator(session.final_episodes) if session.final_episodes > 0 else None
+    report(session, slot.summary, result)
+
+
+def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluations) -> None:
+    """Steps every seed's copies together until each run is done (:func:`runs.loop.train`);
+    a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
+    done. A single run stopped by an exception still saves its model and closes its files."""
+    with stop_on_signals(*(slot.run for slot in slots)) as stopped:
+        try:
+            train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals))
+        except BaseException:
+            for slot in slots:
+                if slot.solo and not slot.closed:
+                    close_run(slot.session, slot.run, finished=False)
+            raise
+
+
+def _end_done(live: list[_Slot], env: RobotTaskEnv, stopped: dict, finals: _FinalEvaluations) -> list[_Slot]:
+    """Ends the seeds of ``live`` that are done, their copies held (the final evaluations of
+    those that end at this step made together); the others."""
+    done = [slot for slot in live if slot.done]
+    results = finals(done)
+    for slot in done:
+        _finish(slot, stopped["signal"], results.get(slot.index))
+        if not slot.solo:
+            env.physics.hold(env.block_mask(slot.index))
+    return [slot for slot in live if not slot.done]
+
+
+class _FinalEvaluations:
+    """The final greedy evaluations of the seeds that end at the same step (all of a
+    budget's seeds, at its last step), made in one env of their seed blocks, stepped
+    together (:func:`runs.evaluate.greedy_evaluations`): each seed's result is the one its
+    own evaluator gives alone. Envs are kept per number of seeds."""
+
+    def __init__(self, cfg: DictConfig) -> None:
+        self.cfg = cfg
+        self.envs: dict[int, RobotTaskEnv] = {}
+
+    def __call__(self, done: list[_Slot]) -> dict[int, dict]:
+        """Each seed's evaluation by its index, for the seeds of ``done`` that owe one, when
+        two or more do (one alone evaluates in its own env, as before)."""
+        owing = [slot for slot in done if slot.failed is None and slot.run is not None
+                 and owes_final_evaluation(slot.session, slot.run)]
+        if len(owing) < 2:
+            return {}
+        seeds = [slot.session.evaluator.seed for slot in owing]
+        if len(owing) not in self.envs:
+            copies = owing[0].session.final_episodes
+            self.envs[len(owing)] = build_env(self.cfg, len(owing) * copies, seeds,
+                                              owing[0].session.learner.nsteps)
+        try:
+            results = greedy_evaluations([slot.session.learner for slot in owing], self.envs[len(owing)], seeds)
+        except Exception:  # noqa: BLE001 - each seed then evaluates alone, a failure its own
+            return {}
+        return {slot.index: result for slot, result in zip(owing, results)}
+
+    def close(self) -> None:
+        for env in self.envs.values():
+            env.close()
+
+
+def _finish(slot: _Slot, interrupted: int | None, evaluation: dict | None = None) -> None:
+    """A seed's end: final evaluation (``evaluation``, if made already), checkpoint, model,
+    report."""
+    if slot.run is None:
+        return
+    session, run = slot.session, slot.run
+    if slot.failed is None:
+        slot.guarded(lambda: setattr(slot, "result", final_evaluation(session, run, evaluation)), full=True)
+    with slot.active(full=True):
+        summary = close_run(session, run, finished=slot.failed is None)
+        slot.closed = True
+        if slot.failed is not None:
+            slot.summary = {**summary, "failed": slot.failed.strip().splitlines()[-1]}
+        elif run.stop_requested:
+            slot.summary = stopped(session, run, summary, interrupted or signal.SIGINT)
+        else:
+            report(session, summary, slot.result)
+            slot.summary = summary
+
+
+def final_evaluation(session: Session, run: Run, result: dict | None = None) -> dict | None:
+    """The trained policy, judged like the evaluations during training (an evaluation of this
+    very policy is reused); at the budget's end it may still solve a greedily judged task.
+    None when the run was stopped or evaluates nothing. ``result``: that evaluation, made
+    already (a seed batch evaluates the seeds that end at one step together)."""
+    if session.final_episodes <= 0 or run.stop_requested:
+        return None
+    if _evaluated_already(session, run):
+        return run.last_eval
+    evaluation = partial(session.evaluator, session.final_episodes) if result is None else lambda: result
+    return run.evaluate_greedy(evaluation)
+
+
+def owes_final_evaluation(session: Session, run: Run) -> bool:
+    """Whether :func:`final_evaluation` runs a new evaluation: not when the run was stopped
+    or evaluates nothing, nor when its last evaluation was of this very policy."""
+    return session.final_episodes > 0 and not run.stop_requested and not _evaluated_already(session, run)
+
+
+def _evaluated_already(session: Session, run: Run) -> bool:
+    """Whether the run's last evaluation is its final one: of this very policy, as many
+    episodes (also a resumed run killed after its final evaluation was saved: never a
+    second row)."""
+    last = run.last_eval
+    return (last is not None and run.evals[-1]["episode"] == run.n_episodes
+            and last["episodes"] == session.final_episodes)
+
+
+def close_run(session: Session, run: Run, finished: bool) -> dict:
+    """The training state (``finished``: at a step boundary, so consistent), ``model.pt``, then
+    the run's files closed (the reward curve drawn last: a run stopped by its launcher has its
+    states saved first); returns the run's summary."""
+    if finished:
+        run.checkpoint(run.last_td)
+    save_model(session.run_dir / "model.pt", session.learner, meta={
+        "choices": json.loads((session.run_dir / "run.json").read_text()),
+        "config": OmegaConf.to_container(session.cfg, resolve=True),
+    })
+    return run.close()
+
+
+def stopped(session: Session, run: Run, summary: dict, signum: int) -> dict:
+    """A run stopped by ``signum``: how to resume it, and its summary saying so."""
+    print(f"stopped after episode {run.n_episodes}; the whole training state is in "
+          f"{session.state_path}\nresume with: python train.py resume={session.run_dir}")
+    summary["interrupted"] = True
+    summary["signal"] = signum
+    (session.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def report(session: Session, summary: dict, result: dict | None) -> None:
+    """The final evaluation (eval.json), the video on request, the summary and the verdict."""
+    cfg, run_dir, success = session.cfg, session.run_dir, session.success
+    if result is not None:
+        print(describe_evaluation(result, success))
+        (run_dir / "eval.json").write_text(json.dumps(
+            {"measure": success.measure, "value": measure_of(result, success.measure), **result},
+            indent=1))
+        summary["eval"] = result
+    session.evaluator.close()
+    if cfg.video:  # the greedy policy on a fresh one-copy env
+        video_env = build_env(cfg, 1, int(cfg.seed) + VIDEO_SEED_OFFSET, session.learner.nsteps)
+        with session.learner.greedy():
+            record_video(video_env, session.learner.policy, run_dir / "policy.mp4", n_steps=int(cfg.video_steps))
+        video_env.close()
+        print(f"policy video in {run_dir / 'policy.mp4'}")
+    if cfg.mode == "train":
+        (run_dir / "summary.json").write_text(json.dumps(
+            {k: v for k, v in summary.items() if k != "eval"}, indent=1))
+        for line in verdict_lines(summary, run_dir):
+            print(line)
+
+
+@contextmanager
+def stop_on_signals(*records: Run) -> Iterator[dict]:
+    """Ctrl-C / SIGTERM ask each of ``records`` to stop after the current step; a second
+    Ctrl-C aborts. Yields ``{"signal": None}``, where the stopping signal's number is put."""
+    stopped: dict = {"signal": None}
+    if threading.current_thread() is not threading.main_thread():
+        yield stopped  # signal handlers live in the main thread only (e.g. joblib workers)
+        return
+
+    def handler(signum, frame):
+        if any(r.stop_requested for r in records) and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        stopped["signal"] = signum
+        for record in records:
+            record.request_stop()
+        print(f"\n{signal.Signals(signum).name}: stopping after this step and saving a checkpoint "
+              "(Ctrl-C again aborts without saving)", file=sys.stderr)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stopped
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
