@@ -536,7 +536,9 @@ class DQN:
 
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
         """Every member's epsilon-greedy actions on its block; only ``live`` members draw."""
-        live = set(everyone(self, live))
+        if live is None or len(live) == self.members:
+            return self.act_members(td, range(self.members), False, self.generators)
+        live = set(live)
         return self.act_members(td, range(self.members), False,
                                 [g if b in live else None for b, g in enumerate(self.generators)])
 

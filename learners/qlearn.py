@@ -45,7 +45,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-from learners.base import Member, StateMismatch, everyone, single
+from learners.base import Member, StateMismatch, single
 from params.private_api import with_entries
 from params import require
 from params.declare import check_fields, param
@@ -178,9 +178,10 @@ class QLearn:
 
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
         """Every member's epsilon-greedy actions on its block; only ``live`` members draw."""
-        live = set(everyone(self, live))
-        return self.act_members(td, range(self.members), False,
-                                [g if b in live else None for b, g in enumerate(self.generators)])
+        if live is None or len(live) == self.members:
+            return self.act_members(td, None, False, self.generators)
+        live = set(live)
+        return self.act_members(td, None, False, [g if b in live else None for b, g in enumerate(self.generators)])
 
     def _draws(self, n: int, generators: Sequence[torch.Generator | None]) -> torch.Tensor:
         """``[k, d]`` float64 uniforms, a row per block: one step's draws of its member, in one
@@ -199,20 +200,23 @@ class QLearn:
                 draws[j].zero_()
         return draws
 
-    def act_members(self, td: TensorDictBase, members: Sequence[int], greedy: bool,
+    def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
                     generators: Sequence[torch.Generator | None]) -> TensorDictBase:
-        """The actions of ``members`` on their blocks of ``td`` (block ``j`` is member
-        ``members[j]``'s), ties broken by ``generators[j]``; epsilon-greedy unless ``greedy``.
+        """The actions of ``members`` (None: all) on their blocks of ``td`` (block ``j`` is
+        member ``members[j]``'s), ties broken by ``generators[j]``; epsilon-greedy unless ``greedy``.
         Returns a new tensordict of ``td``'s entries and ``state_index``, ``action_value`` and
         ``action``."""
-        members = list(members)
+        members = range(self.members) if members is None else list(members)
         k, a = len(members), self.n_actions
         state = self.discretizer(td.get("observation"))
         n = state.shape[0] // k
-        q = self.table.view(-1, a).index_select(0, state.reshape(-1) + self._offset(members, n)).view(k, n, a)
+        offset = self._offset(None if isinstance(members, range) else members, n)
+        q = self.table.view(-1, a).index_select(0, state.reshape(-1) + offset).view(k, n, a)
         draws = self._draws(n, generators)
-        epsilon = torch.zeros(k, 1, dtype=torch.float64) if greedy else torch.from_numpy(
-            np.array([[self.epsilons[b]] for b in members], dtype=np.float64))
+        if greedy or k == 1:  # one epsilon: a Python number (the comparison is the same)
+            epsilon = 0.0 if greedy else self.epsilons[members[0]]
+        else:
+            epsilon = torch.from_numpy(np.array([[self.epsilons[b]] for b in members], dtype=np.float64))
         explore = draws[:, :n] < epsilon
         if self.noise_exploration:
             magnitude = q.abs().amax(-1, keepdim=True)
@@ -233,6 +237,8 @@ class QLearn:
     def _offset(self, members: list[int] | None, n: int) -> torch.Tensor:
         """Each row's member's first row in the flat ``[members * states, actions]`` table
         (``members`` None: all)."""
+        if members is not None and len(members) == 1:  # one member (its greedy policy): one offset
+            return members[0] * self.n_states
         if members is None or (len(members) == self.members and members == list(range(self.members))):
             if self._offsets is None or len(self._offsets) != self.members * n:
                 self._offsets = (torch.arange(self.members) * self.n_states).repeat_interleave(n)

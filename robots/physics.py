@@ -182,8 +182,8 @@ class BatchedPhysics:
         """``nsubsteps`` substeps of the copies starting at ``initial`` (rows) with ``ctrl``
         held: their final states and the sensor readings of the last substep (None without
         sensors). Sensors are computed in that last substep only: only its readings are
-        kept, and a TurtleBot's laser rays cost about 4/5 of its step when computed in every
-        substep. Sensors do not act on the dynamics; the last substep starts its constraint
+        kept, and a TurtleBot's laser rays computed in every substep would be most of its step
+        (``bench/env_throughput.py``). Sensors do not act on the dynamics; the last substep starts its constraint
         solver cold (as every step already does), which can move the state by the solver's
         tolerance."""
         models = self._models[:len(initial)]

@@ -206,6 +206,8 @@ class _Slot:
         if full:
             with self.active(full):
                 return self._run(work)
+        if self.console is None:  # a single run: the process's own console
+            return self._run(work)
         out, err = sys.stdout, sys.stderr
         sys.stdout = sys.stderr = self.console or out
         try:

@@ -61,11 +61,12 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
             end_done(live)
             return
         td, next_td = env.step_and_maybe_reset(td)
-        _together(live, lambda: learner.observe(td, _indices(_sound(live))))
-        ended = _book(learner, _sound(live), td)
+        _together(live, lambda: learner.observe(td, _indices(live)))
+        sound = _sound(live)
+        ended = _book(learner, sound, td)
         if ended:
-            _together(_sound(live), lambda: learner.end_episodes(ended))
-        for lane in _sound(live):
+            _together(sound, lambda: learner.end_episodes(ended))
+        for lane in _sound(sound):
             lane.guarded(lambda lane=lane: lane.run.end_step(next_td))
         td = next_td
         live = end_done(live)
