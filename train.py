@@ -56,8 +56,8 @@ from sweeps.tuning import trial_link
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
 # a wrong path gets a fresh folder and the one-line error from ``resumed_config``.
 OmegaConf.register_new_resolver("if_run_folder",
-                                lambda path, yes, no: yes if is_run_folder(path) or is_sweep_folder(path) else no,
-                                replace=True)
+                                lambda path, yes, no: yes if path and (is_run_folder(path) or is_sweep_folder(path))
+                                else no, replace=True)
 # Default run and sweep folders end in the process id: two runs started in the same second
 # get two folders. Cached, as Hydra's ${now:}: Hydra copies a resolver's cached values from the
 # launching process into each job's config, so every job of a sweep, in any worker process
@@ -88,9 +88,11 @@ def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
         pass
 
 
-def _job(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> dict:
+def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -> dict:
     """Dispatches one job: resume, evaluate or train (every key checked before anything
-    is written); returns the run's summary."""
+    is written); returns the run's summary. A single run calls nothing of ``sweeps/``: only
+    a sweep's job is handed to the batch being collected, only a tuning trial reports to its
+    study, only ``resume=<sweep folder>`` resumes a sweep."""
     choices = run_choices(HydraConfig.get().runtime.choices)  # tuned: None where no file applies
     sources = HydraConfig.get().runtime.config_sources  # conf/, then any --config-dir
     use_config_dirs([s.path for s in sources if s.schema == "file" and s.provider != "main"])
@@ -109,11 +111,12 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str]) -> dict:
     check_run_config(cfg)
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if not resume and collect(Job(cfg, run_dir, choices, overrides, changes)):
+    if in_sweep and not resume and collect(Job(cfg, run_dir, choices, overrides, changes)):
         return {}  # trained with the other seeds of its group (hydra/launcher=seeds)
     with run_lock(run_dir), tee_console(run_dir / "train.log"):
         # A resumed trial job trains without reporting: its study has moved on.
-        progress = None if resume else trial_link(cfg, run_dir, HydraConfig.get().sweeper)
+        trial = not resume and cfg.get("trial") is not None
+        progress = trial_link(cfg, run_dir, HydraConfig.get().sweeper) if trial else None
         return execute(cfg, run_dir, resume=resume, choices=choices, changes=changes,
                        overrides=overrides, progress=progress)
 
@@ -129,7 +132,7 @@ def main(cfg: DictConfig) -> None:
     if in_sweep and sweep_stopped():
         return  # the sweep was stopped before this job began: it never starts
     try:
-        summary = _job(cfg, run_dir, overrides)
+        summary = _job(cfg, run_dir, overrides, in_sweep)
     except (ConfigError, CheckpointError, InstantiationException) as err:
         return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)
     except OSError as err:  # the run folder: missing, read-only, full
