@@ -1,5 +1,7 @@
 """Checkpoints and resume: a stopped or killed run continues to the same end as an uninterrupted one."""
 
+import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -156,3 +158,26 @@ def test_greedy_evaluations_survive_a_kill_and_resume(tmp_path):
         assert (tmp_path / "run" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
     evals = (tmp_path / "whole" / "evals.csv").read_text().splitlines()
     assert [int(r.split(",")[0]) for r in evals[1:]] == [10, 20, 30, 40, 50, 60, 70, 80]
+
+
+BEFORE = ROOT / "tests" / "data" / "before_member_axis"  # run folders of the code before the member axis
+
+
+@pytest.mark.parametrize("learner", ["qlearn", "dqn"])
+def test_a_checkpoint_written_before_the_member_axis_resumes_to_the_end(tmp_path, learner):
+    """A run killed under the code that had a stacked twin of each learner (its checkpoint's
+    layout, a DQN's draws from the run's torch stream) resumes with today's: to its budget,
+    and for qlearn, whose arithmetic did not change, to the very files it made unkilled."""
+
+
+    run_dir = tmp_path / learner
+    shutil.copytree(BEFORE / learner, run_dir)
+    proc = subprocess.run([sys.executable, "train.py", f"resume={run_dir}"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    assert f"resuming {run_dir} after episode" in proc.stdout
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["episodes"] == 60 and (run_dir / "model.pt").is_file()
+    if learner == "qlearn":
+        for name in ("metrics.csv", "evals.csv", "eval.json"):
+            assert (run_dir / name).read_bytes() == (BEFORE / "qlearn_uninterrupted" / name).read_bytes(), name
