@@ -103,6 +103,60 @@ def process_age() -> float | None:
     return max(0.0, uptime - ticks / os.sysconf("SC_CLK_TCK"))
 
 
+class SuccessJudge:
+    """Whether and when a run is solved, by its task's :class:`~tasks.base.Success` rule.
+
+    With ``judge="training"`` the mean measure of the last ``window`` training episodes
+    decides; when there is a greedy policy to ask, a training mean that meets the rule is
+    only a candidate (:attr:`candidate`) that the greedy policy's evaluation must confirm,
+    else the next try waits ``window`` episodes. With ``judge="greedy"`` a greedy
+    evaluation that meets the threshold solves.
+    """
+
+    def __init__(self, success: Success, confirm: bool) -> None:
+        self.success, self.confirm = success, confirm
+        self.solved_at: int | None = None
+        self.decided_by: str | None = None  # "training" or "greedy", once solved
+        self.solved_value: float | None = None  # the judged mean that solved it
+        self.candidate: float | None = None  # a training mean that met the rule, to confirm greedily
+        self.next_try = 0  # the episode count from which a training verdict may be tried again
+
+    def training(self, rolling: float, episodes: int) -> None:
+        """A training episode was booked: ``rolling`` is the mean of its window."""
+        if (self.solved_at is None and self.success.judge == "training" and self.candidate is None
+                and episodes >= self.next_try and self.success.met(rolling, episodes)):
+            if self.confirm:  # at the step's end, once its episodes are booked
+                self.candidate = rolling
+            else:
+                self._solve("training", rolling, episodes)
+
+    def confirmed(self, greedy_value: float, episodes: int) -> None:
+        """The greedy policy's evaluation of the candidate: solved if it meets the threshold
+        too, else the next try ``window`` episodes later."""
+        rolling, self.candidate = self.candidate, None
+        if self.success.met(greedy_value, episodes):
+            self._solve("training", rolling, episodes)
+        else:
+            self.next_try = episodes + self.success.window
+
+    def greedy(self, value: float, episodes: int) -> None:
+        """A greedy evaluation's mean measure, which solves a greedily judged task."""
+        if self.solved_at is None and self.success.judge == "greedy" and self.success.met(value, episodes):
+            self._solve("greedy", value, episodes)
+
+    def _solve(self, judge: str, value: float, episodes: int) -> None:
+        self.solved_at, self.decided_by, self.solved_value = episodes, judge, value
+
+    def state_dict(self) -> dict:
+        return {"solved_at": self.solved_at, "decided_by": self.decided_by, "solved_value": self.solved_value,
+                "next_confirm": self.next_try}
+
+    def load_state_dict(self, state: Mapping) -> None:
+        self.solved_at, self.decided_by = state["solved_at"], state["decided_by"]
+        self.solved_value = state["solved_value"]
+        self.next_try = int(state.get("next_confirm", 0))
+
+
 class Run:
     """Records finished episodes of a batched env, judges them, and reports them.
 
@@ -116,7 +170,9 @@ class Run:
     A run called solved leaves a solved policy: when the training episodes meet the
     rule, the greedy policy is evaluated at once and the run is solved only if it meets
     the threshold too (that evaluation is its row in ``evals``); otherwise training goes on and the next try waits
-    ``window`` episodes. Without ``greedy_eval`` the training rule alone decides.
+    ``window`` episodes. Without ``greedy_eval`` the training rule alone decides. The
+    rule is applied by the run's :class:`SuccessJudge` (``judge``); the run books the
+    episodes and evaluations, says what is due at a step's end and writes the outputs.
     """
 
     def __init__(self, run_dir: Path | str, num_envs: int, max_episodes: int, success: Success,
@@ -148,11 +204,7 @@ class Run:
         self.last_eval: dict | None = None  # the newest evaluation's full result
         self._log_sizes: dict[str, int] | None = None  # a resumed run's CSV logger bytes to keep
         self.env_steps = 0
-        self.solved_at: int | None = None
-        self.decided_by: str | None = None  # "training" or "greedy", once solved
-        self.solved_value: float | None = None  # the judged mean that solved it
-        self._confirm: float | None = None  # a training mean that met the rule, to confirm greedily
-        self._next_confirm = 0  # the episode count from which a training verdict may be tried again
+        self.judge = SuccessJudge(success, confirm=self.greedy_eval is not None)
         self.stop_requested = False
         self.first_step_s: float | None = None  # process start to the first step (``start``)
         self.divergences = 0  # the env's count of physics divergences (truncated episodes)
@@ -211,8 +263,9 @@ class Run:
         self.log_train()
         if self.progress is not None and self.progress.every and self.n_episodes >= self._next_progress:
             self._report_progress()
-        if self._confirm is not None and not self.stop_requested:
-            self._confirm_greedily()
+        if self.judge.candidate is not None and not self.stop_requested:
+            self.evaluate_greedy()
+            self.judge.confirmed(self.evals[-1]["value"], self.n_episodes)
         last_eval = self.evals[-1]["episode"] if self.evals else 0
         if (self.eval_every and self.greedy_eval is not None and not self.done
                 and self.n_episodes - last_eval >= self.eval_every):
@@ -265,24 +318,8 @@ class Run:
         self.files.write_episode(ep)
         log_episode(self.logger, ep, self.success)
         self.console.episode(ep, self.evals[-1] if self.evals else None, self._peek_train_stats)
-        if (self.solved_at is None and self.success.judge == "training" and self._confirm is None
-                and self.n_episodes >= self._next_confirm and self.success.met(ep.rolling, self.n_episodes)):
-            if self.greedy_eval is None:
-                self._solve("training", ep.rolling)
-            else:  # at the step's end (:meth:`end_step`), once its episodes are booked
-                self._confirm = ep.rolling
+        self.judge.training(ep.rolling, self.n_episodes)
         return ep
-
-    def _confirm_greedily(self) -> None:
-        """The greedy policy's evaluation of a training verdict: solved if it meets the
-        threshold too, else the next try ``window`` episodes later."""
-        rolling, self._confirm = self._confirm, None
-        self.evaluate_greedy()
-        value = self.evals[-1]["value"]
-        if self.success.met(value, self.n_episodes):
-            self._solve("training", rolling)
-        else:
-            self._next_confirm = self.n_episodes + self.success.window
 
     def evaluate_greedy(self, evaluation=None) -> dict:
         """Runs ``evaluation`` (default ``greedy_eval``) now, records it and, if the greedy
@@ -294,9 +331,7 @@ class Run:
         self.evals.append(row)
         self.last_eval = result
         self.files.write_evals(self.evals)
-        if (self.solved_at is None and self.success.judge == "greedy"
-                and self.success.met(value, self.n_episodes)):
-            self._solve("greedy", value)
+        self.judge.greedy(value, self.n_episodes)
         log_evaluation(self.logger, row, self.success)
         self.console.evaluation(row)
         return result
@@ -310,8 +345,18 @@ class Run:
         if step > 0 and not self.done and self.progress(step, self.rolling()):
             self.pruned_at = self.n_episodes
 
-    def _solve(self, judge: str, value: float) -> None:
-        self.solved_at, self.decided_by, self.solved_value = self.n_episodes, judge, value
+    @property
+    def solved_at(self) -> int | None:
+        """The episode the run was solved at (None: not solved)."""
+        return self.judge.solved_at
+
+    @property
+    def decided_by(self) -> str | None:
+        return self.judge.decided_by
+
+    @property
+    def solved_value(self) -> float | None:
+        return self.judge.solved_value
 
     def _peek_train_stats(self) -> dict[str, float] | None:
         """The learner's current numbers for the console, without starting a new interval."""
@@ -342,9 +387,7 @@ class Run:
                 "values": torch.tensor(np.frombuffer(self.values, np.float64)),
                 "returns": torch.tensor(np.frombuffer(self.returns, np.float64)),
                 "evals": [dict(r) for r in self.evals],
-                "env_steps": self.env_steps, "solved_at": self.solved_at,
-                "decided_by": self.decided_by, "solved_value": self.solved_value,
-                "next_confirm": self._next_confirm,
+                "env_steps": self.env_steps, **self.judge.state_dict(),
                 "wall_s": self.wall_s, "last_eval": self.last_eval, "log_sizes": csv_sizes(self.run_dir),
                 "train_logged": self._train_logged, "train_due": self._train_due,
                 "ret": torch.from_numpy(self._ret.copy()), "len": torch.from_numpy(self._len.copy())}
@@ -361,10 +404,7 @@ class Run:
         self.returns = array("d", np.asarray(returns, dtype=np.float64).tobytes())
         self.evals = [dict(r) for r in state["evals"]]
         self.env_steps = int(state["env_steps"])
-        self.solved_at = state["solved_at"]
-        self.decided_by = state["decided_by"]
-        self.solved_value = state["solved_value"]
-        self._next_confirm = int(state.get("next_confirm", 0))
+        self.judge.load_state_dict(state)
         self.last_eval = state.get("last_eval")  # the final evaluation's, once it ran
         self._log_sizes = state.get("log_sizes")
         self._train_logged, self._train_due = state.get("train_logged"), bool(state.get("train_due", False))
