@@ -103,6 +103,55 @@ def process_age() -> float | None:
     return max(0.0, uptime - ticks / os.sysconf("SC_CLK_TCK"))
 
 
+class EpisodeLog:
+    """The training episodes a run has booked, and each copy's episode in progress.
+
+    Per booked episode its length, the task's measure and its return, packed (24 bytes an
+    episode, not ~90 as Python lists: long runs stay small); per copy the return and length
+    of its running episode; the env steps of all copies so far."""
+
+    def __init__(self, num_envs: int) -> None:
+        self.num_envs = num_envs
+        self.n_episodes = self.env_steps = 0
+        self.lengths, self.values, self.returns = array("q"), array("d"), array("d")
+        self.running_return = np.zeros(num_envs)
+        self.running_length = np.zeros(num_envs, dtype=np.int64)
+
+    def step(self, reward: np.ndarray) -> None:
+        """Every copy's step: its reward added to its running episode."""
+        self.running_return += reward
+        self.running_length += 1
+        self.env_steps += self.num_envs
+
+    def book(self, i: int, value: float) -> tuple[int, float]:
+        """Copy ``i``'s finished episode, its measure ``value``: (its length, its return)."""
+        length, ret = int(self.running_length[i]), float(self.running_return[i])
+        self.lengths.append(length)
+        self.values.append(value)
+        self.returns.append(ret)
+        self.n_episodes += 1
+        return length, ret
+
+    def restart(self, done: np.ndarray) -> None:
+        """The ``done`` copies start new episodes."""
+        self.running_return[done] = 0.0
+        self.running_length[done] = 0
+
+    def rolling(self, window: int) -> float:
+        """Mean measure of the last ``window`` episodes (of all, while fewer ran)."""
+        return float(np.mean(self.values[-window:])) if self.values else float("nan")
+
+    def load(self, state: Mapping, returns) -> None:
+        """From a checkpoint's run state (``returns``: the episodes' returns)."""
+        self.n_episodes = int(state["n_episodes"])
+        self.lengths = array("q", np.asarray(state["lengths"], dtype=np.int64).tobytes())
+        self.values = array("d", np.asarray(state["values"], dtype=np.float64).tobytes())
+        self.returns = array("d", np.asarray(returns, dtype=np.float64).tobytes())
+        self.env_steps = int(state["env_steps"])
+        self.running_return[:] = state["ret"].numpy()
+        self.running_length[:] = state["len"].numpy()
+
+
 class SuccessJudge:
     """Whether and when a run is solved, by its task's :class:`~tasks.base.Success` rule.
 
@@ -195,23 +244,16 @@ class Run:
         self._train_due = False  # an episode finished since
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
         self.last_td: TensorDictBase | None = None  # where the next step would start
-        self.n_episodes = 0
-        # Per episode, packed (24 bytes an episode, not ~90 as Python lists: long runs stay small).
-        self.lengths = array("q")
-        self.values = array("d")  # the task's measure
-        self.returns = array("d")  # the sum of the env's rewards
+        self.episodes = EpisodeLog(num_envs)
         self.evals: list[dict] = []  # one row per greedy evaluation (evals.csv's, "value" the measure)
         self.last_eval: dict | None = None  # the newest evaluation's full result
         self._log_sizes: dict[str, int] | None = None  # a resumed run's CSV logger bytes to keep
-        self.env_steps = 0
         self.judge = SuccessJudge(success, confirm=self.greedy_eval is not None)
         self.stop_requested = False
         self.first_step_s: float | None = None  # process start to the first step (``start``)
         self.divergences = 0  # the env's count of physics divergences (truncated episodes)
         self._last_checkpoint = 0
         self._last_trim = 0
-        self._ret = np.zeros(num_envs)
-        self._len = np.zeros(num_envs, dtype=np.int64)
         self._t0 = time.perf_counter()
         self.console = Console(self.max_episodes, success, quiet, verbose, log_every)
         self.files = MetricsFiles(self.run_dir, success, self.extra_fields)
@@ -288,9 +330,7 @@ class Run:
         ``stats``: the learner's numbers for their rows. ``ended_info``: the env's
         ``ended_info`` after this step (the task's ``episode_info`` of each copy whose episode
         just ended), where the task's measure is read unless it is the episode length."""
-        self._ret += reward
-        self._len += 1
-        self.env_steps += self.num_envs
+        self.episodes.step(reward)
         ended = np.flatnonzero(done)
         if not len(ended):  # most steps: no episode ended
             return []
@@ -299,20 +339,16 @@ class Run:
             if self._closed:
                 break
             finished.append(self._finish(int(i), bool(terminated[i]), stats, ended_info))
-        self._ret[done] = 0.0
-        self._len[done] = 0
+        self.episodes.restart(done)
         self._train_due = self._train_due or bool(finished)
         return finished
 
     def _finish(self, i: int, terminated: bool, stats, ended_info) -> Episode:
         """Books copy ``i``'s finished episode, reports it and judges the training episodes."""
-        measure, length = self.success.measure, int(self._len[i])
-        value = float(length) if measure == "length" else float(ended_info[measure][i])
-        self.lengths.append(length)
-        self.values.append(value)
-        self.returns.append(float(self._ret[i]))
-        self.n_episodes += 1
-        ep = Episode(episode=self.n_episodes, env_index=i, reward=float(self._ret[i]), length=length,
+        measure = self.success.measure
+        value = float(self.episodes.running_length[i]) if measure == "length" else float(ended_info[measure][i])
+        length, ret = self.episodes.book(i, value)
+        ep = Episode(episode=self.n_episodes, env_index=i, reward=ret, length=length,
                      terminated=terminated, env_steps=self.env_steps, wall_s=round(self.wall_s, 3),
                      value=value, rolling=self.rolling(), extra=dict(stats or {}))
         self.files.write_episode(ep)
@@ -378,7 +414,28 @@ class Run:
 
     def rolling(self) -> float:
         """Mean measure of the last ``success.window`` episodes (of all, while fewer ran)."""
-        return float(np.mean(self.values[-self.success.window :])) if self.values else float("nan")
+        return self.episodes.rolling(self.success.window)
+
+    @property
+    def n_episodes(self) -> int:
+        return self.episodes.n_episodes
+
+    @property
+    def env_steps(self) -> int:
+        return self.episodes.env_steps
+
+    @property
+    def lengths(self) -> array:
+        return self.episodes.lengths
+
+    @property
+    def values(self) -> array:
+        """Each booked episode's measure."""
+        return self.episodes.values
+
+    @property
+    def returns(self) -> array:
+        return self.episodes.returns
 
     # -- saving, resuming, ending ---------------------------------------------
     def state_dict(self) -> dict:
@@ -390,26 +447,23 @@ class Run:
                 "env_steps": self.env_steps, **self.judge.state_dict(),
                 "wall_s": self.wall_s, "last_eval": self.last_eval, "log_sizes": csv_sizes(self.run_dir),
                 "train_logged": self._train_logged, "train_due": self._train_due,
-                "ret": torch.from_numpy(self._ret.copy()), "len": torch.from_numpy(self._len.copy())}
+                "ret": torch.from_numpy(self.episodes.running_return.copy()),
+                "len": torch.from_numpy(self.episodes.running_length.copy())}
 
     def load_state_dict(self, state: Mapping, reopen: bool = True) -> None:
         """Continues from ``state``; metrics files are cut back to its episodes (with
         ``reopen=False`` not yet: :meth:`reopen` does, once every other part has loaded)."""
         if len(state["ret"]) != self.num_envs:
             raise ValueError(f"the checkpoint has {len(state['ret'])} copies, this run {self.num_envs}")
-        self.n_episodes = self._last_checkpoint = int(state["n_episodes"])
-        self.lengths = array("q", np.asarray(state["lengths"], dtype=np.int64).tobytes())
-        self.values = array("d", np.asarray(state["values"], dtype=np.float64).tobytes())
-        returns = state["returns"] if "returns" in state else self._returns_from_metrics(self.n_episodes)
-        self.returns = array("d", np.asarray(returns, dtype=np.float64).tobytes())
+        episodes = int(state["n_episodes"])
+        returns = state["returns"] if "returns" in state else self._returns_from_metrics(episodes)
+        self.episodes.load(state, returns)
+        self._last_checkpoint = episodes
         self.evals = [dict(r) for r in state["evals"]]
-        self.env_steps = int(state["env_steps"])
         self.judge.load_state_dict(state)
         self.last_eval = state.get("last_eval")  # the final evaluation's, once it ran
         self._log_sizes = state.get("log_sizes")
         self._train_logged, self._train_due = state.get("train_logged"), bool(state.get("train_due", False))
-        self._ret[:] = state["ret"].numpy()
-        self._len[:] = state["len"].numpy()
         self._t0 = time.perf_counter() - float(state["wall_s"])
         if reopen:
             self.reopen()

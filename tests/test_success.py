@@ -194,10 +194,10 @@ def test_training_numbers_are_named_for_what_they_are(tmp_path):
     run = Run(tmp_path, 1, 300, Success("length", "steps", "steps balanced", math.inf), quiet=True)
     # 150 short episodes, then 100 long ones scattered among 50 short ones.
     values = [10.0] * 150 + [100.0, 10.0] * 50 + [100.0] * 50
-    run.values = values
-    run.lengths = [int(v) for v in values]
-    run.returns = [2.0 * v for v in values]
-    run.n_episodes = len(values)
+    run.episodes.values = values
+    run.episodes.lengths = [int(v) for v in values]
+    run.episodes.returns = [2.0 * v for v in values]
+    run.episodes.n_episodes = len(values)
     s = run.summary()
     assert s["train_length_best100_mean"] == 100.0
     windows = [np.mean(values[i:i + 100]) for i in range(len(values) - 99)]

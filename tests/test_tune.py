@@ -303,8 +303,8 @@ def test_a_trial_that_loses_its_study_warns_once_and_trains_on(tmp_path, capsys)
     run = Run(tmp_path / "run", 1, 1000, Success("length", "steps", "steps balanced", math.inf), quiet=True,
               hooks=Hooks(progress=link))
     for n in (10, 20, 30):
-        run.n_episodes = n
-        run.values.append(1.0)
+        run.episodes.n_episodes = n
+        run.episodes.values.append(1.0)
         run.end_step(None)
     warned = [line for line in capsys.readouterr().out.splitlines() if "cannot reach the study" in line]
     assert len(warned) == 1 and "database is gone" in warned[0]
