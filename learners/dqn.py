@@ -231,14 +231,14 @@ class StackedMLP:
     ``[k, P]``): every linear layer one ``baddbmm``, each member's matrix product computed
     alone whatever ``k``."""
 
-    def __init__(self, template: nn.Sequential) -> None:
-        self.template = template
+    def __init__(self, template: nn.Sequential, device: torch.device | str = "cpu") -> None:
+        self.template = template  # on the CPU
         self.scale: torch.Tensor | None = None
         self.plan: list = []  # (offset, out, in) of a linear layer, or an activation function
         offset = 0
         for layer in template:
             if isinstance(layer, ObsScale):
-                self.scale = layer.scale
+                self.scale = layer.scale.to(device)
             elif isinstance(layer, nn.Linear):
                 out, inp = layer.weight.shape
                 self.plan.append((offset, out, inp))
@@ -287,8 +287,7 @@ class StackedMLP:
 
     def load(self, vector: torch.Tensor) -> nn.Sequential:
         """The template holding ``vector``'s parameters."""
-        nn.utils.vector_to_parameters(vector.detach().to(self.template[-1].weight.device),
-                                      self.template.parameters())
+        nn.utils.vector_to_parameters(vector.detach().cpu(), self.template.parameters())
         return self.template
 
 
@@ -445,7 +444,8 @@ class DQN:
         return arch | ({"obs_scale": dict(self.obs_scale)} if self.obs_scale else {})
 
     def _template(self, task) -> nn.Sequential:
-        """One member's Q-network: TorchRL's ``MLP``, after an :class:`ObsScale` if asked."""
+        """One member's Q-network on the CPU (where each member's stream initialises it and
+        its states are saved): TorchRL's ``MLP``, after an :class:`ObsScale` if asked."""
         net = MLP(in_features=self.n_obs, out_features=self.n_actions, num_cells=self.hidden,
                   activation_class=ACTIVATIONS[self.activation])
         if self.obs_scale:
@@ -455,7 +455,7 @@ class DQN:
                                  f"observations: {', '.join(names)}", unknown)
             scale = torch.tensor([float(self.obs_scale.get(n, 1.0)) for n in names])
             net = nn.Sequential(ObsScale(scale), *net)
-        return net.to(self.device)
+        return net
 
     def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None) -> None:
         """The networks, optimizer state and replay buffers of one member per generator: its
@@ -468,7 +468,7 @@ class DQN:
         self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
         with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
             template = self._template(task)
-        self.net = StackedMLP(template)
+        self.net = StackedMLP(template, self.device)
         self.actor = QValueActor(template, in_keys=["observation"],  # model.pt's layout
                                  spec=Categorical(self.n_actions, dtype=torch.int64))
         self.params = torch.empty(m, self.net.size, device=self.device)
