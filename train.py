@@ -43,12 +43,12 @@ from runs.checkpoint import CheckpointError
 from runs.console import tee_console
 from runs.folder import (check_output_folder, eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
                          with_run_choices)
-from runs.lifecycle import Job
+from runs.lifecycle import Job, batchable
 from runs.training_state import read_run_json
 from runs.lifecycle import execute
 from runs.settings import check_run_config
 from sweeps.resume import is_sweep_folder, resume_sweep
-from sweeps.seed_batch import collect
+from sweeps.seed_batch import COLLECT
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
                           sibling_should_exit, stop_sweep, sweep_dir, sweep_stopped)
 from sweeps.tuning import trial_link
@@ -90,9 +90,10 @@ def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
 
 def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -> dict:
     """Dispatches one job: resume, evaluate or train (every key checked before anything
-    is written); returns the run's summary. A single run calls nothing of ``sweeps/``: only
-    a sweep's job is handed to the batch being collected, only a tuning trial reports to its
-    study, only ``resume=<sweep folder>`` resumes a sweep."""
+    is written); returns the run's summary, or, for a job of a seed batch
+    (``hydra.job.env_set`` names it), its checked :class:`runs.lifecycle.Job`, which the seeds
+    launcher trains with the others. A single run calls nothing of ``sweeps/``: only a
+    tuning trial reports to its study, only ``resume=<sweep folder>`` resumes a sweep."""
     choices = run_choices(HydraConfig.get().runtime.choices)  # tuned: None where no file applies
     sources = HydraConfig.get().runtime.config_sources  # conf/, then any --config-dir
     use_config_dirs([s.path for s in sources if s.schema == "file" and s.provider != "main"])
@@ -111,8 +112,9 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     check_run_config(cfg)
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
     run_dir.mkdir(parents=True, exist_ok=True)
-    if in_sweep and not resume and collect(Job(cfg, run_dir, choices, overrides, changes)):
-        return {}  # trained with the other seeds of its group (hydra/launcher=seeds)
+    job = Job(cfg, run_dir, choices, overrides, changes)
+    if in_sweep and not resume and batchable(cfg) and HydraConfig.get().job.env_set.get(COLLECT):
+        return job  # the seeds launcher trains it with the other seeds of its group
     with run_lock(run_dir), tee_console(run_dir / "train.log"):
         # A resumed trial job trains without reporting: its study has moved on.
         trial = not resume and cfg.get("trial") is not None
@@ -122,7 +124,7 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
-def main(cfg: DictConfig) -> None:
+def main(cfg: DictConfig) -> Job | None:
     global _IN_JOB
     _IN_JOB = True
     in_sweep = HydraConfig.get().mode == RunMode.MULTIRUN
@@ -133,6 +135,8 @@ def main(cfg: DictConfig) -> None:
         return  # the sweep was stopped before this job began: it never starts
     try:
         summary = _job(cfg, run_dir, overrides, in_sweep)
+        if isinstance(summary, Job):
+            return summary  # Hydra's JobReturn carries it to the seeds launcher
     except (ConfigError, CheckpointError, InstantiationException) as err:
         return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)
     except OSError as err:  # the run folder: missing, read-only, full

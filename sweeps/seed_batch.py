@@ -2,9 +2,10 @@
 group of fresh training runs trained as one seed batch (:func:`runs.lifecycle.run_jobs`).
 
 Every job still goes through Hydra's ``run_job`` (its folder, ``.hydra/`` files, logging)
-and ``train.py``'s checks; a batchable job then hands its checked config to the batch
-being collected (:func:`collect`) instead of training alone, and the batch trains once
-all of its group has been handed over. A group of one, and jobs that are not fresh
+and ``train.py``'s checks; a job run with ``hydra.job.env_set.RL_SEED_BATCH_JOB`` set (a
+batch's jobs) returns its checked :class:`~runs.lifecycle.Job` instead of training, and the launcher
+trains the batch of them (:func:`runs.lifecycle.run_jobs`) once all of its group has
+been checked. A group of one, and jobs that are not fresh
 training runs (``resume=``, ``mode=eval``, a tuning ``trial``), run alone as with
 ``hydra/launcher=basic``.
 """
@@ -13,39 +14,20 @@ from __future__ import annotations
 
 import logging
 import sys
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Sequence
 
 from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
 
 from params import ConfigError
-from runs.lifecycle import Job, batchable, run_jobs
+from runs.lifecycle import Job, run_jobs
 
 log = logging.getLogger(__name__)
-_COLLECTING: list[list[Job]] = []  # the batch being collected, innermost last
-
-
-@contextmanager
-def collecting() -> Iterator[list[Job]]:
-    """Within: batchable jobs are collected into the yielded list instead of trained."""
-    jobs: list[Job] = []
-    _COLLECTING.append(jobs)
-    try:
-        yield jobs
-    finally:
-        _COLLECTING.pop()
-
-
-def collect(job: Job) -> bool:
-    """Hands ``job`` to the batch being collected; False (train it now) when no batch is
-    being collected or ``job`` is not a fresh training run."""
-    if not _COLLECTING or not batchable(job.cfg):
-        return False
-    _COLLECTING[-1].append(job)
-    return True
+# The key a batch's job is run with in its ``hydra.job.env_set`` (the job's own config, which
+# every launcher's schema leaves open): it hands its checked Job back instead of training.
+COLLECT = "RL_SEED_BATCH_JOB"
 
 
 def _key(override: str) -> str:
@@ -106,13 +88,16 @@ class SeedBatchLaunch:
         """One batch's jobs (job index, overrides): trained together, or alone if one."""
         return self._launch_batch(chunk) if len(chunk) > 1 else {chunk[0][0]: self._run(*chunk[0])}
 
-    def _run(self, idx: int, overrides: Sequence[str]) -> JobReturn:
-        """One job through Hydra's ``run_job``, as the basic launcher runs it."""
+    def _run(self, idx: int, overrides: Sequence[str], collect: bool = False) -> JobReturn:
+        """One job through Hydra's ``run_job``, as the basic launcher runs it; ``collect``: a
+        batchable job returns its checked :class:`~runs.lifecycle.Job` instead of training."""
         log.info(f"\t#{idx} : {' '.join(filter_overrides(overrides))}")
         sweep_config = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
         with open_dict(sweep_config):
             sweep_config.hydra.job.id = idx
             sweep_config.hydra.job.num = idx
+            if collect:
+                sweep_config.hydra.job.env_set[COLLECT] = "1"
         ret = run_job(hydra_context=self.hydra_context, task_function=self.task_function,
                       config=sweep_config, job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir")
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
@@ -120,8 +105,8 @@ class SeedBatchLaunch:
 
     def _launch_batch(self, chunk: list[tuple[int, Sequence[str]]]) -> dict[int, JobReturn]:
         """The chunk's jobs checked and handed over, then trained as one batch."""
-        with collecting() as jobs:
-            returns = {idx: self._run(idx, overrides) for idx, overrides in chunk}
+        returns = {idx: self._run(idx, overrides, collect=True) for idx, overrides in chunk}
+        jobs = [ret.return_value for ret in returns.values() if isinstance(_value(ret), Job)]
         if jobs:  # (fewer than the chunk where a job failed its checks)
             log.info(f"Training {len(jobs)} seed{'s' * (len(jobs) != 1)} together: "
                      f"{', '.join(str(j.cfg.seed) for j in jobs)}")
@@ -130,6 +115,14 @@ class SeedBatchLaunch:
         if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)
             raise SystemExit(128 + int(stopped[0].get("signal", 2)))
         return returns
+
+
+def _value(ret: JobReturn):
+    """A job's return value (None where the job failed: reading it would raise)."""
+    try:
+        return ret.return_value
+    except Exception:  # noqa: BLE001 - Hydra re-raises a failed job's exception here
+        return None
 
 
 def _batch(jobs: list[Job]) -> list[dict]:
