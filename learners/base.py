@@ -52,7 +52,7 @@ class Learner(Protocol):
 
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase: ...
 
-    def act_members(self, td: TensorDictBase, members: Sequence[int], greedy: bool,
+    def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
                     generators: Sequence[torch.Generator | None]) -> TensorDictBase: ...
 
     def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None: ...
@@ -140,9 +140,6 @@ class Member:
 
     def train_stats(self, reset: bool = True) -> dict[str, float]:
         return self.learner.train_stats(self.index, reset)
-
-    def end_episode(self) -> None:
-        self.learner.end_episodes({self.index: 1})
 
     def model_state(self) -> dict:
         return self.learner.model_state(self.index)

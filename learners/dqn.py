@@ -39,6 +39,7 @@ only keeps its tensors for them (:class:`UpdateStats`: no host sync).
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 import warnings
@@ -291,12 +292,6 @@ class StackedMLP:
         return self.template
 
 
-def grad_norm_of(params: list[nn.Parameter]) -> torch.Tensor:
-    """Total 2-norm of ``params``' gradients (what ``clip_grad_norm_`` measures), as a tensor."""
-    grads = [p.grad.reshape(-1) for p in params if p.grad is not None]
-    return torch.linalg.vector_norm(torch.cat(grads))
-
-
 def adam_step(params: torch.Tensor, grads: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor,
               steps: Sequence[int], lrs: Sequence[float]) -> None:
     """One Adam step (``torch.optim.Adam``'s arithmetic, default betas and eps) of each row of
@@ -473,7 +468,7 @@ class DQN:
                                  spec=Categorical(self.n_actions, dtype=torch.int64))
         self.params = torch.empty(m, self.net.size, device=self.device)
         for b, generator in enumerate(self.generators):
-            self.params[b] = self._initial(template, generator)
+            self.params[b] = self._initial(generator)
         self.has_target = bool(self.target_update or self.tau)
         self.target = self.params.clone() if self.has_target else self.params
         self.exp_avg = torch.zeros_like(self.params)
@@ -487,23 +482,22 @@ class DQN:
         self.steps = [0] * m  # optimizer steps per member
         self.credit = [0.0] * m  # updates owed, fractions carried over
         self.owed = [0] * m  # whole updates owed, run by settle
-        self.schedules = [self.epsilon] + [_copy_schedule(self.epsilon) for _ in range(m - 1)]
+        self.schedules = [self.epsilon] + [copy.deepcopy(self.epsilon) for _ in range(m - 1)]  # each its own
         self.trackers = [UpdateStats() for _ in range(m)]
         self.buffers = [RowReplayBuffer(self.buffer_size, 2 * self.n_obs + 3, self.batch_size, self.device)
                         for _ in range(m)]
         self._minibatch = torch.empty(m, self.batch_size, 2 * self.n_obs + 3, device=self.device)
 
-    @staticmethod
-    def _initial(template: nn.Sequential, generator: torch.Generator) -> torch.Tensor:
-        """Fresh parameters of ``template``'s layers drawn from ``generator`` (their own
+    def _initial(self, generator: torch.Generator) -> torch.Tensor:
+        """Fresh parameters of the template's layers drawn from ``generator`` (their own
         ``reset_parameters``, as on torch's global stream)."""
         with torch.random.fork_rng(devices=[]):
             torch.set_rng_state(generator.get_state())
-            for layer in template:
+            for layer in self.net.template:
                 if isinstance(layer, nn.Linear):
                     layer.reset_parameters()
             generator.set_state(torch.get_rng_state())
-        return nn.utils.parameters_to_vector(template.parameters()).detach()
+        return self.net.vector()
 
     def member(self, b: int) -> Member:
         return Member(self, b)
@@ -537,21 +531,20 @@ class DQN:
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
         """Every member's epsilon-greedy actions on its block; only ``live`` members draw."""
         if live is None or len(live) == self.members:
-            return self.act_members(td, range(self.members), False, self.generators)
+            return self.act_members(td, None, False, self.generators)
         live = set(live)
-        return self.act_members(td, range(self.members), False,
-                                [g if b in live else None for b, g in enumerate(self.generators)])
+        return self.act_members(td, None, False, [g if b in live else None for b, g in enumerate(self.generators)])
 
-    def act_members(self, td: TensorDictBase, members: Sequence[int], greedy: bool,
+    def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
                     generators: Sequence[torch.Generator | None]) -> TensorDictBase:
-        """The actions of ``members`` on their blocks of ``td`` (block ``j`` is member
-        ``members[j]``'s): the Q-network's argmax, or unless ``greedy`` with probability
+        """The actions of ``members`` (None: all) on their blocks of ``td`` (block ``j`` is
+        member ``members[j]``'s): the Q-network's argmax, or unless ``greedy`` with probability
         epsilon a uniformly random action, drawn from ``generators[j]`` as TorchRL's
         ``EGreedyModule`` draws (a uniform per copy, then a random action per copy). Returns a
         new tensordict of ``td``'s entries and ``action``."""
-        members = list(members)
+        params = self._online if members is None else self.params[list(members)]
+        members = range(self.members) if members is None else list(members)
         k = len(members)
-        params = self._online if k == self.members and members == list(range(k)) else self.params[members]
         observation = td.get("observation")
         with torch.no_grad():
             q = self.net.q(params, observation.reshape(k, -1, self.n_obs).to(self.device))
@@ -783,12 +776,6 @@ class DQN:
         self.steps[b] = int(ckpt["optimizer_steps"])
         if self.has_target:
             self.target[b] = self.params[b]
-
-
-def _copy_schedule(schedule):
-    """A fresh copy of an epsilon schedule (each member steps its own)."""
-    import copy
-    return copy.deepcopy(schedule)
 
 
 __all__ = ["DQN", "RowReplayBuffer", "StackedMLP", "Transitions", "UpdateStats", "adam_step", "pack",

@@ -234,15 +234,15 @@ class QLearn:
         return with_entries(td, state_index=state.reshape(shape), action_value=q.reshape(*shape, a).to(torch.float32),
                             action=action.reshape(shape))
 
-    def _offset(self, members: list[int] | None, n: int) -> torch.Tensor:
+    def _offset(self, members: list[int] | None, n: int) -> torch.Tensor | int:
         """Each row's member's first row in the flat ``[members * states, actions]`` table
-        (``members`` None: all)."""
-        if members is not None and len(members) == 1:  # one member (its greedy policy): one offset
-            return members[0] * self.n_states
-        if members is None or (len(members) == self.members and members == list(range(self.members))):
+        (``members`` None: all, kept between steps; one member: one number)."""
+        if members is None:
             if self._offsets is None or len(self._offsets) != self.members * n:
                 self._offsets = (torch.arange(self.members) * self.n_states).repeat_interleave(n)
             return self._offsets
+        if len(members) == 1:  # one member (its greedy policy)
+            return members[0] * self.n_states
         return (torch.as_tensor(members) * self.n_states).repeat_interleave(n)
 
     # -- learning ------------------------------------------------------------

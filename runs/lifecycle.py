@@ -385,7 +385,8 @@ def _check_memory(env: RobotTaskEnv, cfg: DictConfig, seeds: int) -> None:
 def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
     """Each seed's folder, banner and run (none to evaluate a checkpoint), from its block of
     the first reset (a resumed seed: from its checkpoint)."""
-    first = env.reset() if slots[0].job.cfg.mode == "train" else None
+    fresh = slots[0].job.cfg.mode == "train" and not all(slot.job.resume for slot in slots)
+    first = env.reset() if fresh else None  # a resumed seed starts from its checkpoint
     for slot in slots:
         job, session = slot.job, slot.session
         with slot.active(full=True):
@@ -395,7 +396,7 @@ def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
                                      job.run_dir, session.learner.nepisodes):
                 print(line)
             write_success(session)
-            if first is None:
+            if job.cfg.mode != "train":
                 continue
             slot.run = make_run(session, resume=job.resume, progress=job.progress, save=slot.save)
             if not job.resume:
