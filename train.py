@@ -46,7 +46,7 @@ from runs.folder import (check_output_folder, eval_config, is_run_folder, resume
 from runs.lifecycle import Job, batchable
 from runs.training_state import read_run_json
 from runs.lifecycle import execute
-from runs.settings import check_run_config
+from runs.settings import MOVED, check_run_config, moved
 from sweeps.resume import is_sweep_folder, resume_sweep
 from sweeps.seed_batch import COLLECT
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
@@ -180,6 +180,8 @@ def cli() -> None:
             key, _, value = arg.partition("=")
             if key in ("hydra.run.dir", "hydra.sweep.dir") and value:
                 check_output_folder(key, value)
+            if key.lstrip("+~") in MOVED:
+                raise ConfigError(moved(key.lstrip("+~"), value))
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

@@ -153,7 +153,7 @@ class MujocoRLEnv(gym.Env):
 
     @staticmethod
     def _config(robot: str, robot_params: Mapping[str, Any], task_params: Mapping[str, Any]):
-        cfg = catalog.compose(robot)
+        cfg = catalog.compose(robot, overrides=["~tuned"])  # the task as its file says, no learner's tuning
         robot_cfg = _override(cfg.robot, robot_params, f"robot {robot}")
         task_cfg = _override(cfg.task, task_params, f"the task of robot {robot}")
         return OmegaConf.create({"robot": robot_cfg, "task": task_cfg})
@@ -230,14 +230,13 @@ class TimeLimitRequired(gym.Wrapper, gym.utils.RecordConstructorArgs):
 def _plain_default(robot: str) -> tuple[str, int] | None:
     """``(default task, its max_episode_steps)`` of ``robot`` as its composed config has
     them, read from conf/robot/<robot>.yaml's ``defaults`` and conf/task/<task>.yaml; None
-    where the files do not say it plainly (no plain ``/task`` default, no integer limit, a
-    tuned file of the robot naming the limit): then only a composition knows."""
+    where the files do not say it plainly (no plain ``/task`` default, no integer limit):
+    then only a composition knows."""
     entries = OmegaConf.load(catalog.config_file("robot", robot)).get("defaults") or []
     tasks = [v for e in entries if isinstance(e, DictConfig) for k, v in e.items()
              if str(k).lstrip("/") == "task"]
     path = catalog.config_file("task", str(tasks[0])) if len(tasks) == 1 else None
-    tuned = [p for d in catalog.config_dirs() for p in (d / "tuned").glob(f"{robot}_*.yaml")]
-    if path is None or any("max_episode_steps" in catalog.read_conf_text(p) for p in tuned):
+    if path is None:
         return None
     steps = OmegaConf.load(path).get("max_episode_steps")
     return (str(tasks[0]), steps) if type(steps) is int else None
@@ -262,8 +261,8 @@ def register_envs(config_dirs: Sequence[str] = ()) -> list[str]:
     for robot in catalog.robot_names():
         plain = _plain_default(robot)
         if plain is None:
-            task, cfg = catalog.robot_default(robot)
-            plain = task, int(cfg.task.max_episode_steps)
+            cfg = catalog.compose(robot, overrides=["~tuned"])
+            plain = catalog.default_task(robot), int(cfg.task.max_episode_steps)
         task, steps = plain
         name = env_id(robot, task)
         if name not in gym.registry:

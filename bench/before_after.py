@@ -111,7 +111,7 @@ def batch(trees: dict[str, Path], learners: list[str], seeds: int, steps: dict[s
     stamp = time.strftime("%Y%m%d-%H%M%S")
     for r, learner in enumerate(learners):
         common = [f"learner={learner}", "quiet=true", f"max_env_steps={steps[learner]}",
-                  "learner.nepisodes=100000000", "stop_when_solved=false"]
+                  "max_episodes=0", "stop_when_solved=false"]
 
         def both(tree: Path) -> tuple[float, float, Path]:
             where = Path("/tmp") / f"bench_before_after_{stamp}" / tree.name / learner

@@ -142,7 +142,7 @@ def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
 def overrides(job: Job) -> list[str]:
     """The Hydra overrides of one job (its seeds aside)."""
     picks = [f"robot={job.robot}", f"task={job.task_name}", f"learner={job.learner}",
-             f"max_env_steps={job.budget}", "learner.nepisodes=100000000"]
+             f"max_env_steps={job.budget}", "max_episodes=0"]
     return [*picks, *(["~tuned"] if job.setting == "published" else []), *job.overrides]
 
 
@@ -187,11 +187,11 @@ def check_budget(job: Job) -> None:
     except Exception as err:  # Hydra's own errors: an override that names nothing
         raise BadInput(f"{job.task} x {job.learner} ({job.setting}): "
                        f"{str(err).splitlines()[0]}") from None
-    need = int(cfg.num_envs) * int(cfg.learner.nsteps)
+    need = int(cfg.num_envs) * int(cfg.task.max_episode_steps)
     if job.budget < need:
         raise BadInput(f"a budget of {job.budget} env steps cannot finish an episode of {job.task} x "
                        f"{job.learner} ({job.setting}): {cfg.num_envs} copies x up to "
-                       f"{cfg.learner.nsteps} steps need {need}; give --budget {need} or more")
+                       f"{cfg.task.max_episode_steps} steps need {need}; give --budget {need} or more")
 
 
 def run_job(job: Job, out: Path, bar: tqdm, solo: bool = False) -> dict:

@@ -5,7 +5,7 @@
     python bench/learners.py --read multirun/bench_learners_*     # tabulate finished sweeps
 
 e.g. ``-- hydra/launcher=joblib hydra.launcher.n_jobs=2`` runs two jobs at a time, and
-``-- num_envs=8 learner.nepisodes=200`` caps a long sweep (say so with the table).
+``-- num_envs=8 max_episodes=200`` caps a long sweep (say so with the table).
 
 Runs one Hydra multirun of train.py per robot (its tuned files apply as in a
 plain run) and prints one table: robot/task x learner -> seeds solved (and by

@@ -82,7 +82,7 @@ def timed(cmd: list[str]) -> tuple[float, float, float]:
 def budget(learner: str, args) -> list[str]:
     """The same env-step budget for every seed (so no seed waits for a slower one)."""
     steps = args.qlearn_steps if learner == "qlearn" else args.dqn_steps
-    return [f"max_env_steps={steps}", "learner.nepisodes=100000000", "stop_when_solved=false"]
+    return [f"max_env_steps={steps}", "max_episodes=0", "stop_when_solved=false"]
 
 
 def copies(value: str) -> str:

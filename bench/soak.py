@@ -93,7 +93,7 @@ def main() -> None:
     samples: list[tuple[int, float]] = []
     trace: list = []
     sample_every(args.every, samples, trace, args.trim)
-    cfg = compose(overrides=[*BASE, f"learner.nepisodes={args.episodes}", *overrides])
+    cfg = compose(overrides=[*BASE, f"max_episodes={args.episodes}", *overrides])
     with tempfile.TemporaryDirectory() as folder:
         execute(cfg, Path(folder), choices={"robot": "cartpole", "task": "stay_up", "learner": "dqn"})
     if len(trace) >= 2:

@@ -42,8 +42,6 @@ class Learner(Protocol):
     """A learning algorithm over a member axis, as the run package uses it."""
 
     kind: str  # the learner family a saved state belongs to ("qlearn", "dqn")
-    nepisodes: int  # the training budget in episodes
-    nsteps: int  # steps per episode at most
     members: int  # set by build
 
     def build(self, task, generators: Sequence[torch.Generator]) -> None: ...
@@ -110,7 +108,7 @@ class MemberPolicy(TensorDictModuleBase):
 class Member:
     """Member ``index`` of ``learner`` seen alone: its numbers, its policy, its saved states.
 
-    Config values (``nsteps``, ``nepisodes``, ``run_episodes``, ...) read through to the learner.
+    Config values (``lr``, ``gamma``, ...) read through to the learner.
     """
 
     def __init__(self, learner: Learner, index: int) -> None:

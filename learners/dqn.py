@@ -400,8 +400,6 @@ class DQN:
                                                     "transition's (null: keep it)")
     reward_scale: float = param(1.0, "factor on every reward the learner stores, after "
                                      "done_episode_reward (its Q-values in those units)", gt=0)
-    nepisodes: int = param(1000, "training episodes (the budget)", ge=1, le=10**8)
-    nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1, le=10**7)
     run_episodes: int = param(0, "greedy episodes after training (ruippeixotog's run phase)", ge=0,
                               le=4096)
     device: str = param("cpu", "where the networks, updates and replay buffer live",

@@ -116,8 +116,6 @@ class QLearn:
     epsilon_discount: float = param(0.999, "epsilon is multiplied by it after each episode", gt=0,
                                     le=1)
     epsilon_min: float = param(0.05, "epsilon stops decaying once at or below it", ge=0, le=1)
-    nepisodes: int = param(500, "training episodes (the budget)", ge=1, le=10**8)
-    nsteps: int = param(1000, "steps per episode at most (truncation)", ge=1, le=10**7)
     number_splits: int | Sequence[int] | Mapping[str, int] = param(
         10, "bins per tabular_state entry: one int, a list, or name: bins (1 = ignored)", ge=1,
         le=MAX_SPLITS)

@@ -57,7 +57,7 @@ def summary_line(ep: Episode, total: int, success: Success, best: float,
     """``episode 200/4000 | steps balanced: mean100 34.2, best 40.1 | greedy 25.3 at 200 | eps .. |
     12345 env steps, 2950 steps/s, 4.2s``."""
     unit = f" {success.unit}" if success.unit else ""
-    parts = [f"episode {ep.episode}/{total}",
+    parts = [f"episode {ep.episode}" + (f"/{total}" if total else ""),
              f"{success.description}: mean{success.window} {ep.rolling:.4g}{unit}, best {best:.4g}"]
     if last_eval is not None:
         parts.append(f"greedy {last_eval['value']:.4g} at {last_eval['episode']}")
@@ -74,10 +74,11 @@ class Console:
                  verbose: bool = False, log_every: int = 0, bar_file: IO[str] | None = None) -> None:
         self.success, self.total = success, int(total_episodes)
         self.quiet, self.verbose = quiet, verbose and not quiet
-        self.log_every = int(log_every) or max(1, math.ceil(self.total / SUMMARY_LINES))
+        # No episode budget (max_episodes=0, a budget of env steps): a line every 100 episodes.
+        self.log_every = int(log_every) or (max(1, math.ceil(self.total / SUMMARY_LINES)) if self.total else 100)
         self.best = -math.inf
         # disable=None: no bar where the output is not a terminal (a log, a sweep worker)
-        self._bar = tqdm(total=self.total, unit="ep", disable=True if quiet else None,
+        self._bar = tqdm(total=self.total or None, unit="ep", disable=True if quiet else None,
                          dynamic_ncols=True, file=bar_file or _terminal(sys.stderr), leave=False)
 
     def skip(self, episodes: int) -> None:
@@ -213,8 +214,16 @@ def solved_when(success: Success) -> str:
             f"greedy policy's too")
 
 
+def budget(cfg: DictConfig) -> str:
+    """The training budget in words: "1000 episodes", "150000 env steps" or both."""
+    parts = [f"{int(cfg.max_episodes)} episodes"] if cfg.get("max_episodes") else []
+    if cfg.get("max_env_steps"):
+        parts.append(f"{int(cfg.max_env_steps)} env steps")
+    return " or ".join(parts)
+
+
 def banner_lines(cfg: DictConfig, choices: Mapping[str, str | None], changes: Sequence[str] | None,
-                 success: Success, run_dir: Path, episodes: int) -> list[str]:
+                 success: Success, run_dir: Path) -> list[str]:
     """The start banner: robot / task / learner and the run's scale, the tuned file and what
     it changed (``changes``; ``None``: not worked out, e.g. a resumed run), what "solved" means
     here, the run folder."""
@@ -222,8 +231,7 @@ def banner_lines(cfg: DictConfig, choices: Mapping[str, str | None], changes: Se
     what = "evaluate " if cfg.mode == "eval" else ""
     lines = [f"{what}{choices.get('robot')} / {choices.get('task')} / {choices.get('learner')}, "
              f"seed {cfg.seed}, {copies} cop{'y' if copies == 1 else 'ies'}"
-             + (f", up to {episodes} episodes" if cfg.mode == "train" else "")
-             + (f" or {int(cfg.max_env_steps)} env steps" if cfg.mode == "train" and cfg.get("max_env_steps") else "")
+             + (f", up to {budget(cfg)}" if cfg.mode == "train" else "")
              + (", training past 'solved'" if cfg.mode == "train" and not cfg.get("stop_when_solved", True) else "")
              + (f", Optuna trial {cfg.trial}" if cfg.get("trial") is not None else "")]
     files = tuned_files(choices)

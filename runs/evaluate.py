@@ -133,7 +133,7 @@ class GreedyEvaluator:
     def __call__(self, copies: int) -> dict:
         """One greedy episode in each of ``copies`` copies (:func:`greedy_evaluation`)."""
         if copies not in self.envs:
-            self.envs[copies] = build_env(self.cfg, copies, self.seed, self.learner.nsteps)
+            self.envs[copies] = build_env(self.cfg, copies, self.seed)
         return greedy_evaluation(self.learner, self.envs[copies], self.seed)
 
     def close(self) -> None:

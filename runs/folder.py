@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from params import ConfigError
 from tasks.catalog import GROUPS
 from runs.checkpoint import CheckpointError
+from runs.settings import upgraded
 from runs.training_state import check_checkpoint, check_targets, load_run_config, new_run_identity, read_run_json
 
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
@@ -90,7 +91,7 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
             saved[key] = cfg[key]
     check_targets(saved)  # config.yaml is data: it may build only the project's own classes
     check_checkpoint(run_dir, saved)  # this run's, intact: refused before any file is touched
-    return saved, run_dir
+    return upgraded(saved), run_dir
 
 
 def model_path(checkpoint: str | Path) -> Path:
@@ -118,7 +119,7 @@ def eval_config(cfg: DictConfig, overrides: list[str]) -> DictConfig:
     the run's own config.yaml; the run settings (``eval_episodes``, ``seed``, ``video``, ...)
     and every override of this command (a task parameter for a robustness test) on top."""
     folder = run_folder_of(cfg.checkpoint)
-    saved = load_run_config(folder)
+    saved = upgraded(load_run_config(folder))
     check_targets(saved)  # config.yaml is data: it may build only the project's own classes
     evaluated = cfg.copy()
     for group in PICKS:

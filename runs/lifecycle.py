@@ -328,11 +328,11 @@ def _build(slots: list[_Slot]):
         stream.set_state(torch.get_rng_state())
         slot.streams = (stream, np.random.get_state(), random.getstate())
     cfg, solo = slots[0].job.cfg, slots[0].solo
-    learner = instantiate(cfg.learner, _convert_="all")
     seeds = slots[0].seed if solo else [slot.seed for slot in slots]
-    env = build_env(cfg, len(slots) * int(cfg.num_envs), seeds, learner.nsteps)
+    env = build_env(cfg, len(slots) * int(cfg.num_envs), seeds)
     if not solo:
         _check_memory(env, cfg, len(slots))
+    learner = instantiate(cfg.learner, _convert_="all")
     learner.build(env.task, generators)
     for slot in slots:
         member = learner.member(slot.index)
@@ -393,7 +393,7 @@ def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
             if not job.resume:
                 start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
             for line in banner_lines(job.cfg, dict(job.choices), job.changes, session.success,
-                                     job.run_dir, session.learner.nepisodes):
+                                     job.run_dir):
                 print(line)
             write_success(session)
             if job.cfg.mode != "train":
@@ -419,7 +419,7 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
     hooks = Hooks(checkpoint=partial(save or save_training_state, session.state_path, learner, env),
                   greedy_eval=partial(session.evaluator, int(cfg.eval_episodes)) if cfg.eval_episodes else None,
                   train_stats=learner.train_stats, progress=progress)
-    run = Run(session.run_dir, env.num_envs, learner.nepisodes, session.success, logger=logger,
+    run = Run(session.run_dir, env.num_envs, int(cfg.max_episodes), session.success, logger=logger,
               extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
               log_every=int(cfg.get("log_every", 0)), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
               eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume,
@@ -485,8 +485,7 @@ class _FinalEvaluations:
         seeds = [slot.session.evaluator.seed for slot in owing]
         if len(owing) not in self.envs:
             copies = owing[0].session.final_episodes
-            self.envs[len(owing)] = build_env(self.cfg, len(owing) * copies, seeds,
-                                              owing[0].session.learner.nsteps)
+            self.envs[len(owing)] = build_env(self.cfg, len(owing) * copies, seeds)
         try:
             results = greedy_evaluations([slot.session.learner for slot in owing], self.envs[len(owing)], seeds)
         except Exception:  # noqa: BLE001 - each seed then evaluates alone, a failure its own
@@ -580,7 +579,7 @@ def report(session: Session, summary: dict, result: dict | None) -> None:
         summary["eval"] = result
     session.evaluator.close()
     if cfg.video:  # the greedy policy on a fresh one-copy env
-        video_env = build_env(cfg, 1, int(cfg.seed) + VIDEO_SEED_OFFSET, session.learner.nsteps)
+        video_env = build_env(cfg, 1, int(cfg.seed) + VIDEO_SEED_OFFSET)
         with session.learner.greedy():
             record_video(video_env, session.learner.policy, run_dir / "policy.mp4", n_steps=int(cfg.video_steps))
         video_env.close()

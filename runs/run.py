@@ -271,7 +271,8 @@ class Run:
     @property
     def _closed(self) -> bool:
         """No further episode is booked: the episode budget is spent, or solved and stopping."""
-        return (self.solved_at is not None and self.stop_when_solved) or self.n_episodes >= self.max_episodes
+        spent = 0 < self.max_episodes <= self.n_episodes
+        return (self.solved_at is not None and self.stop_when_solved) or spent
 
     @property
     def done(self) -> bool:

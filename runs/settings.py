@@ -29,13 +29,16 @@ import inspect
 import typing
 from typing import Any, Callable
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from params import ConfigError, did_you_mean
 from params.declare import check_values, describe, mismatch, param, specs
 
 MODES = ("train", "eval")
+# Keys of older configs and where each setting lives now: the training budget is the run's,
+# and the task's time limit is the only one.
+MOVED = {"learner.nepisodes": "max_episodes", "learner.nsteps": "task.max_episode_steps"}
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
 SEED_LIMIT = 2**63
 
@@ -48,10 +51,56 @@ def check_run_config(cfg: DictConfig) -> None:
     except OmegaConfBaseException as err:
         raise ConfigError(f"config does not resolve: {_first_line(err)}") from None
     _check_top_level(conf)
+    for old, new in MOVED.items():
+        group, _, key = old.partition(".")
+        if isinstance(conf.get(group), dict) and key in conf[group]:
+            raise ConfigError(moved(old, conf[group][key]))
+    if conf.get("mode") == "train" and not conf.get("max_episodes") and not conf.get("max_env_steps"):
+        raise ConfigError("max_episodes and max_env_steps are both 0 (no limit), so training would never "
+                          "end; allowed: a budget in either or both, e.g. max_episodes=1000; got "
+                          f"max_episodes={conf.get('max_episodes')!r}, max_env_steps={conf.get('max_env_steps')!r}")
     for node in ("robot", "task", "learner"):
         if node not in conf or not isinstance(conf[node], dict):
             raise ConfigError(f"{node} must be a config group with a _target_; got {conf.get(node)!r}")
         check_params(conf[node], node, skip=("robot",) if node == "task" else ())
+
+
+def moved(key: str, value: Any) -> str:
+    """The line for an old key (:data:`MOVED`): where its setting lives now."""
+    new = MOVED[key]
+    return (f"{key} is now {new} (the run's budget, beside max_env_steps)" if new == "max_episodes" else
+            f"{key} is now {new} (the task's time limit, the only one)") + f"; got {key}={value}, give {new}={value}"
+
+
+def upgraded(saved: DictConfig) -> DictConfig:
+    """An older run folder's ``config.yaml`` in today's keys (:data:`MOVED`): its episode budget
+    the run's ``max_episodes``, its episode length cap folded into the task's time limit, as the
+    run's env applied it. A copy; the file and its hash are untouched."""
+    cfg = saved.copy()
+    learner = cfg.get("learner")
+    if not isinstance(learner, DictConfig):
+        return cfg
+    with open_dict(cfg):
+        if "nepisodes" in learner:
+            cfg.max_episodes = learner.pop("nepisodes")
+        if "nsteps" in learner:
+            steps = learner.pop("nsteps")
+            if isinstance(cfg.get("task"), DictConfig):
+                limit = cfg.task.get("max_episode_steps", _declared_default(cfg.task, "max_episode_steps"))
+                cfg.task.max_episode_steps = int(steps) if limit is None else min(int(limit), int(steps))
+    return cfg
+
+
+def _declared_default(node: DictConfig, name: str) -> Any:
+    """The default of ``node``'s target's declared parameter ``name`` (None if unknown)."""
+    from hydra.utils import get_object
+
+    try:
+        target = get_object(str(node.get("_target_")))
+    except Exception:  # noqa: BLE001 - an unimportable target is check_params' to report
+        return None
+    found = [s.default for s in specs(target) if s.name == name] if dataclasses.is_dataclass(target) else []
+    return found[0] if found else None
 
 
 # -- top level ---------------------------------------------------------------
@@ -80,8 +129,10 @@ class RunSettings:
     video_steps: int = param(500, "env steps in that video", ge=0, le=100_000)
     torch_threads: int = param(1, "intra-op threads; small networks are fastest on one", ge=1,
                                le=256)
+    max_episodes: int = param(1000, "stop training after this many episodes (all copies counted)",
+                              ge=0, le=10**9, note="0 = no limit; then max_env_steps must be set")
     max_env_steps: int = param(0, "stop training after this many env steps (all copies counted)",
-                               ge=0, note="0 = no limit; the episode budget is the learner's nepisodes")
+                               ge=0, note="0 = no limit")
     stop_when_solved: bool = param(True, "end training once the task counts as solved (false: spend "
                                          "the whole budget, as a tuning trial does)")
     trial: int | None = param(None, "the Optuna trial this run reports to (set by "

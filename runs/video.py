@@ -26,7 +26,7 @@ from torchrl.envs.utils import step_mdp
 from runs.checkpoint import load_model
 from runs.console import OneLineParser
 from runs.training_state import check_targets, load_run_config
-from runs.settings import check_run_config
+from runs.settings import check_run_config, upgraded
 from tasks.factory import build_env
 
 
@@ -89,12 +89,12 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
     for name in ("config.yaml", "model.pt"):
         if not (run_dir / name).is_file():
             raise FileNotFoundError(f"{run_dir} is not a run folder: it has no {name}")
-    cfg = load_run_config(run_dir)
+    cfg = upgraded(load_run_config(run_dir))
     check_targets(cfg)  # config.yaml is data: it may build only the project's own classes
     try:
         check_run_config(cfg)
+        env = build_env(cfg, 1, int(cfg.seed) + 20_000)
         learner = instantiate(cfg.learner, _convert_="all")
-        env = build_env(cfg, 1, int(cfg.seed) + 20_000, learner.nsteps)
     except (InstantiationException, OmegaConfBaseException) as err:
         cause = err.__cause__ or err
         raise ValueError(f"{run_dir / 'config.yaml'} does not build its run: "

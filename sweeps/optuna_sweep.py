@@ -29,7 +29,7 @@ from tasks.base import Success
 from tasks.factory import build_task
 
 # Settings the sweeper itself gives every job: the command line may not.
-OWN = ("seed", "trial", "max_env_steps", "stop_when_solved")
+OWN = ("seed", "trial", "max_env_steps", "max_episodes", "stop_when_solved")
 
 
 class TuningSweep:
@@ -96,7 +96,7 @@ class TuningSweep:
                 if not str(o).startswith(("hydra.sweep.dir=", "hydra.mode="))]
 
     def _budget(self) -> list[str]:
-        return [f"max_env_steps={self.budget_steps}", "stop_when_solved=false"]
+        return [f"max_env_steps={self.budget_steps}", "max_episodes=0", "stop_when_solved=false"]
 
     def _trial_defaults(self, fixed: list[str]) -> list[str]:
         """What trial jobs get unless the command line says otherwise: ``eval_every=0`` (a

@@ -6,7 +6,7 @@ sweep grammar, the same as ``hydra-optuna-sweeper``'s ``params``::
 
     learner.lr: tag(log, interval(1e-4, 1e-2))   # float, sampled on a log scale
     learner.batch_size: choice(32, 64, 128)      # categorical
-    learner.nepisodes: int(interval(100, 500))   # integer
+    learner.number_splits: int(interval(4, 12))  # integer
     learner.hidden: choice([64, 64], [128, 128]) # categorical of lists
 
 The sweeper (``hydra_plugins/rl_optuna_sweeper``) asks the study for a trial, runs it
@@ -35,6 +35,7 @@ from omegaconf import OmegaConf
 
 from params import ConfigError, did_you_mean, dotted
 from params.declare import is_integer
+from runs.settings import MOVED, moved
 
 @dataclass
 class Plan:
@@ -240,6 +241,8 @@ def check_space(params: Mapping[str, Param], config: Any, where: str,
     for key, param in params.items():
         parent, _, leaf = key.rpartition(".")
         node = OmegaConf.select(config, parent) if parent else config
+        if key in MOVED:
+            raise ConfigError(f"{where}: {moved(key, '...')}")
         if node is None or not OmegaConf.is_dict(node) or leaf not in node:
             names = sorted(str(k) for k in node) if OmegaConf.is_dict(node) else []
             hint = did_you_mean(leaf, names, prefix=f"{parent}." if parent else "")

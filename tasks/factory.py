@@ -48,13 +48,9 @@ def build_task(cfg: DictConfig) -> Task:
     return _build(cfg.task, "task", Task, robot=build_robot(cfg))
 
 
-def build_env(cfg: DictConfig, num_envs: int | None = None, seed: int | Sequence[int] | None = None,
-              max_episode_steps: int | None = None) -> RobotTaskEnv:
+def build_env(cfg: DictConfig, num_envs: int | None = None,
+              seed: int | Sequence[int] | None = None) -> RobotTaskEnv:
     """The batched env of a composed config (``num_envs`` and ``seed`` default to the
-    config's; a list of seeds makes seed blocks, see :class:`RobotTaskEnv`);
-    ``max_episode_steps`` shortens the task's time limit (a learner's ``nsteps``)."""
-    task = build_task(cfg)
-    if max_episode_steps is not None:
-        task.max_episode_steps = min(task.max_episode_steps, int(max_episode_steps))
-    return RobotTaskEnv(task, num_envs=int(cfg.num_envs if num_envs is None else num_envs),
+    config's; a list of seeds makes seed blocks, see :class:`RobotTaskEnv`)."""
+    return RobotTaskEnv(build_task(cfg), num_envs=int(cfg.num_envs if num_envs is None else num_envs),
                         seed=int(cfg.seed) if seed is None else seed)

@@ -82,7 +82,7 @@ def test_a_full_disk_mid_run_is_one_line_and_the_last_checkpoint_survives(tmp_pa
 
     real_save = session.save_training_state
     monkeypatch.setattr(session, "save_training_state", save)
-    code = cli(["learner.nepisodes=200", "checkpoint_every=20", "eval_episodes=0"], tmp_path,
+    code = cli(["max_episodes=200", "checkpoint_every=20", "eval_episodes=0"], tmp_path,
                monkeypatch)
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
     assert code == 2 and err == [f"error: cannot write the run: {saves[-1]}: No space left on device"]
@@ -115,7 +115,7 @@ def made(tmp_path_factory) -> dict[str, str]:
 
     base = tmp_path_factory.mktemp("made")
     finished = base / "finished"
-    done = subprocess.run([sys.executable, "train.py", "learner.nepisodes=10", "eval_episodes=2", "quiet=true",
+    done = subprocess.run([sys.executable, "train.py", "max_episodes=10", "eval_episodes=2", "quiet=true",
                            f"hydra.run.dir={finished}"], cwd=Path(__file__).resolve().parents[1],
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-1500:]
@@ -161,7 +161,7 @@ def test_a_bad_input_that_needs_files_is_one_line_and_writes_nowhere(args, words
         sweep.append(f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}")
     if "-m" in args:
         args += [a for a in sweep if a.split("=", 1)[0] not in {x.split("=", 1)[0] for x in args}]
-        args += [] if "hydra/sweeper=optuna" in args else ["learner.nepisodes=1"]
+        args += [] if "hydra/sweeper=optuna" in args else ["max_episodes=1"]
     before = _listing(made["base"])
     assert cli(args, tmp_path, monkeypatch) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
@@ -187,7 +187,7 @@ def test_a_typo_is_one_line_whatever_hydra_full_error_says(tmp_path, monkeypatch
 def test_a_sweep_where_some_jobs_failed_says_how_many(tmp_path, monkeypatch, capsys):
     GlobalHydra.instance().clear()
     monkeypatch.setattr(train, "_IN_JOB", False)
-    monkeypatch.setattr(sys, "argv", ["train.py", "-m", "seed=-1,3", "learner.nepisodes=2", "eval_episodes=0",
+    monkeypatch.setattr(sys, "argv", ["train.py", "-m", "seed=-1,3", "max_episodes=2", "eval_episodes=0",
                                       "quiet=true", f"hydra.sweep.dir={tmp_path / 'sweep'}",
                                       "hydra/job_logging=none", "hydra/hydra_logging=none"])
     with pytest.raises(SystemExit) as stop:  # the sweep ran, and one of its jobs failed

@@ -26,7 +26,7 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
     out, readme = tmp_path / "results", _readme(tmp_path)
     cmd = [sys.executable, "-m", "bench.benchmark", "--quick", "--seeds", "2", "--budget", "1600",
            "--out", str(out), "--readme", str(readme), *(["--solo"] if solo else []),
-           "--", "learner.nsteps=100", "eval_episodes=4"]
+           "--", "task.max_episode_steps=100", "eval_episodes=4"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     with open(out / "seeds.csv") as f:

@@ -78,7 +78,7 @@ def test_a_launcher_the_sweep_cannot_use_is_one_line_before_any_job(tmp_path, ar
         pytest.skip("this machine has Slurm: the launcher is not refused here")
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     proc = subprocess.run([sys.executable, "train.py", "-m", *args, f"hydra.sweep.dir={tmp_path}/sweep",
-                           "seed=0,1", "learner.nepisodes=2"], cwd=ROOT, capture_output=True, text=True,
+                           "seed=0,1", "max_episodes=2"], cwd=ROOT, capture_output=True, text=True,
                           timeout=300, env=env)
     assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
     lines = proc.stderr.strip().splitlines()

@@ -29,7 +29,7 @@ from sweeps.stats import iqm, iqm_ci
 from sweeps.state import RecordSweep
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE = ["learner.nepisodes=5", "eval_episodes=0", "quiet=True"]
+BASE = ["max_episodes=5", "eval_episodes=0", "quiet=True"]
 
 
 def write_multirun(sweep: Path, task_overrides: list[str]) -> None:
@@ -386,7 +386,7 @@ def test_a_real_two_learner_three_seed_sweep_ends_with_its_comparison(tmp_path, 
     sweep = tmp_path / "sweep"
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     proc = subprocess.run([sys.executable, "train.py", "-m", "learner=qlearn,n1try", "seed=0,1,2",
-                           "learner.nepisodes=5", "eval_episodes=0", "quiet=true", f"hydra.sweep.dir={sweep}"],
+                           "max_episodes=5", "eval_episodes=0", "quiet=true", f"hydra.sweep.dir={sweep}"],
                           cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     tail = proc.stdout.rsplit("VERDICT", 1)[1].splitlines()[2:]

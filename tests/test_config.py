@@ -138,7 +138,7 @@ def test_a_task_tuned_file_applies_on_top_of_the_robot_one(task_layer):
     robot_file = OmegaConf.load(CONF / "tuned" / "cartpole_qlearn.yaml")
     cfg = catalog.compose("cartpole", learner="qlearn")
     assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon_min) == (0.31, 0.93, 0.011)
-    assert cfg.num_envs == robot_file.num_envs and cfg.learner.nepisodes == robot_file.learner.nepisodes
+    assert cfg.num_envs == robot_file.num_envs and cfg.max_episodes == robot_file.max_episodes
     assert catalog.tuned_layers("cartpole", "stay_up", "qlearn") == ["cartpole_qlearn", "cartpole_stay_up_qlearn"]
     assert catalog.tuned_targets()["cartpole_stay_up_qlearn"] == ("cartpole", "stay_up", "qlearn")
     assert catalog.tuned_pairs()["cartpole_stay_up_qlearn"] == ("cartpole", "qlearn")

@@ -111,7 +111,7 @@ def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypat
     assert not (conf_dir() / "tuned" / "cartpole_mbalunovic.yaml").exists()
     assert run_choices({"robot": "cartpole", "learner": "mbalunovic", "tuned": "cartpole_mbalunovic"})["tuned"] is None
     assert run_choices({"robot": "cartpole", "learner": "qlearn", "tuned": "cartpole_qlearn"})["tuned"] == "cartpole_qlearn"
-    code = cli(["learner=mbalunovic", "learner.nepisodes=1", "eval_episodes=0", "quiet=true",
+    code = cli(["learner=mbalunovic", "max_episodes=1", "eval_episodes=0", "quiet=true",
                 f"hydra.run.dir={tmp_path}"], monkeypatch)
     out = capsys.readouterr().out.splitlines()
     assert code == 0 and out[0].startswith("cartpole / stay_up / mbalunovic")
@@ -129,7 +129,7 @@ def test_the_banner_names_a_task_tuned_file_on_top_of_the_robot_one(tmp_path, mo
     (layer / "tuned").mkdir(parents=True)
     (layer / "tuned" / "cartpole_stay_up_qlearn.yaml").write_text("# @package _global_\nnum_envs: 4\n")
     try:
-        args = ["--config-dir", str(layer), "learner=qlearn", "learner.nepisodes=1", "eval_episodes=0", "quiet=true"]
+        args = ["--config-dir", str(layer), "learner=qlearn", "max_episodes=1", "eval_episodes=0", "quiet=true"]
         code = cli([*args, f"hydra.run.dir={tmp_path / 'both'}"], monkeypatch)
         out = capsys.readouterr().out.splitlines()
         # The task's file over the robot's: num_envs 8 (cartpole_qlearn) -> 4.
@@ -166,7 +166,7 @@ def dqn_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("dqn_run")
     mp = pytest.MonkeyPatch()
     try:
-        code = cli(["learner=dqn", "learner.nepisodes=10", "learner.learning_starts=16",
+        code = cli(["learner=dqn", "max_episodes=10", "learner.learning_starts=16",
                     "eval_episodes=0", "quiet=true", f"hydra.run.dir={folder}"], mp)
     finally:
         mp.undo()

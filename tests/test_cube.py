@@ -345,8 +345,7 @@ def test_hydra_composes_cube_with_its_task_and_tuned_learner():
     assert cfg.task.running_step == 0.06 and cfg.task.end_episode_points == 1000
     assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (0.1, 0.995, 0.9)
     # Without the tuned file: the course unit's parameters, the baseline.
-    assert (course.learner.alpha, course.learner.gamma, course.learner.epsilon_discount,
-            course.learner.nepisodes) == (0.1, 0.7, 0.999, 500)
+    assert (course.learner.alpha, course.learner.gamma, course.learner.epsilon_discount) == (0.1, 0.7, 0.999)
     assert dict(cfg.learner.number_splits) == {"wheel_speed": 21, "y_speed": 5, "yaw": 3}
     task = factory.build_task(cfg)
     assert task.tabular_bounds.names == ("wheel_speed", "y_speed", "yaw")
@@ -366,11 +365,11 @@ def mean_y(env, policy) -> float:
 def train_and_evaluate(tmp_path, weight: float) -> float:
     generator = seed_everything(0)
     learner = QLearn(alpha=0.1, gamma=0.7, epsilon=0.9, epsilon_discount=0.999,
-                     nepisodes=300, nsteps=200, number_splits=[21, 5, 3])
+                     number_splits=[21, 5, 3])
     task = lambda: OneDiskWalk(Cube(), y_linear_speed_reward_weight=weight, max_episode_steps=200)
     env = RobotTaskEnv(task(), num_envs=4, seed=0)
     learner.build(env.task, generator)
-    run = Run(tmp_path / f"w{weight}", env.num_envs, learner.nepisodes,
+    run = Run(tmp_path / f"w{weight}", env.num_envs, 300,
               dataclasses.replace(env.task.success, threshold=math.inf), quiet=True)
     train_single(learner, env, run)
     run.close()

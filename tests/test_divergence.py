@@ -148,18 +148,18 @@ def test_batched_physics_rolls_diverged_copies_back_to_their_state_before_the_st
 
 def test_qlearning_keeps_training_on_an_unstable_cartpole(make_cartpole_env, tmp_path):
     env = unstable_cartpole(make_cartpole_env, 4)
-    q = QLearn(alpha=0.5, gamma=0.9, epsilon=0.5, nepisodes=300, number_splits=4)
+    q, episodes = QLearn(alpha=0.5, gamma=0.9, epsilon=0.5, number_splits=4), 300
     q.build(env.task, torch.Generator().manual_seed(0))
-    run = Run(tmp_path, env.num_envs, q.nepisodes, env.task.success, quiet=True,
+    run = Run(tmp_path, env.num_envs, episodes, env.task.success, quiet=True,
               extra_fields=tuple(q.stats(0)))
     train_single(q, env, run)
     summary = run.close()
-    assert summary["episodes"] == q.nepisodes  # ran to the end of its budget
+    assert summary["episodes"] == episodes  # ran to the end of its budget
     assert env.divergences > 20
     # Diverged episodes are recorded as truncated (not terminated) ones.
     with open(tmp_path / "metrics.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    assert len(rows) == q.nepisodes
+    assert len(rows) == episodes
     truncated = sum(row["terminated"] == "0" for row in rows)
     # (no episode reaches the time limit here; the last step may end some unrecorded ones)
     assert env.divergences - env.num_envs < truncated <= env.divergences

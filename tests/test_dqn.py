@@ -119,12 +119,12 @@ def random_baseline(seed: int, episodes: int = 20) -> float:
     return evaluate(env, act)["mean_length"]
 
 
-def train_and_eval(learner: DQN, tmp_path, num_envs: int, seed: int = 0) -> float:
+def train_and_eval(learner: DQN, tmp_path, num_envs: int, episodes: int, seed: int = 0) -> float:
     gen = seed_everything(seed)
     task = StayUp(CartPole())
     env = RobotTaskEnv(task, num_envs=num_envs, seed=seed)
     learner.build(task, gen)
-    run = Run(tmp_path, num_envs, learner.nepisodes, task.success, quiet=True,
+    run = Run(tmp_path, num_envs, episodes, task.success, quiet=True,
               extra_fields=("alpha", "gamma", "epsilon"))
     train_single(learner, env, run)
     run.close()
@@ -135,15 +135,13 @@ def train_and_eval(learner: DQN, tmp_path, num_envs: int, seed: int = 0) -> floa
 
 
 def test_dqn_learns_cartpole(tmp_path):
-    learner = variant("dqn", nepisodes=400)
-    greedy = train_and_eval(learner, tmp_path, num_envs=8)
+    greedy = train_and_eval(variant("dqn"), tmp_path, num_envs=8, episodes=400)
     random = random_baseline(10_000)
     assert greedy >= 5 * random, (greedy, random)
 
 
 def test_n1try_learns_cartpole(tmp_path):
-    learner = variant("n1try", nepisodes=300)
-    greedy = train_and_eval(learner, tmp_path, num_envs=1)
+    greedy = train_and_eval(variant("n1try"), tmp_path, num_envs=1, episodes=300)
     random = random_baseline(10_000)
     assert greedy >= 5 * random, (greedy, random)
 

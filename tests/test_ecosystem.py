@@ -19,7 +19,7 @@ def run(args: list[str], timeout: int = 600) -> subprocess.CompletedProcess:
 
 def test_tensorboard_logger_writes_event_files_with_the_episode_scalars(tmp_path):
     proc = run(["train.py", f"hydra.run.dir={tmp_path}", "quiet=true", "logger=tensorboard",
-                "learner.nepisodes=12", "eval_episodes=0"])
+                "max_episodes=12", "eval_episodes=0"])
     assert proc.returncode == 0, proc.stderr[-2000:]
     events = list((tmp_path / "logs").rglob("events.out.tfevents.*"))
     assert events
@@ -35,7 +35,7 @@ def test_tensorboard_logger_writes_event_files_with_the_episode_scalars(tmp_path
 
 
 def test_csv_logger_is_the_default(tmp_path):
-    proc = run(["train.py", f"hydra.run.dir={tmp_path}", "quiet=true", "learner.nepisodes=3",
+    proc = run(["train.py", f"hydra.run.dir={tmp_path}", "quiet=true", "max_episodes=3",
                 "eval_episodes=0"])
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert list((tmp_path / "logs").rglob("episode/length.csv")) or \
@@ -67,7 +67,7 @@ def only_sweep_folder(parent: Path) -> Path:
 def test_two_job_sweep_through_a_launcher_compares_itself_and_compare_reruns(tmp_path, launcher):
     # ${pid:} as in the default sweep folder: it must resolve to the launching process's id in every job.
     proc = run(["train.py", "-m", f"hydra/launcher={launcher}", f"hydra.sweep.dir={tmp_path}/sweep_${{pid:}}",
-                "learner=qlearn", "seed=0,1", "learner.nepisodes=8", "eval_episodes=0",
+                "learner=qlearn", "seed=0,1", "max_episodes=8", "eval_episodes=0",
                 "quiet=true"], timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     sweep = only_sweep_folder(tmp_path)
@@ -91,7 +91,7 @@ def test_a_submitit_sweep_keeps_its_jobs_in_one_folder_and_a_failed_job_fails_it
     them refused: both jobs write under the launching process's ${pid:} folder, the
     comparison counts one finished and one failed job, and the sweep exits 1."""
     proc = run(["train.py", "-m", "hydra/launcher=submitit_local", f"hydra.sweep.dir={tmp_path}/sweep_${{pid:}}",
-                "learner=qlearn", "learner.alpha=-1,0.5", "learner.nepisodes=4", "eval_episodes=0",
+                "learner=qlearn", "learner.alpha=-1,0.5", "max_episodes=4", "eval_episodes=0",
                 "quiet=true"], timeout=900)
     assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-3000:]
     sweep = only_sweep_folder(tmp_path)
@@ -112,7 +112,7 @@ def test_a_submitit_job_holds_a_batch_of_seeds(tmp_path):
     go to submitit as batches of max_seeds, each batch one job that trains its seeds
     together; every seed still gets its folder and the launching process compares them."""
     proc = run(["train.py", "-m", "hydra/launcher=seeds_submitit_local", f"hydra.sweep.dir={tmp_path}/sweep",
-                "hydra.launcher.max_seeds=2", "seed=0,1,2", "learner=qlearn", "learner.nepisodes=4",
+                "hydra.launcher.max_seeds=2", "seed=0,1,2", "learner=qlearn", "max_episodes=4",
                 "eval_episodes=0", "quiet=true"], timeout=900)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     sweep = tmp_path / "sweep"
@@ -129,7 +129,7 @@ def test_a_submitit_job_holds_a_batch_of_seeds(tmp_path):
 def test_a_failing_job_does_not_cost_the_sweep_its_other_jobs_but_fails_it(tmp_path):
     sweep = tmp_path / "sweep"
     proc = run(["train.py", "-m", f"hydra.sweep.dir={sweep}", "learner=qlearn",
-                "learner.alpha=-1,0.5", "learner.nepisodes=5", "eval_episodes=0", "quiet=true"])
+                "learner.alpha=-1,0.5", "max_episodes=5", "eval_episodes=0", "quiet=true"])
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "error: 1 of 2 jobs failed or never started" in proc.stderr
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir())
@@ -152,7 +152,7 @@ def test_compare_rejects_a_folder_that_is_not_a_sweep(tmp_path):
 def test_optional_loggers_record_episode_lengths(tmp_path, kind):
     pytest.importorskip(kind)  # extras: pip install -e ".[wandb]" / ".[mlflow]"
     proc = run(["train.py", f"hydra.run.dir={tmp_path}", "quiet=true", f"logger={kind}",
-                "learner.nepisodes=6", "eval_episodes=0"])
+                "max_episodes=6", "eval_episodes=0"])
     assert proc.returncode == 0, proc.stderr[-2000:]
     lengths = [float(r["length"]) for r in csv.DictReader(open(tmp_path / "metrics.csv"))]
     if kind == "wandb":

@@ -18,7 +18,7 @@ from runs.training_state import seed_everything
 from tasks.factory import build_env
 from tasks.catalog import compose
 
-DQN_SHORT = ["learner.nepisodes=24", "learner.learning_starts=32", "learner.batch_size=32",
+DQN_SHORT = ["max_episodes=24", "learner.learning_starts=32", "learner.batch_size=32",
              "eval_every=10"]
 
 
@@ -26,9 +26,9 @@ def train(run_dir: Path, learner: str, logger: str, overrides: list[str]):
     """``train.py``'s training path in miniature: the learner, env, Run and logger of the
     composed config, the hyperparameters logged first; returns the trained learner."""
     cfg = compose(learner=learner, overrides=[f"logger={logger}", "eval_episodes=2", *overrides])
+    env = build_env(cfg, int(cfg.num_envs), int(cfg.seed))
+    eval_env = build_env(cfg, 2, int(cfg.seed) + 10_000)
     learner = instantiate(cfg.learner, _convert_="all")
-    env = build_env(cfg, int(cfg.num_envs), int(cfg.seed), learner.nsteps)
-    eval_env = build_env(cfg, 2, int(cfg.seed) + 10_000, learner.nsteps)
     learner.build(env.task, seed_everything(int(cfg.seed)))
     logger = make_logger(cfg.logger.kind, run_dir, exp_name="run")
     success = env.task.success
@@ -36,7 +36,7 @@ def train(run_dir: Path, learner: str, logger: str, overrides: list[str]):
     member = learner.member(0)
     hooks = Hooks(greedy_eval=lambda: greedy_evaluation(member, eval_env, int(cfg.seed) + 10_000),
                   train_stats=member.train_stats)
-    record = Run(run_dir, env.num_envs, learner.nepisodes, env.task.success, logger=logger,
+    record = Run(run_dir, env.num_envs, int(cfg.max_episodes), env.task.success, logger=logger,
                  extra_fields=tuple(member.stats), quiet=True, eval_every=int(cfg.eval_every),
                  hooks=hooks)
     try:
@@ -172,7 +172,7 @@ def test_logging_changes_no_training_result(tmp_path):
 
 
 def test_qlearn_logs_the_visited_fraction_of_its_table(tmp_path):
-    train(tmp_path, "qlearn", "csv", ["learner.nepisodes=15", "eval_episodes=0"])
+    train(tmp_path, "qlearn", "csv", ["max_episodes=15", "eval_episodes=0"])
     scalars = tmp_path / "logs" / "run" / "scalars" / "train"
     rows = [line.split(",") for line in (scalars / "visited_fraction.csv").read_text().split()]
     steps, values = [int(s) for s, _ in rows], [float(v) for _, v in rows]
@@ -229,7 +229,7 @@ def test_flat_config_joins_keys_and_keeps_scalars():
 
 def test_mlflow_gets_the_config_as_params_and_the_train_metrics(tmp_path):
     mlflow = pytest.importorskip("mlflow")  # extra: pip install -e ".[mlflow]"
-    train(tmp_path, "qlearn", "mlflow", ["learner.nepisodes=10", "eval_episodes=0"])
+    train(tmp_path, "qlearn", "mlflow", ["max_episodes=10", "eval_episodes=0"])
     mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'logs' / 'mlflow.db'}")
     run_id = mlflow.search_runs(search_all_experiments=True).run_id[0]
     client = mlflow.MlflowClient()

@@ -30,7 +30,7 @@ def tensors_equal(a, b) -> bool:
 
 
 def config(learner: str, overrides=()):
-    return compose("cartpole", learner=learner, overrides=list(overrides))
+    return compose("cartpole", learner=learner, overrides=[f"task.max_episode_steps={LIMIT}", *overrides])
 
 
 def made(cfg, seeds):
@@ -45,7 +45,7 @@ def trained(cfg, seeds, n: int, steps: int):
     """A learner of ``seeds`` trained on ``n`` copies a member (the loop of runs.loop.train
     without runs): the learner and each member's actions per step."""
     learner = made(cfg, seeds)
-    env = build_env(cfg, n * len(seeds), list(seeds) if len(seeds) > 1 else seeds[0], LIMIT)
+    env = build_env(cfg, n * len(seeds), list(seeds) if len(seeds) > 1 else seeds[0])
     learner.begin()
     td, actions = env.reset(), []
     for _ in range(steps):
@@ -119,7 +119,7 @@ def test_members_not_due_keep_their_parameters_and_optimizer_state():
     cfg = config("dqn", ["learner.batch_size=32", "learner.learning_starts=0", "learner.train_every=episode",
                          "learner.updates=1"])
     learner = made(cfg, SEEDS)
-    env = build_env(cfg, 2 * len(SEEDS), list(SEEDS), LIMIT)
+    env = build_env(cfg, 2 * len(SEEDS), list(SEEDS))
     td = learner.act(env.reset())
     for _ in range(20):
         td, nxt = env.step_and_maybe_reset(td)

@@ -137,7 +137,7 @@ def test_a_config_folder_outside_the_package_trains_from_anywhere(tmp_path):
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     cmd = [sys.executable, str(ROOT / "train.py"), "--config-dir", str(folder), "robot=my_acrobot",
-           "learner=dqn", "learner.nepisodes=2", "eval_episodes=0", "quiet=true",
+           "learner=dqn", "max_episodes=2", "eval_episodes=0", "quiet=true",
            f"hydra.run.dir={tmp_path / 'run'}"]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "PYTHONPATH": str(ROOT)}
     proc = subprocess.run(cmd, cwd=elsewhere, capture_output=True, text=True, timeout=300, env=env)
@@ -206,7 +206,7 @@ def test_dqn_solves_the_shipped_example(robot, tmp_path):
     """The shipped examples are learnable as shipped: dqn with the tuned file, seed 0, ends
     with the task's verdict true (acrobot ~45 s, double pendulum ~90 s on 2 cores)."""
     cmd = [sys.executable, "train.py", f"robot={robot}", "learner=dqn", "quiet=true",
-           "learner.nepisodes=5000", f"hydra.run.dir={tmp_path}"]
+           "max_episodes=5000", f"hydra.run.dir={tmp_path}"]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900, env=env)
     assert proc.stdout.strip().splitlines()[-1].startswith("VERDICT solved=true"), proc.stdout[-2000:]

@@ -153,14 +153,14 @@ def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
 
     conf = Path(__file__).resolve().parents[1] / "conf"
     with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["learner.nepisodes=200"])
+        cfg = compose(config_name="config", overrides=["max_episodes=200"])
     seed = 0
     gen = seed_everything(seed)
     task = factory.build_task(cfg)
     env = RobotTaskEnv(task, num_envs=1, seed=seed)
     q = instantiate(cfg.learner, _convert_="all")
     q.build(task, gen)
-    run = Run(tmp_path, 1, q.nepisodes, task.success, quiet=True, extra_fields=tuple(q.stats(0)))
+    run = Run(tmp_path, 1, int(cfg.max_episodes), task.success, quiet=True, extra_fields=tuple(q.stats(0)))
     train_single(q, env, run)
     run.close()
     trained = np.mean(run.lengths[-50:])

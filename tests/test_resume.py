@@ -12,8 +12,8 @@ import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-QLEARN = ["learner=qlearn", "num_envs=1", "learner.nepisodes=160", "checkpoint_every=20"]
-DQN = ["learner=dqn", "num_envs=4", "learner.nepisodes=150", "learner.learning_starts=64",
+QLEARN = ["learner=qlearn", "num_envs=1", "max_episodes=160", "checkpoint_every=20"]
+DQN = ["learner=dqn", "num_envs=4", "max_episodes=150", "learner.learning_starts=64",
        "checkpoint_every=20"]
 
 
@@ -138,7 +138,7 @@ def test_greedy_evaluations_survive_a_kill_and_resume(tmp_path):
     """A greedily judged run (stay_up judged on the greedy policy, never solved) evaluated
     every 10 episodes: killed mid-run and resumed, it ends with the same metrics.csv and
     evals.csv as an uninterrupted run."""
-    judged = ["learner=qlearn", "num_envs=1", "learner.nepisodes=80", "checkpoint_every=20", "eval_episodes=2",
+    judged = ["learner=qlearn", "num_envs=1", "max_episodes=80", "checkpoint_every=20", "eval_episodes=2",
               "eval_every=10", "task.win.judge=greedy", "task.win.threshold=inf"]
 
     def launch(run_dir: Path) -> subprocess.Popen:

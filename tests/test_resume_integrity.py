@@ -20,7 +20,7 @@ from runs.training_state import check_targets, new_run_identity, read_run_json, 
 from params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
-QLEARN = ["learner=qlearn", "num_envs=1", "learner.nepisodes=160", "checkpoint_every=20"]
+QLEARN = ["learner=qlearn", "num_envs=1", "max_episodes=160", "checkpoint_every=20"]
 
 
 def resume(run_dir: Path) -> subprocess.CompletedProcess:

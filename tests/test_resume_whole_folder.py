@@ -25,7 +25,7 @@ import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-RUN = ["learner=qlearn", "num_envs=2", "learner.nepisodes=60", "checkpoint_every=15", "eval_every=20",
+RUN = ["learner=qlearn", "num_envs=2", "max_episodes=60", "checkpoint_every=15", "eval_every=20",
        "eval_episodes=2", "seed=5", "quiet=true"]
 WALL_CLOCK_FILES = {"timing.csv", "train.log", ".lock", "logs/run/scalars/run/wall_s.csv"}
 WALL_CLOCK_FIELDS = {"summary.json": ("wall_s", "first_step_s")}

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-QUICK = ["learner.nepisodes=20", "eval_episodes=0", "quiet=true"]
+QUICK = ["max_episodes=20", "eval_episodes=0", "quiet=true"]
 
 
 def train(*args: str, cwd: Path = ROOT, **kw) -> subprocess.Popen:
@@ -69,7 +69,7 @@ def test_an_existing_run_is_neither_overwritten_nor_damaged_by_a_rejected_one(tm
 
 def test_sigterm_stops_with_143_and_the_run_resumes(tmp_path):
     run_dir = tmp_path / "run"
-    proc = train(f"hydra.run.dir={run_dir}", "learner.nepisodes=100000", "eval_episodes=0",
+    proc = train(f"hydra.run.dir={run_dir}", "max_episodes=100000", "eval_episodes=0",
                  "quiet=true")
     deadline = time.time() + 120
     while not (run_dir / "metrics.csv").is_file() or (run_dir / "metrics.csv").stat().st_size < 200:
@@ -94,7 +94,7 @@ def wait_for_two_training_jobs(sweep: Path, proc) -> None:
 def test_ctrl_c_on_a_joblib_sweep_leaves_every_started_job_resumable(tmp_path):
     sweep = tmp_path / "sweep"
     proc = train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1,2",
-                 "learner.nepisodes=100000", "eval_episodes=0", "quiet=true",
+                 "max_episodes=100000", "eval_episodes=0", "quiet=true",
                  f"hydra.sweep.dir={sweep}", start_new_session=True)
     wait_for_two_training_jobs(sweep, proc)
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the whole process group
@@ -125,7 +125,7 @@ def test_a_killed_joblib_worker_lets_its_healthy_sibling_save(tmp_path):
     the sibling saves its whole state on the way out (checkpoint_every=0: only then)."""
     sweep = tmp_path / "sweep"
     proc = train("-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "seed=0,1",
-                 "learner.nepisodes=100000", "eval_episodes=0", "quiet=true", "checkpoint_every=0",
+                 "max_episodes=100000", "eval_episodes=0", "quiet=true", "checkpoint_every=0",
                  f"hydra.sweep.dir={sweep}", start_new_session=True)
     wait_for_two_training_jobs(sweep, proc)
     victim, sibling = sorted(p.parent for p in sweep.glob("*/run.json"))

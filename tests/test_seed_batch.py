@@ -30,7 +30,7 @@ WALL_CLOCK = {"wall_s", "first_step_s"}  # summary.json's clock readings
 CLOCK_SCALARS = ("wall_s.csv", "updates_per_s.csv")  # the logger's clock readings (their files' sizes vary)
 SAME_FILES = ("metrics.csv", "evals.csv", "eval.json", "success.json", "config.yaml")
 BUDGETS = {
-    "qlearn": ["learner.nepisodes=60", "eval_every=20", "eval_episodes=4", "checkpoint_every=20"],
+    "qlearn": ["max_episodes=60", "eval_every=20", "eval_episodes=4", "checkpoint_every=20"],
     "dqn": ["max_env_steps=2000", "eval_every=20", "eval_episodes=4", "checkpoint_every=20"],
 }
 
@@ -76,7 +76,7 @@ def test_a_seed_in_a_batch_is_its_run_alone(tmp_path, learner):
 def test_seeds_that_end_at_one_step_are_evaluated_together_as_each_alone(tmp_path, monkeypatch, learner):
     """An env-step budget ends every seed at one step: their final greedy evaluations run in
     one env of their seed blocks, and each seed's files are still its run's alone."""
-    budget = ["max_env_steps=1200", "learner.nepisodes=100000", "stop_when_solved=false",
+    budget = ["max_env_steps=1200", "max_episodes=100000", "stop_when_solved=false",
               "eval_every=20", "eval_episodes=4", "checkpoint_every=20"]
     monkeypatch.setitem(BUDGETS, learner, budget)
     together, real = [], batch_module.greedy_evaluations
@@ -241,7 +241,7 @@ def run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
 def test_a_multirun_trains_its_seeds_in_one_batch_per_group(tmp_path):
     """``-m learner=qlearn,dqn seed=0,1`` makes two batches (one per learner), each seed with
     its own job folder; the comparison reads them as ever."""
-    proc = run_cli(["-m", "learner=qlearn,dqn", "seed=0,1", "learner.nepisodes=20", "max_env_steps=600",
+    proc = run_cli(["-m", "learner=qlearn,dqn", "seed=0,1", "max_episodes=20", "max_env_steps=600",
                     "eval_episodes=2", "quiet=true", f"hydra.sweep.dir={tmp_path / 'sweep'}"], tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.count("Training 2 seeds together") == 2, proc.stdout[-2000:]

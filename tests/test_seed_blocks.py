@@ -17,9 +17,9 @@ SEEDS = (3, 7, 11)
 @pytest.mark.parametrize("robot", robot_names())
 def test_each_block_steps_exactly_as_its_seed_alone(robot):
     n, steps, limit = 2, 60, 25  # a 25-step time limit: every robot's episodes restart
-    cfg = compose(robot)
-    batch = build_env(cfg, n * len(SEEDS), list(SEEDS), max_episode_steps=limit)
-    alone = [build_env(cfg, n, s, max_episode_steps=limit) for s in SEEDS]
+    cfg = compose(robot, overrides=[f"task.max_episode_steps={limit}"])
+    batch = build_env(cfg, n * len(SEEDS), list(SEEDS))
+    alone = [build_env(cfg, n, s) for s in SEEDS]
     actions = np.random.default_rng(0).integers(batch.task.n_actions, size=(steps, n * len(SEEDS)))
     td_b = batch.reset()
     tds = [env.reset() for env in alone]

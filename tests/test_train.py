@@ -26,7 +26,7 @@ def verdict(stdout: str) -> dict:
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("train")
-    proc = train(tmp, "learner.nepisodes=30", "eval_episodes=3", "seed=1")
+    proc = train(tmp, "max_episodes=30", "eval_episodes=3", "seed=1")
     assert proc.returncode == 0, proc.stderr[-2000:]
     return tmp, proc
 
@@ -75,7 +75,7 @@ def test_saved_model_loads_for_eval_and_training(short_run):
     proc = train(tmp, "mode=eval", f"checkpoint={model}", "eval_episodes=2", name="eval")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "greedy evaluation over 2 episodes" in proc.stdout
-    proc = train(tmp, f"checkpoint={model}", "learner.nepisodes=5", "eval_episodes=0", name="more")
+    proc = train(tmp, f"checkpoint={model}", "max_episodes=5", "eval_episodes=0", name="more")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert verdict(proc.stdout)["episodes"] == "5"
 
@@ -88,7 +88,7 @@ def test_saved_model_loads_for_eval_and_training(short_run):
     (["learner=dqn", "learner.lr=-1"], "learner.lr must be a finite number > 0; got -1"),
 ])
 def test_bad_input_is_one_clear_line(tmp_path, overrides, expected):
-    proc = train(tmp_path, "learner.nepisodes=2", *overrides)
+    proc = train(tmp_path, "max_episodes=2", *overrides)
     assert proc.returncode == 2
     lines = [line for line in proc.stderr.strip().splitlines() if line.startswith("error:")]
     assert len(lines) == 1 and expected in lines[0], proc.stderr[-1500:]
@@ -98,7 +98,7 @@ def test_bad_input_is_one_clear_line(tmp_path, overrides, expected):
 def test_corrupt_checkpoint_is_one_clear_line(tmp_path):
     bad = tmp_path / "model.pt"
     bad.write_bytes(b"\x00garbage")
-    proc = train(tmp_path, f"checkpoint={bad}", "learner.nepisodes=2")
+    proc = train(tmp_path, f"checkpoint={bad}", "max_episodes=2")
     assert proc.returncode == 2 and "not a readable checkpoint" in proc.stderr
     assert "Traceback" not in proc.stderr
 
@@ -110,11 +110,11 @@ def test_unknown_robot_is_hydras_clear_message(tmp_path):
 
 
 @pytest.mark.parametrize("overrides", [
-    pytest.param(["learner=qlearn", "learner.nepisodes=40", "num_envs=1"], marks=pytest.mark.slow),
-    ["learner=qlearn", "learner.nepisodes=40", "num_envs=6"],
-    pytest.param(["learner=dqn", "learner.nepisodes=30", "num_envs=1", "learner.learning_starts=64"],
+    pytest.param(["learner=qlearn", "max_episodes=40", "num_envs=1"], marks=pytest.mark.slow),
+    ["learner=qlearn", "max_episodes=40", "num_envs=6"],
+    pytest.param(["learner=dqn", "max_episodes=30", "num_envs=1", "learner.learning_starts=64"],
                  marks=pytest.mark.slow),
-    ["learner=dqn", "learner.nepisodes=30", "num_envs=4", "learner.learning_starts=64"],
+    ["learner=dqn", "max_episodes=30", "num_envs=4", "learner.learning_starts=64"],
 ])
 def test_same_config_and_seed_give_identical_metrics(tmp_path, overrides):
     a = train(tmp_path, *overrides, "eval_episodes=0", "seed=5", name="a")
@@ -129,7 +129,7 @@ def test_same_config_and_seed_give_identical_metrics(tmp_path, overrides):
 def test_greedy_evaluations_do_not_change_training(tmp_path):
     """Evaluations every 10 episodes draw from no training generator: the same metrics.csv as
     with none, and evals.csv holds one row per evaluation plus the final one."""
-    common = ("learner=qlearn", "num_envs=1", "learner.nepisodes=40", "eval_episodes=3", "seed=2")
+    common = ("learner=qlearn", "num_envs=1", "max_episodes=40", "eval_episodes=3", "seed=2")
     a = train(tmp_path, *common, "eval_every=10", name="a")
     b = train(tmp_path, *common, "eval_every=0", name="b")
     assert a.returncode == b.returncode == 0, a.stderr[-1500:]
@@ -144,7 +144,7 @@ def test_greedy_evaluations_do_not_change_training(tmp_path):
 
 def test_a_diverging_model_keeps_training_and_says_so(tmp_path):
     """Effort control with a 1e9 N push per action: MuJoCo flags the state unstable."""
-    proc = train(tmp_path, "task.control_type=effort", "task.pos_step=1e9", "learner.nepisodes=40",
+    proc = train(tmp_path, "task.control_type=effort", "task.pos_step=1e9", "max_episodes=40",
                  "eval_episodes=0", "num_envs=1")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert verdict(proc.stdout)["episodes"] == "40"

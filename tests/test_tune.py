@@ -141,9 +141,9 @@ def test_the_tuned_file_keeps_the_previous_ones_other_settings():
 # -- the budget a trial gets ----------------------------------------------------------
 def test_max_env_steps_ends_training_and_stop_when_solved_false_trains_past_solved(tmp_path):
     base = ["quiet=true", "eval_episodes=0", "num_envs=4", "task.win.threshold=5", "task.win.min_episodes=1"]
-    stop = cli(f"hydra.run.dir={tmp_path / 'a'}", *base, "learner.nepisodes=40")
-    past = cli(f"hydra.run.dir={tmp_path / 'b'}", *base, "learner.nepisodes=40", "stop_when_solved=false")
-    steps = cli(f"hydra.run.dir={tmp_path / 'c'}", *base, "learner.nepisodes=100000", "max_env_steps=300",
+    stop = cli(f"hydra.run.dir={tmp_path / 'a'}", *base, "max_episodes=40")
+    past = cli(f"hydra.run.dir={tmp_path / 'b'}", *base, "max_episodes=40", "stop_when_solved=false")
+    steps = cli(f"hydra.run.dir={tmp_path / 'c'}", *base, "max_episodes=100000", "max_env_steps=300",
                 "stop_when_solved=false")
     for proc in (stop, past, steps):
         assert proc.returncode == 0, proc.stderr[-2000:]
@@ -196,7 +196,7 @@ def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(projec
     assert "best trial" in proc.stdout and f"wrote {tuned}" in proc.stdout
     assert "trial=0" in proc.stdout and "cannot be listed" not in proc.stdout + proc.stderr  # the comparison
 
-    run = cli("robot=cartpole", "learner=n1try", "learner.nepisodes=2", "eval_episodes=0", "quiet=true",
+    run = cli("robot=cartpole", "learner=n1try", "max_episodes=2", "eval_episodes=0", "quiet=true",
               f"hydra.run.dir={tmp_path / 'next'}", cwd=project_copy)
     assert run.returncode == 0, run.stderr[-2000:]
     assert "tuned: conf/tuned/cartpole_n1try.yaml" in run.stdout
@@ -269,7 +269,7 @@ def test_a_missing_search_space_is_one_line():
 
 
 def test_trial_outside_a_tuning_sweep_is_one_line(tmp_path):
-    proc = cli("trial=3", "learner.nepisodes=1", f"hydra.run.dir={tmp_path / 'run'}")
+    proc = cli("trial=3", "max_episodes=1", f"hydra.run.dir={tmp_path / 'run'}")
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "trial=3 is set by hydra/sweeper=optuna" in lines[0], proc.stderr

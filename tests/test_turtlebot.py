@@ -362,7 +362,7 @@ def test_config_picks_the_maze_and_the_tuned_learner():
     cfg = compose_cfg("robot=turtlebot", "learner=qlearn")
     assert cfg.task._target_ == "tasks.maze.MazeTask"
     assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (1.0, 0.7, 0.9)
-    assert (cfg.learner.nepisodes, cfg.learner.nsteps) == (500, 500)
+    assert (cfg.max_episodes, cfg.task.max_episode_steps) == (500, 500)
     task = build_task(cfg)
     assert (task.n_actions, task.n_observations, task.min_range) == (3, 6, 0.5)
     np.testing.assert_allclose(task.speeds, [[0.5, 0.0], [0.1, 0.3], [0.1, -0.3]])
@@ -384,16 +384,16 @@ def test_q_learning_drives_round_the_ring_far_longer_than_random(tmp_path):
     copies with seed 0: about 15 s, so the CI version is the whole run."""
     cfg = compose_cfg("robot=turtlebot", "learner=qlearn", "seed=0", "num_envs=4")
     generator = seed_everything(0)
+    env = build_env(cfg, 4, seed=0)
     learner = instantiate(cfg.learner, _convert_="all")
     assert isinstance(learner, QLearn)
-    env = build_env(cfg, 4, seed=0, max_episode_steps=learner.nsteps)
     learner.build(env.task, generator)
-    run = Run(tmp_path, env.num_envs, learner.nepisodes,
+    run = Run(tmp_path, env.num_envs, int(cfg.max_episodes),
               dataclasses.replace(env.task.success, threshold=math.inf), quiet=True)
     train_single(learner, env, run)
     run.close()
     env.close()
-    eval_env = build_env(cfg, 20, seed=10_000, max_episode_steps=learner.nsteps)
+    eval_env = build_env(cfg, 20, seed=10_000)
     try:
         member = learner.member(0)
         with member.greedy():

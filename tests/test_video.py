@@ -130,7 +130,7 @@ def test_cli_on_a_folder_without_model_is_one_line(tmp_path, capsys):
                     reason="train.py has no video flag yet")
 def test_train_with_video_flag_writes_policy_mp4(tmp_path):
     cmd = [sys.executable, "train.py", f"hydra.run.dir={tmp_path}", "quiet=true", "learner=dqn",
-           "learner.nepisodes=3", "eval_episodes=0", "video=true", "video_steps=9"]
+           "max_episodes=3", "eval_episodes=0", "video=true", "video_steps=9"]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 0, proc.stderr[-1500:]
