@@ -26,6 +26,7 @@ import re
 import signal
 import sys
 import traceback
+from functools import partial
 from pathlib import Path
 
 import hydra
@@ -41,8 +42,8 @@ from tasks.catalog import (GROUPS, compose, locate_model, run_choices, unreadabl
                           with_tuned_layers)
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
-from runs.folder import (check_output_folder, eval_config, is_run_folder, resumed_config, run_folder_of, run_lock,
-                         with_run_choices)
+from runs.folder import (MadeFolders, check_new_run, check_output_folder, eval_config, is_run_folder,
+                         resumed_config, run_folder_of, taken, with_run_choices, write_hydra_record)
 from runs.lifecycle import Job, batchable
 from runs.training_state import read_run_json
 from runs.lifecycle import execute
@@ -66,6 +67,8 @@ OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True, u
 
 _IN_JOB = False  # from main on, an unexpected exception is a bug: its trace is shown
 _LAUNCHER_PID = None  # the process that runs Hydra's launcher (jobs in a joblib worker differ)
+_MADE: MadeFolders | None = None  # the folders there were before Hydra made the run's
+REFUSALS = (ConfigError, CheckpointError, InstantiationException)  # one line, exit 2
 
 
 def _one_line(err: BaseException) -> str:
@@ -79,6 +82,8 @@ def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
     """Prints ``message``; a sweep job keeps it in ``error.txt`` and lets the sweep go on (the
     sweep's end says on stderr how many jobs failed, so the job's own line goes to stdout)."""
     if not in_sweep:
+        if _MADE is not None:  # a refused command leaves no folder it made
+            _MADE.remove(run_dir)
         print(message, file=sys.stderr)
         sys.exit(2)
     print(message, flush=True)
@@ -94,6 +99,11 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     (``hydra.job.env_set`` names it), its checked :class:`runs.lifecycle.Job`, which the seeds
     launcher trains with the others. A single run calls nothing of ``sweeps/``: only a
     tuning trial reports to its study, only ``resume=<sweep folder>`` resumes a sweep."""
+    hydra = HydraConfig.get()
+    record = partial(write_hydra_record, run_dir, ".hydra-resume" if is_run_folder(cfg.get("resume")) else ".hydra",
+                     cfg, hydra, hydra.overrides.task)  # Hydra's record of the command (hydra.output_subdir: null)
+    if in_sweep:  # a sweep keeps each job's record, a refused job's too (its error.txt beside it)
+        record()
     choices = run_choices(HydraConfig.get().runtime.choices)  # tuned: None where no file applies
     sources = HydraConfig.get().runtime.config_sources  # conf/, then any --config-dir
     use_config_dirs([s.path for s in sources if s.schema == "file" and s.provider != "main"])
@@ -103,6 +113,7 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
         if not isinstance(cfg.resume, str):
             raise ConfigError(f"resume must be the path of a run folder; got {cfg.resume!r}")
         if is_sweep_folder(cfg.resume):  # every unfinished job of the sweep, seeds together
+            record()
             summaries = resume_sweep(cfg, overrides)
             return next((s for s in summaries if s.get("interrupted")), {})
         cfg, run_dir = resumed_config(cfg, overrides)
@@ -115,12 +126,19 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     job = Job(cfg, run_dir, choices, overrides, changes)
     if in_sweep and not resume and batchable(cfg) and HydraConfig.get().job.env_set.get(COLLECT):
         return job  # the seeds launcher trains it with the other seeds of its group
-    with run_lock(run_dir), tee_console(run_dir / "train.log"):
-        # A resumed trial job trains without reporting: its study has moved on.
-        trial = not resume and cfg.get("trial") is not None
-        progress = trial_link(cfg, run_dir, HydraConfig.get().sweeper) if trial else None
-        return execute(cfg, run_dir, resume=resume, choices=choices, changes=changes,
-                       overrides=overrides, progress=progress)
+    if not resume:
+        check_new_run(run_dir)  # before the lock too: a finished run's .lock is not touched
+    with taken(run_dir, REFUSALS):  # one run's record per folder: nothing written before the lock
+        if not resume:
+            check_new_run(run_dir)
+        if not in_sweep:
+            record()
+        with tee_console(run_dir / "train.log"):
+            # A resumed trial job trains without reporting: its study has moved on.
+            trial = not resume and cfg.get("trial") is not None
+            progress = trial_link(cfg, run_dir, HydraConfig.get().sweeper) if trial else None
+            return execute(cfg, run_dir, resume=resume, choices=choices, changes=changes,
+                           overrides=overrides, progress=progress)
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
@@ -137,7 +155,7 @@ def main(cfg: DictConfig) -> Job | None:
         summary = _job(cfg, run_dir, overrides, in_sweep)
         if isinstance(summary, Job):
             return summary  # Hydra's JobReturn carries it to the seeds launcher
-    except (ConfigError, CheckpointError, InstantiationException) as err:
+    except REFUSALS as err:
         return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)
     except OSError as err:  # the run folder: missing, read-only, full
         where = f"{err.filename}: " if err.filename else ""
@@ -167,7 +185,7 @@ def cli() -> None:
     sweep stopped by Ctrl-C or SIGTERM prints the comparison of the jobs that finished
     and lists how to resume each unfinished job; a sweep in which a job failed or never
     started exits 1 after its comparison."""
-    global _LAUNCHER_PID
+    global _LAUNCHER_PID, _MADE
     _LAUNCHER_PID = os.getpid()
     # Hydra raises instead of printing a page; set whatever the environment says (HYDRA_FULL_ERROR=0
     # would send a mistyped key to Hydra's own six lines and exit 1).
@@ -185,6 +203,8 @@ def cli() -> None:
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
+    run_dirs = [a.split("=", 1)[1] for a in sys.argv[1:] if a.startswith("hydra.run.dir=")]
+    _MADE = MadeFolders(run_dirs[-1] if run_dirs else None, Path.cwd())
     if sweep:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, stop_sweep)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import shutil
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Mapping
@@ -45,7 +46,7 @@ def check_output_folder(key: str, path: str) -> None:
     except OSError as err:
         raise ConfigError(f"{key}={path} cannot be read ({err.strerror}); allowed: a new or empty "
                           "folder, or a run or sweep folder of this project") from None
-    ours = ("run.json", ".hydra", ".hydra-resume", ".lock") if key == "hydra.run.dir" else ("multirun.yaml",)
+    ours = ("run.json", ".lock") if key == "hydra.run.dir" else ("multirun.yaml",)  # never .hydra/ alone
     if names and not any(name in names for name in ours):
         shown = ", ".join(names[:4]) + (", ..." if len(names) > 4 else "")
         raise ConfigError(f"{key}={path} is a folder that holds other files ({shown}); allowed: a new or "
@@ -54,8 +55,8 @@ def check_output_folder(key: str, path: str) -> None:
 
 
 def is_run_folder(path) -> bool:
-    """Whether ``path`` holds a run's ``config.yaml``."""
-    return bool(path) and (Path(str(path)) / "config.yaml").is_file()
+    """Whether ``path`` holds a run of this project (its ``run.json`` and ``config.yaml``)."""
+    return bool(path) and all((Path(str(path)) / name).is_file() for name in ("run.json", "config.yaml"))
 
 
 def is_finished(run_dir: Path) -> bool:
@@ -149,6 +150,69 @@ def with_run_choices(args: list[str]) -> list[str]:
     return [*(f"{k}={saved[k]}" for k in PICKS if k not in given and saved.get(k)), *args]
 
 
+class MadeFolders:
+    """The folders that exist before Hydra makes a run's folder (``hydra.run.dir``, else the
+    default ``outputs/<date>/<time>_...``), so that a refused command removes exactly the
+    empty folders it made and none it did not."""
+
+    def __init__(self, run_dir: str | None, root: Path) -> None:
+        root = root.absolute()
+        self.before = {root, *root.parents}
+        if run_dir and "${" not in run_dir:
+            target = Path(run_dir).absolute()
+            self.before |= {p for p in (target, *target.parents) if p.exists()}
+            self.scope = target
+        else:
+            outputs = root / "outputs"
+            if outputs.is_dir():
+                self.before |= {outputs, *(p for p in outputs.iterdir() if p.is_dir())}
+            self.scope = outputs
+
+    def remove(self, run_dir: Path) -> None:
+        """Removes ``run_dir`` and its parents while each is empty and was made by this command."""
+        run_dir = run_dir.absolute()
+        if run_dir != self.scope and self.scope not in run_dir.parents:
+            return
+        for folder in (run_dir, *run_dir.parents):
+            if folder in self.before or not folder.is_dir() or any(folder.iterdir()):
+                return
+            folder.rmdir()
+
+
+@contextmanager
+def taken(run_dir: Path, refusals: tuple[type[BaseException], ...]) -> Iterator[None]:
+    """:func:`run_lock` on ``run_dir``; a ``refusals`` error raised inside before the run
+    started (before its run.json) removes what was written into the folder while held."""
+    before = set(os.listdir(run_dir))
+    with run_lock(run_dir):
+        try:
+            yield
+        except refusals:
+            made = set(os.listdir(run_dir)) - before
+            if "run.json" not in made:
+                for name in made:
+                    path = run_dir / name
+                    shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+            raise
+
+
+def write_hydra_record(run_dir: Path, name: str, cfg: DictConfig, hydra: DictConfig, overrides) -> None:
+    """Hydra's record of the command in ``run_dir/name`` (config.yaml, hydra.yaml,
+    overrides.yaml, as Hydra writes them with ``hydra.output_subdir``), once it is accepted."""
+    folder = run_dir / name
+    folder.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(cfg, folder / "config.yaml")
+    OmegaConf.save(OmegaConf.create({"hydra": hydra}), folder / "hydra.yaml")
+    OmegaConf.save(OmegaConf.create(list(overrides)), folder / "overrides.yaml")
+
+
+def check_new_run(run_dir: Path) -> None:
+    """A new run's folder must not hold a run already."""
+    if (run_dir / "config.yaml").exists() or (run_dir / "run.json").exists():
+        raise ConfigError(f"hydra.run.dir={run_dir} already holds a run; continue it with "
+                          f"resume={run_dir}, or pick another folder")
+
+
 @contextmanager
 def run_lock(run_dir: Path) -> Iterator[None]:
     """Holds ``run_dir/.lock`` exclusively while the run lives; another process asking for
@@ -173,9 +237,7 @@ def run_lock(run_dir: Path) -> Iterator[None]:
 def start_run(cfg: DictConfig, run_dir: Path, choices: Mapping[str, str | None],
               overrides: list[str]) -> None:
     """A new run's folder: refused if it already holds a run; then config.yaml and run.json."""
-    if (run_dir / "config.yaml").exists() or (run_dir / "run.json").exists():
-        raise ConfigError(f"hydra.run.dir={run_dir} already holds a run; continue it with "
-                          f"resume={run_dir}, or pick another folder")
+    check_new_run(run_dir)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
     (run_dir / "run.json").write_text(json.dumps(
         {group: choices.get(group) for group in ("robot", "task", "learner", "tuned", "tuned_task")}

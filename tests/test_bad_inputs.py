@@ -1,4 +1,5 @@
-"""Every bad command line is one ``error:`` line and exit 2, with nothing written.
+"""Every bad command line is one ``error:`` line and exit 2, with nothing written (not even
+the run folder Hydra makes before the job starts).
 
 The table holds what a skeptical user tried (values of the wrong type, integers with
 no upper bound, removed keys, unknown keys with and without ``+``, Hydra grammar and
@@ -61,7 +62,8 @@ def test_a_bad_command_line_is_one_error_line_and_exit_2(args, tmp_path, monkeyp
     code = cli(args, tmp_path, monkeypatch)
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
     assert code == 2 and len(err) == 1 and err[0].startswith("error: "), err
-    assert not (tmp_path / "run" / "config.yaml").exists(), "a rejected run wrote its config"
+    left = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    assert left == [], f"a refused command left {left}"  # not even the folder Hydra made
 
 
 def test_the_table_covers_what_was_tried():

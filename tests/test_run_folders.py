@@ -50,21 +50,51 @@ def test_a_folder_locked_by_a_live_run_is_refused_with_one_line(tmp_path):
     assert not (run_dir / "config.yaml").exists()
 
 
+def files(folder: Path) -> dict[str, bytes | None]:
+    """Every file (its bytes) and folder (None) under ``folder``."""
+    return {str(p.relative_to(folder)): p.read_bytes() if p.is_file() else None for p in folder.rglob("*")}
+
+
 def test_an_existing_run_is_neither_overwritten_nor_damaged_by_a_rejected_one(tmp_path):
+    """Not a byte of the finished run changes, Hydra's record (.hydra/), its log and its
+    lock included: a bad value, a valid run into the same folder, a resume of it."""
     run_dir = tmp_path / "run"
     first = train(f"hydra.run.dir={run_dir}", *QUICK)
     assert first.wait(timeout=300) == 0
-    before = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file() and p.name not in ("train.log", ".lock")}
-    for bad in (["learner.alpha=-1"], QUICK):  # a bad value, then a valid run into the same folder
+    before = files(run_dir)
+    assert {".hydra/config.yaml", ".hydra/overrides.yaml", "run.json", "train.log", ".lock"} <= set(before)
+    for bad in (["learner.alpha=-1"], QUICK, ["seed=3", *QUICK]):
         proc = train(f"hydra.run.dir={run_dir}", *bad)
         _, err = proc.communicate(timeout=300)
         assert proc.returncode == 2, err[-1500:]
         assert err.strip().splitlines()[-1].startswith("error: "), err[-1500:]
-    after = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file() and p.name not in ("train.log", ".lock")}
-    assert after == before
     resumed = train(f"resume={run_dir}", "quiet=true")  # finished, and still so: nothing to resume
     _, err = resumed.communicate(timeout=300)
     assert resumed.returncode == 2 and f"resume={run_dir}: it is finished" in err, err[-1500:]
+    assert files(run_dir) == before  # no .hydra-resume/ either
+
+
+def test_a_refused_command_leaves_no_trace(tmp_path):
+    """Refused before the job (a bad value) or inside it, once its folder is locked (a task
+    that does not fit the robot, found when it is built): the folders Hydra made are gone,
+    an empty folder given stays empty, and another program's folder (a .hydra/ of its
+    own) is refused untouched."""
+    given = tmp_path / "given"
+    given.mkdir()
+    other = tmp_path / "other"
+    (other / ".hydra").mkdir(parents=True)
+    (other / ".hydra" / "config.yaml").write_text("theirs: 1\n")
+    (other / "app.log").write_text("their log\n")
+    before = files(tmp_path)
+    for args in (["learner.alpha=-1", f"hydra.run.dir={tmp_path / 'a' / 'b'}"],
+                 ["task=maze", f"hydra.run.dir={tmp_path / 'a' / 'b'}"],
+                 ["task=maze", f"hydra.run.dir={given}"],
+                 [f"hydra.run.dir={other}"],
+                 ["seed=abc"], ["task=maze"]):  # these two into outputs/ of the working folder
+        proc = train(*args, *QUICK, cwd=tmp_path)
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 2 and err.strip().splitlines()[-1].startswith("error: "), (args, err[-1500:])
+        assert files(tmp_path) == before, args
 
 
 def test_sigterm_stops_with_143_and_the_run_resumes(tmp_path):
