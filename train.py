@@ -47,7 +47,7 @@ from runs.folder import (MadeFolders, check_new_run, check_output_folder, eval_c
 from runs.lifecycle import Job, batchable
 from runs.training_state import read_run_json
 from runs.lifecycle import execute
-from runs.settings import MOVED, check_run_config, moved
+from runs.settings import check_no_empty_mappings, check_run_config, moved, moved_to
 from sweeps.resume import is_sweep_folder, resume_sweep
 from sweeps.seed_batch import COLLECT
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
@@ -121,6 +121,7 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     elif cfg.mode == "eval" and run_folder_of(cfg.get("checkpoint")) is not None:
         cfg = eval_config(cfg, overrides)
     check_run_config(cfg)
+    check_no_empty_mappings(cfg, overrides)
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
     run_dir.mkdir(parents=True, exist_ok=True)
     job = Job(cfg, run_dir, choices, overrides, changes)
@@ -198,7 +199,7 @@ def cli() -> None:
             key, _, value = arg.partition("=")
             if key in ("hydra.run.dir", "hydra.sweep.dir") and value:
                 check_output_folder(key, value)
-            if key.lstrip("+~") in MOVED:
+            if moved_to(key.lstrip("+~")):
                 raise ConfigError(moved(key.lstrip("+~"), value))
     except ConfigError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -38,7 +38,9 @@ from params.declare import check_values, describe, mismatch, param, specs
 MODES = ("train", "eval")
 # Keys of older configs and where each setting lives now: the training budget is the run's,
 # and the task's time limit is the only one.
-MOVED = {"learner.nepisodes": "max_episodes", "learner.nsteps": "task.max_episode_steps"}
+MOVED = {"learner.nepisodes": "max_episodes", "learner.nsteps": "task.max_episode_steps", "win": "task.win"}
+_WHY = {"max_episodes": "the run's budget, beside max_env_steps",
+        "task.max_episode_steps": "the task's time limit, the only one", "task.win": "the task's success rule"}
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
 SEED_LIMIT = 2**63
 
@@ -53,7 +55,7 @@ def check_run_config(cfg: DictConfig) -> None:
     _check_top_level(conf)
     for old, new in MOVED.items():
         group, _, key = old.partition(".")
-        if isinstance(conf.get(group), dict) and key in conf[group]:
+        if key and isinstance(conf.get(group), dict) and key in conf[group]:
             raise ConfigError(moved(old, conf[group][key]))
     if conf.get("mode") == "train" and not conf.get("max_episodes") and not conf.get("max_env_steps"):
         raise ConfigError("max_episodes and max_env_steps are both 0 (no limit), so training would never "
@@ -65,11 +67,34 @@ def check_run_config(cfg: DictConfig) -> None:
         check_params(conf[node], node, skip=("robot",) if node == "task" else ())
 
 
+def moved_to(key: str) -> str | None:
+    """Where the setting of an old key (:data:`MOVED`, or a key under one) lives now; None
+    for a key of today."""
+    for old, new in MOVED.items():
+        if key == old or key.startswith(old + "."):
+            return new + key[len(old):]
+    return None
+
+
 def moved(key: str, value: Any) -> str:
-    """The line for an old key (:data:`MOVED`): where its setting lives now."""
-    new = MOVED[key]
-    return (f"{key} is now {new} (the run's budget, beside max_env_steps)" if new == "max_episodes" else
-            f"{key} is now {new} (the task's time limit, the only one)") + f"; got {key}={value}, give {new}={value}"
+    """The line for an old key: where its setting lives now."""
+    new = moved_to(key)
+    why = next(w for root, w in _WHY.items() if new == root or new.startswith(root + "."))
+    return f"{key} is now {new} ({why}); got {key}={value}, give {new}={value}"
+
+
+def check_no_empty_mappings(cfg: DictConfig, overrides: list[str]) -> None:
+    """``key={}`` where ``key`` holds a non-empty mapping changes nothing (Hydra merges a
+    mapping into the one there is): refused in one line rather than run as if obeyed."""
+    for override in overrides:
+        key, _, value = override.lstrip("+").partition("=")
+        if value.strip() != "{}" or key.startswith("~"):
+            continue
+        node = OmegaConf.select(cfg, key)
+        if isinstance(node, DictConfig) and len(node):
+            raise ConfigError(f"{key}={{}} changes nothing: a mapping given on the command line merges into "
+                              f"the one there is ({', '.join(map(str, node))}); allowed: an entry "
+                              f"({key}.{next(iter(node))}=...), or '~tuned' to leave a tuned file's out")
 
 
 def upgraded(saved: DictConfig) -> DictConfig:

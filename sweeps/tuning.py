@@ -35,7 +35,7 @@ from omegaconf import OmegaConf
 
 from params import ConfigError, did_you_mean, dotted
 from params.declare import is_integer
-from runs.settings import MOVED, moved
+from runs.settings import moved, moved_to
 
 @dataclass
 class Plan:
@@ -241,7 +241,7 @@ def check_space(params: Mapping[str, Param], config: Any, where: str,
     for key, param in params.items():
         parent, _, leaf = key.rpartition(".")
         node = OmegaConf.select(config, parent) if parent else config
-        if key in MOVED:
+        if moved_to(key):
             raise ConfigError(f"{where}: {moved(key, '...')}")
         if node is None or not OmegaConf.is_dict(node) or leaf not in node:
             names = sorted(str(k) for k in node) if OmegaConf.is_dict(node) else []

@@ -39,6 +39,9 @@ TRIED = [
     # issue 28
     ["hydra.run.dir=/"], ["learner.number_splits=1e308"], ["learner.number_splits=0"],
     ["learner.number_splits=[10,10,10,1e308]"], ["learner.number_splits.pole_vel=-2"],
+    # issues 35 and 36: old keys name their new place; an override that would change nothing
+    ["learner.nepisodes=5"], ["+learner.nsteps=5"], ["max_episodes=0"], ["win.min_episodes=5"],
+    ["+win.threshold=3"], ["learner.number_splits={}"], ["task.tabular_state={}"],
 ]
 ALL = TRIED + [overrides for overrides, _, _ in CASES]
 
