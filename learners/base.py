@@ -37,6 +37,35 @@ class StateMismatch(ValueError):
     """A saved learner state that does not fit this learner (another shape or format)."""
 
 
+def check_state(saved: Any, mine: Mapping, where: str, deep: Sequence[str] = ()) -> None:
+    """Raises :class:`StateMismatch` naming the first way ``saved`` differs from this
+    learner's own state ``mine``: a key it lacks, or, under the keys ``deep``, a tensor of
+    another shape or dtype (or not a tensor). Nothing is loaded before it passes."""
+
+    def differ(what: str) -> StateMismatch:
+        return StateMismatch(f"checkpoint {where} does not fit this run: {what}")
+
+    def walk(s: Any, m: Any, path: str) -> None:
+        if isinstance(m, Mapping):
+            if not isinstance(s, Mapping):
+                raise differ(f"{path or 'its state'} is a {type(s).__name__}, not a mapping")
+            missing = [str(k) for k in m if k not in s]
+            if missing:
+                raise differ(f"it lacks {', '.join(path + k for k in missing[:3])}")
+            for key in m:
+                if not path and key not in deep:
+                    continue
+                walk(s[key], m[key], f"{path}{key}.")
+        elif isinstance(m, torch.Tensor):
+            name = path.rstrip(".")
+            if not isinstance(s, torch.Tensor):
+                raise differ(f"{name} is a {type(s).__name__}, not a tensor")
+            if s.shape != m.shape or s.dtype != m.dtype:
+                raise differ(f"{name} is {s.dtype} {list(s.shape)}, this run's is {m.dtype} {list(m.shape)}")
+
+    walk(saved, mine, "")
+
+
 @runtime_checkable
 class Learner(Protocol):
     """A learning algorithm over a member axis, as the run package uses it."""

@@ -52,7 +52,7 @@ from torch import nn
 from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 from torchrl.modules import MLP, QValueActor
 
-from learners.base import Member, StateMismatch, everyone, single
+from learners.base import Member, StateMismatch, check_state, everyone, single
 from params.private_api import with_entries
 from learners.device import DEVICE_NOTE, check_device, resolve_device
 from params import require
@@ -731,7 +731,10 @@ class DQN:
                 f"the training checkpoint holds a DQN state of format {state.get('format', 1)}, "
                 f"this code reads format {FORMAT} (its replay buffer changed); resume it with "
                 "the version that wrote it, or start the run afresh")
+        own = {k: v for k, v in self.training_state(b).items() if k not in ("generator", "lr_schedule")}
+        check_state(state, own, "the training checkpoint")
         self._check_arch(state["arch"], "the training checkpoint")
+        check_state(state, own, "the training checkpoint", deep=("net", "target_net"))
         self.params[b] = self._vector_of(state["net"])
         if self.has_target:
             self.target[b] = self._vector_of(state["target_net"])
@@ -766,7 +769,10 @@ class DQN:
     def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
         """Loads saved weights (and optimiser, schedule) into member ``b``; ``where`` names the
         state's origin in a :class:`StateMismatch`."""
+        own = self.model_state(b)
+        check_state(ckpt, own, where)  # every key there, before its values are read
         self._check_arch(ckpt["arch"], where)
+        check_state(ckpt, own, where, deep=("actor",))
         self.actor.load_state_dict(ckpt["actor"])
         self.params[b] = self.net.vector().to(self.device)
         self._load_optimizer(b, ckpt["optimizer"])

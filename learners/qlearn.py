@@ -45,7 +45,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-from learners.base import Member, StateMismatch, single
+from learners.base import Member, StateMismatch, check_state, single
 from params.private_api import with_entries
 from params import require
 from params.declare import check_fields, param
@@ -307,12 +307,15 @@ class QLearn:
     def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
         """Loads a saved Q-table into member ``b``, checking it fits; ``where`` names the
         state's origin in a :class:`StateMismatch`."""
+        own = self.model_state(b)
+        check_state(ckpt, own, where)  # every key there, before its values are read
         mine = self.discretizer.describe()
         if ckpt["discretizer"] != mine or ckpt["n_actions"] != self.n_actions:
             raise StateMismatch(
                 f"checkpoint {where} does not fit this run: it has state {ckpt['discretizer']} "
                 f"x {ckpt['n_actions']} actions, this run has {mine} x {self.n_actions}"
             )
+        check_state(ckpt, own, where, deep=("table", "visited"))
         self.table[b].copy_(ckpt["table"])
         self.visited[b].copy_(ckpt["visited"])
 

@@ -254,3 +254,54 @@ def test_a_damaged_run_json_is_refused_at_the_start(tmp_path, killed, text, expe
         read_run_json(run_dir)
     if expected.startswith("run.json is not"):  # end to end once: refused before training
         assert_refused(run_dir, expected)
+
+
+# -- a checkpoint's content, not only its checksum, must fit the run (issue 36) -----------------
+def _member(learner: str):
+    from hydra.utils import instantiate
+
+    from runs.training_state import seed_everything
+    from tasks.catalog import compose
+    from tasks.factory import build_task
+
+    cfg = compose("cartpole", learner=learner)
+    made = instantiate(cfg.learner, _convert_="all")
+    made.build(build_task(cfg), [seed_everything(0)])
+    return made.member(0)
+
+
+def _tampered(path: Path, change) -> Path:
+    payload = torch.load(path, weights_only=True)
+    change(payload)
+    save_checkpoint(path, payload)  # a valid checksum over the changed content
+    return path
+
+
+def _drop(payload: dict, *keys: str) -> None:
+    for key in keys[:-1]:
+        payload = payload[key]
+    del payload[keys[-1]]
+
+
+@pytest.mark.parametrize("learner, change, says", [
+    ("qlearn", lambda p: _drop(p, "table"), "it lacks table"),
+    ("qlearn", lambda p: p.update(table=p["table"][:-1]), "table is torch.float64 ["),
+    ("qlearn", lambda p: p.update(visited=p["visited"].float()), "visited is torch.float32"),
+    ("dqn", lambda p: _drop(p, "actor", "module.0.module.0.weight"), "it lacks actor.module.0.module.0.weight"),
+    ("dqn", lambda p: p["actor"].update({"module.0.module.0.bias": torch.zeros(3)}), "bias is torch.float32 [3]"),
+    ("dqn", lambda p: _drop(p, "optimizer"), "it lacks optimizer"),
+])
+def test_a_checkpoint_that_does_not_fit_is_one_line_before_anything_loads(tmp_path, learner, change, says):
+    from runs.checkpoint import load_model, save_model
+
+    member = _member(learner)
+    before = {k: v.clone() if isinstance(v, torch.Tensor) else v for k, v in member.model_state().items()}
+    path = tmp_path / "model.pt"
+    save_model(path, member, meta={})
+    _tampered(path, change)
+    with pytest.raises(CheckpointError) as err:
+        load_model(path, member)
+    message = str(err.value)
+    assert says in message and "does not fit this run" in message and "\n" not in message, message
+    after = member.model_state()
+    assert all(torch.equal(after[k], v) for k, v in before.items() if isinstance(v, torch.Tensor))
