@@ -33,12 +33,12 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError, did_you_mean
 from runs.console import tuned_changes
-from tasks.catalog import (GROUPS, compose, locate_model, run_choices, unreadable_conf_file, use_config_dirs,
+from tasks.catalog import (GROUPS, compose, locate_model, names, run_choices, unreadable_conf_file, use_config_dirs,
                           with_tuned_layers)
 from runs.checkpoint import CheckpointError
 from runs.console import tee_console
@@ -199,6 +199,9 @@ def cli() -> None:
             key, _, value = arg.partition("=")
             if key in ("hydra.run.dir", "hydra.sweep.dir") and value:
                 check_output_folder(key, value)
+            if arg.startswith("~") and arg[1:] in GROUPS:
+                raise ConfigError(f"{arg} would leave the run without a {arg[1:]}; allowed: "
+                                  f"{arg[1:]}=<one of {', '.join(names(arg[1:]))}>")
             if moved_to(key.lstrip("+~")):
                 raise ConfigError(moved(key.lstrip("+~"), value))
     except ConfigError as err:
@@ -258,6 +261,8 @@ def _unknown_key(err: Exception) -> str | None:
         return None
     parent = key.rpartition(".")[0]
     node = OmegaConf.select(cfg, parent) if parent else cfg
+    if parent and node is not None and not isinstance(node, (DictConfig, ListConfig)):
+        return f"{key} is not a setting: {parent} is a value here ({parent}={node!r}), not a group of settings"
     names = [k for k in node if not str(k).startswith("_")] if isinstance(node, DictConfig) else []
     if not names:
         return None

@@ -8,10 +8,29 @@ raises it. Declaring parameters (type, default, range, meaning, once) is
 
 from __future__ import annotations
 
+import importlib
 import math
 import numbers
 from collections.abc import Mapping
 from typing import Any
+
+
+def locate(path: str) -> Any:
+    """The object a dotted path names (``package.module.Class``, nested attributes too),
+    imported quietly (Hydra's ``get_object`` logs its failures before raising); raises
+    ``ImportError`` or ``AttributeError`` when there is none."""
+    parts = path.split(".")
+    for cut in range(len(parts) - 1, 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:cut]))
+        except ModuleNotFoundError as err:
+            if err.name is None or not ".".join(parts[:cut]).startswith(err.name):
+                raise  # the module exists but imports a missing one: say so
+            continue
+        for part in parts[cut:]:
+            obj = getattr(obj, part)
+        return obj
+    raise ImportError(f"no module in {path!r}")
 
 
 class ConfigError(ValueError):

@@ -111,12 +111,16 @@ def load_checkpoint(path: Path | str, kind: str) -> dict:
     """Reads a checkpoint written by :func:`save_checkpoint` for learner ``kind``, checking its
     checksum. Reads only; touches no file."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise CheckpointError(f"checkpoint {path} does not exist")
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} is not a file; allowed: a model.pt or checkpoint.pt "
+                              "this toolkit wrote, or a run folder")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises many types for a damaged file
-        raise CheckpointError(f"checkpoint {path} is not a readable checkpoint ({type(err).__name__})") from None
+        raise CheckpointError(f"checkpoint {path} cannot be read ({type(err).__name__}: truncated or damaged); "
+                              "nothing was changed: restore it from a copy, or start a new run") from None
     if not isinstance(payload, dict) or "kind" not in payload:
         raise CheckpointError(f"checkpoint {path} is not a checkpoint of this toolkit")
     if CHECKSUM not in payload:

@@ -32,7 +32,7 @@ from typing import Any, Callable
 from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
-from params import ConfigError, did_you_mean
+from params import ConfigError, did_you_mean, locate
 from params.declare import check_values, describe, mismatch, param, specs
 
 MODES = ("train", "eval")
@@ -118,10 +118,8 @@ def upgraded(saved: DictConfig) -> DictConfig:
 
 def _declared_default(node: DictConfig, name: str) -> Any:
     """The default of ``node``'s target's declared parameter ``name`` (None if unknown)."""
-    from hydra.utils import get_object
-
     try:
-        target = get_object(str(node.get("_target_")))
+        target = locate(str(node.get("_target_")))
     except Exception:  # noqa: BLE001 - an unimportable target is check_params' to report
         return None
     found = [s.default for s in specs(target) if s.name == name] if dataclasses.is_dataclass(target) else []
@@ -213,11 +211,13 @@ def check_params(node: dict, prefix: str, skip: tuple[str, ...] = ()) -> None:
     if not isinstance(target, str) or not target:
         raise ConfigError(f"{prefix}._target_ must name a class to build; got {target!r}")
     try:
-        from hydra.utils import get_object
-
-        obj = get_object(target)
-    except Exception:  # noqa: BLE001 - any import failure is the same config mistake
-        raise ConfigError(f"{prefix}._target_ must name an importable class; got {target!r}") from None
+        obj = locate(target)
+    except Exception as err:  # noqa: BLE001 - any import failure is the same config mistake
+        raise ConfigError(f"{prefix}._target_ must name an importable class; got {target!r} "
+                          f"({type(err).__name__}: {err})") from None
+    if not inspect.isclass(obj):
+        raise ConfigError(f"{prefix}._target_ must name a class to build; got {target!r} (a "
+                          f"{type(obj).__name__})")
     params = {k: v for k, v in node.items() if not k.startswith("_") and k not in skip}
     if dataclasses.is_dataclass(obj) and specs(obj):  # declared: names, types and ranges
         check_values(obj, params, prefix, nested=check_params)

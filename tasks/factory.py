@@ -15,10 +15,9 @@ from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
 
-from hydra.utils import get_object
 from omegaconf import DictConfig, OmegaConf
 
-from params import ConfigError
+from params import ConfigError, locate
 from robots.base import Robot
 from tasks.base import Task
 from tasks.env import RobotTaskEnv
@@ -29,7 +28,7 @@ def _build(node: Mapping[str, Any], key: str, kind: type, **extra: Any) -> Any:
     values = OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
     target = values.pop("_target_", None)
     try:
-        cls = get_object(target) if isinstance(target, str) else None
+        cls = locate(target) if isinstance(target, str) else None
     except Exception:  # noqa: BLE001 - any import failure is the same config mistake
         cls = None
     if not (isinstance(cls, type) and issubclass(cls, kind)):

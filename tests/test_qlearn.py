@@ -129,7 +129,7 @@ def test_checkpoint_roundtrip_and_clear_errors(tmp_path):
     with pytest.raises(CheckpointError, match="does not exist"):
         load_model(tmp_path / "missing.pt", q2.member(0))
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(CheckpointError, match="not a readable checkpoint"):
+    with pytest.raises(CheckpointError, match="cannot be read"):
         load_model(tmp_path / "bad.pt", q2.member(0))
     other = QLearn(number_splits=3)
     other.build(FakeTask())

@@ -121,7 +121,7 @@ def test_resume_mistakes_are_one_clear_line(tmp_path, uninterrupted):
     for name in ("config.yaml", "run.json", "metrics.csv", "timing.csv"):
         (damaged / name).write_bytes((uninterrupted["qlearn"] / name).read_bytes())
     (damaged / "checkpoint.pt").write_bytes(b"not a checkpoint")
-    cases.append((resume(damaged), "is not a readable checkpoint"))
+    cases.append((resume(damaged), "cannot be read"))
     other = tmp_path / "other"  # a dqn checkpoint in a qlearn run's folder
     other.mkdir()
     for name in ("config.yaml", "run.json", "metrics.csv", "timing.csv"):

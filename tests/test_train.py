@@ -99,7 +99,7 @@ def test_corrupt_checkpoint_is_one_clear_line(tmp_path):
     bad = tmp_path / "model.pt"
     bad.write_bytes(b"\x00garbage")
     proc = train(tmp_path, f"checkpoint={bad}", "max_episodes=2")
-    assert proc.returncode == 2 and "not a readable checkpoint" in proc.stderr
+    assert proc.returncode == 2 and "cannot be read" in proc.stderr
     assert "Traceback" not in proc.stderr
 
 
