@@ -52,6 +52,11 @@ MEASURES = {
     "loop_distance": ("m", "distance along the loop without a collision"),
     "distance": ("m", "path length driven without a collision"),
 }
+# The laser's rays at most this far apart: a flat wall's nearest point then lies within 5 deg
+# of a ray, which reads at most 1/cos(5 deg) = 1.004 times its distance, so "a reading below
+# min_range" is "a wall within min_range" (one ray, or a narrow fan, lets a side wall come to
+# the base unseen: robot.laser_rays=1 drove "laps" a centimetre from the outer wall).
+MAX_RAY_GAP = math.radians(10.0)
 RING_KEYS = ("inner_radius", "outer_radius", "segments", "starts", "wall_thickness")
 
 FORWARD, LEFT, RIGHT = 0, 1, 2
@@ -91,6 +96,7 @@ class MazeTask(Task):
     def __post_init__(self) -> None:
         setup(self, TurtleBot, "turtlebot", SUCCESS, MEASURES)
         self._check_speeds()
+        self._check_laser()
         self.maze = self._build_maze()
         self.rewards = np.array([self.forwards_reward, self.turn_reward, self.turn_reward])
         # Action -> (linear, angular) velocity command.
@@ -106,6 +112,19 @@ class MazeTask(Task):
         # The last action, and the odometer and loop progress of the episode.
         self.per_copy = PerCopy(action=((), np.int64), prev_xy=(2,), distance=(), winding=(),
                                 along=())
+
+    def _check_laser(self) -> None:
+        """A fan that sees every wall the base can reach: both sides (``laser_fov`` >= pi) and
+        rays at most :data:`MAX_RAY_GAP` apart; else a collision (a reading below min_range)
+        could go unseen and the task's measure could be faked."""
+        robot = self.robot
+        require(robot.laser_fov >= math.pi - 1e-6, "task maze judges a collision by the laser, so it "
+                "needs robot.laser_fov >= pi (3.1416: both sides seen)", robot.laser_fov)
+        full = robot.laser_fov >= 2 * math.pi - 1e-6
+        need = math.ceil(robot.laser_fov / MAX_RAY_GAP - 1e-6) + (0 if full else 1)
+        require(robot.laser_rays >= need, f"task maze judges a collision by the laser, so it needs rays at "
+                f"most 10 deg apart: robot.laser_rays >= {need} for robot.laser_fov={robot.laser_fov:.4g}",
+                robot.laser_rays)
 
     def _check_speeds(self) -> None:
         """A range the laser can see, speeds the robot can drive (its servos clip to its limits)."""

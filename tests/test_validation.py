@@ -255,7 +255,8 @@ RANGES = {
     "torch_threads": ("cartpole", "qlearn", "none", integer_in(1, 256)),
     "robot.velocity_gain": ("cartpole", "qlearn", "task", real(lambda x: x > 0)),
     "robot.force_limit": ("cartpole", "qlearn", "task", real(lambda x: x >= 0)),
-    "robot.laser_fov": ("turtlebot", "qlearn", "task", real(lambda x: 0 < x <= 2 * math.pi)),
+    # the maze needs both sides seen and 31 rays at most 10 deg apart (tasks.maze.MazeTask._check_laser)
+    "robot.laser_fov": ("turtlebot", "qlearn", "task", real(lambda x: math.pi - 1e-6 <= x <= math.radians(300) + 1e-6)),
     "task.pos_step": ("cartpole", "qlearn", "task", real(lambda x: x > 0)),
     "task.reset_noise": ("cartpole", "qlearn", "task", real(lambda x: x >= 0)),
     "task.min_pole_angle": ("cartpole", "qlearn", "task", real(lambda x: -1.57 <= x < 0.7)),
