@@ -4,11 +4,16 @@ Every unfinished job folder of the sweep with a checkpoint continues from it, th
 alike but their seed trained together as one seed batch (:func:`runs.lifecycle.run_jobs`),
 each exactly as ``resume=<job folder>`` continues it alone; then the sweep's comparison is
 made again. Jobs that cannot continue (no checkpoint.pt, a damaged one) are listed with
-their one-line reason and left as they are; finished jobs are not touched.
+their one-line reason and left as they are; finished jobs are not touched. Jobs of the
+sweep's plan that never started (a launcher stopped before them) are listed with the
+command that runs each into the sweep, and the resume then exits 1: the sweep is not
+finished until they are.
 """
 
 from __future__ import annotations
 
+import shlex
+import sys
 from pathlib import Path
 from typing import Sequence
 
@@ -21,13 +26,26 @@ from runs.folder import is_finished, is_run_folder, resumed_config
 from runs.training_state import read_run_json
 from runs.settings import check_run_config
 from sweeps.comparison import NotASweep, report
-from sweeps.folder import job_folders
+from sweeps.folder import job_folders, overrides_dict, sweep_jobs
 from sweeps.state import report_stopped_sweep
 
 
 def is_sweep_folder(path) -> bool:
     """Whether ``path`` is a Hydra multirun sweep folder (Hydra's ``multirun.yaml`` in it)."""
     return bool(path) and (Path(str(path)) / "multirun.yaml").is_file()
+
+
+def never_started(folder: Path) -> list[str]:
+    """The command that runs each job of the sweep in ``folder`` that never started, into
+    the folder its sweep would have given it."""
+    jobs, _ = sweep_jobs(folder)
+    commands = []
+    for job in (j for j in jobs if j.get("status") == "never started" and j.get("overrides") is not None):
+        seed = overrides_dict(job["overrides"]).get("seed", 0)
+        name = f"{job['job']}_{job.get('robot')}_{job.get('learner')}_seed{seed}"
+        commands.append(" ".join(["python train.py", *(shlex.quote(o) for o in job["overrides"]),
+                                  shlex.quote(f"hydra.run.dir={folder / name}")]))
+    return commands
 
 
 def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Job], list[str]]:
@@ -58,7 +76,17 @@ def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Job]
 def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
     """Continues the sweep ``cfg.resume`` (see the module docstring); each job's summary."""
     folder = Path(str(cfg.resume))
-    jobs, skipped = resumable_jobs(cfg, overrides)
+    unstarted = never_started(folder)
+    if unstarted:
+        print(f"{len(unstarted)} job{'s' * (len(unstarted) != 1)} of {folder} never started; each runs with:")
+        for command in unstarted:
+            print(f"  {command}")
+    try:
+        jobs, skipped = resumable_jobs(cfg, overrides)
+    except CheckpointError:
+        if unstarted:  # nothing to continue, but the sweep is not finished
+            raise SystemExit(1) from None
+        raise
     for line in skipped:
         print(line)
     (folder / ".stop").unlink(missing_ok=True)  # the stop is over: the comparison says so no more
@@ -74,4 +102,8 @@ def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
         print(f"no comparison: {err}")
     if any(s.get("interrupted") for s in summaries):
         report_stopped_sweep(folder)
+    elif unstarted:
+        print(f"the sweep is not finished: {len(unstarted)} job{'s' * (len(unstarted) != 1)} never started "
+              "(the commands above)", file=sys.stderr)
+        raise SystemExit(1)
     return summaries

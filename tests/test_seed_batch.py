@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -253,6 +255,23 @@ def test_a_multirun_trains_its_seeds_in_one_batch_per_group(tmp_path):
     assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
         f"error: resume={tmp_path / 'sweep'}: every run of this sweep is finished; nothing to continue "
         f"(compare it with: python compare.py {tmp_path / 'sweep'})"], proc.stderr[-2000:]
+
+
+def test_a_resumed_sweep_with_a_job_that_never_started_says_how_to_run_it_and_exits_1(tmp_path):
+    """A launcher stopped before a job (here: its folder removed, as if it never began): the
+    resume lists the command that runs it into the sweep and exits 1; run, the sweep is whole."""
+    sweep = tmp_path / "sweep"
+    proc = run_cli(["-m", "hydra/launcher=basic", "seed=0,1", "max_episodes=10", "eval_episodes=0", "quiet=true",
+                    f"hydra.sweep.dir={sweep}"], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    shutil.rmtree(next(sweep.glob("1_*")))
+    proc = run_cli([f"resume={sweep}"], tmp_path)
+    assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-2000:]
+    command = next(line.strip() for line in proc.stdout.splitlines() if line.strip().startswith("python train.py"))
+    assert "seed=1" in command and f"hydra.run.dir={sweep / '1_cartpole_qlearn_seed1'}" in command, command
+    assert run_cli(shlex.split(command)[2:], tmp_path).returncode == 0
+    proc = run_cli([f"resume={sweep}"], tmp_path)  # nothing left: finished, and never-started none
+    assert proc.returncode == 2 and "every run of this sweep is finished" in proc.stderr, proc.stderr[-2000:]
 
 
 def test_a_seed_given_twice_is_one_line_and_nothing_runs(tmp_path):
