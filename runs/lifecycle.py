@@ -329,7 +329,13 @@ def _build(slots: list[_Slot]):
         slot.streams = (stream, np.random.get_state(), random.getstate())
     cfg, solo = slots[0].job.cfg, slots[0].solo
     seeds = slots[0].seed if solo else [slot.seed for slot in slots]
-    env = build_env(cfg, len(slots) * int(cfg.num_envs), seeds)
+    try:
+        env = build_env(cfg, len(slots) * int(cfg.num_envs), seeds)
+    except ConfigError as err:  # "task maze needs ..." for task=wall (a maze layout): say which was picked
+        picked = slots[0].job.choices.get("task")
+        if picked and str(err).startswith("task ") and not str(err).startswith(f"task {picked} "):
+            raise ConfigError(f"task={picked}: {err}") from None
+        raise
     if not solo:
         _check_memory(env, cfg, len(slots))
     learner = instantiate(cfg.learner, _convert_="all")

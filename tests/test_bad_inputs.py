@@ -44,6 +44,7 @@ TRIED = [
     ["+win.threshold=3"], ["learner.number_splits={}"], ["task.tabular_state={}"], ["~logger"],
     ["checkpoint=/dev/null"], ["learner=dqn", "learner.epsilon._target_=nosuch.Thing"],
     ["learner=dqn", "learner.epsilon._target_=learners.schedules.Nope"], ["learner.epsilon.steps=3"],
+    ["robot=cartpole", "task=wall"], ["robot=turtlebot", "robot.laser_rays=1"],
 ]
 ALL = TRIED + [overrides for overrides, _, _ in CASES]
 
