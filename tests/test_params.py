@@ -148,3 +148,55 @@ def test_a_declaration_checks_what_it_says(values, message):
 def test_valid_values_pass_and_the_table_shows_the_declaration():
     check_values(Example, {"rate": 1, "count": 4.0, "kind": "b", "limit": 2}, "x")
     assert "| `limit` | 0 | a finite number >= 0 (0 = none) | a limit |" in table(Example)
+
+
+# -- every setting the Parameters table lists is settable without '+' (issue 37) ------------
+def _hydra_value(value) -> str:
+    """``value`` in Hydra's override grammar."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return f"'{value}'"
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(map(_hydra_value, value)) + "]"
+    return "{" + ",".join(f"{k}:{_hydra_value(v)}" for k, v in value.items()) + "}"
+
+
+def _picks(group_file: str) -> dict:
+    """robot / task / learner that compose the config file ``<group>/<name>.yaml``."""
+    from tasks import catalog
+
+    group, name = group_file.removesuffix(".yaml").split("/")
+    if group == "robot":
+        return {"robot": name}
+    if group == "learner":
+        return {"robot": "cartpole", "learner": name}
+    robot = next(r for r in catalog.robot_names() if catalog.built(r, name) is not None)
+    return {"robot": robot, "task": name}
+
+
+def test_every_setting_of_the_parameters_table_is_settable_without_a_plus():
+    from hydra.utils import get_object
+
+    from tasks import catalog
+
+    refused = []
+    for target, (key, files) in doc.classes().items():
+        cls = get_object(target)
+        if not specs(cls):
+            continue
+        for group_file in files[:1] if key == "" else files:
+            picks = {} if key == "" else _picks(group_file)
+            for spec in specs(cls):
+                if isinstance(spec.default, dataclasses._MISSING_TYPE):
+                    continue  # required: every config file gives it
+                override = f"{key + '.' if key else ''}{spec.name}={_hydra_value(spec.default)}"
+                try:
+                    catalog.compose(**picks, overrides=["~tuned", override])  # the file itself
+                except Exception as err:  # noqa: BLE001 - Hydra's refusal of a key it lacks
+                    refused.append(f"{group_file} {override}: {str(err).splitlines()[0][:80]}")
+    assert not refused, "\n".join(refused)
