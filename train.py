@@ -194,7 +194,8 @@ def cli() -> None:
     sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
     try:
         use_config_dirs(_config_dir_args(sys.argv[1:]))
-        sys.argv[1:] = with_tuned_layers(with_run_choices(sys.argv[1:]))  # '~tuned': both layers
+        # '~tuned': both layers; '--config-dir d' anywhere (Hydra's parser is not so lenient)
+        sys.argv[1:] = _flags_first(with_tuned_layers(with_run_choices(sys.argv[1:])))
         for arg in sys.argv[1:]:  # before Hydra writes its record (.hydra/, train.log) there
             key, _, value = arg.partition("=")
             if key in ("hydra.run.dir", "hydra.sweep.dir") and value:
@@ -234,6 +235,32 @@ def cli() -> None:
     if sweep:
         status = end_stopped_sweep()
         sys.exit(end_sweep() if status is None else status)
+
+
+_VALUED = ("--config-dir", "-cd", "--config-name", "-cn", "--config-path", "-cp", "--cfg", "-c", "--package",
+           "-p", "--experimental-rerun")
+_INFO = ("all", "config", "defaults", "defaults-tree", "plugins", "searchpath")
+
+
+def _flags_first(args: list[str]) -> list[str]:
+    """Hydra's options (``--config-dir d``, ``-m``, ...) before the overrides, wherever they were
+    typed: Hydra's parser takes the overrides as one run of words, so ``robot=x --config-dir d
+    mode=eval`` would be "unrecognized arguments"."""
+    flags, overrides, i = [], [], 0
+    while i < len(args):
+        arg = args[i]
+        if not arg.startswith("-"):
+            overrides.append(arg)
+        elif arg in _VALUED and i + 1 < len(args):
+            flags += [arg, args[i + 1]]
+            i += 1
+        elif arg in ("--info", "-i") and i + 1 < len(args) and args[i + 1] in _INFO:
+            flags += [arg, args[i + 1]]
+            i += 1
+        else:
+            flags.append(arg)
+        i += 1
+    return [*flags, *overrides]
 
 
 def _config_dir_args(args: list[str]) -> list[str]:

@@ -62,6 +62,20 @@ def use_config_dirs(dirs: Sequence[str | Path]) -> None:
             raise ConfigError(f"config folder {folder} does not exist")
     _EXTRA_DIRS[:] = [f for f in folders if f != conf_dir().resolve()]
     MODEL_FOLDERS[:] = config_dirs()
+    _check_no_shadowing()
+
+
+def _check_no_shadowing() -> None:
+    """A config of a ``--config-dir`` folder named like one of an earlier folder (``conf/``'s
+    first) would silently lose to it (Hydra takes the first it finds): refused in one line."""
+    seen: dict[str, Path] = {}
+    for folder in config_dirs():
+        for path in sorted(folder.glob("*/*.yaml")):
+            name = f"{path.parent.name}/{path.name}"
+            if name in seen and path.parent.name != "hydra":
+                raise ConfigError(f"{path} has the name of {seen[name]}, which Hydra would use instead; "
+                                  f"allowed: another name for yours (e.g. {path.parent.name}/my_{path.name})")
+            seen.setdefault(name, path)
 
 
 def config_dirs() -> list[Path]:

@@ -80,6 +80,30 @@ def test_saved_model_loads_for_eval_and_training(short_run):
     assert verdict(proc.stdout)["episodes"] == "5"
 
 
+def test_config_dir_goes_anywhere_on_the_command_line(short_run, tmp_path):
+    """``--config-dir`` before, between or after the overrides, for training and evaluation."""
+    tmp, _ = short_run
+    mine = tmp_path / "mine"
+    (mine / "learner").mkdir(parents=True)
+    for i, args in enumerate((["--config-dir", str(mine), "mode=eval", f"checkpoint={tmp / 'run'}"],
+                              ["mode=eval", "--config-dir", str(mine), f"checkpoint={tmp / 'run'}"],
+                              ["max_episodes=2", f"--config-dir={mine}", "eval_episodes=0"])):
+        proc = train(tmp_path, *args, "eval_episodes=2", name=f"cd{i}")
+        assert proc.returncode == 0, (args, proc.stderr[-2000:])
+
+
+def test_a_users_config_named_like_a_shipped_one_is_refused(tmp_path):
+    mine = tmp_path / "mine"
+    (mine / "task").mkdir(parents=True)
+    (mine / "task" / "balance.yaml").write_text("threshold: 1\n")
+    proc = train(tmp_path, "--config-dir", str(mine), "robot=double_pendulum")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"error: {mine / 'task' / 'balance.yaml'} has the name of {ROOT / 'conf' / 'task' / 'balance.yaml'}, "
+        "which Hydra would use instead; allowed: another name for yours (e.g. task/my_balance.yaml)")
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.parametrize("overrides, expected", [
     (["learner.alpha=-0.5"], "learner.alpha must be a finite number in (0, 1]; got -0.5"),
     (["mode=eval"], "mode=eval needs checkpoint="),
