@@ -71,3 +71,15 @@ def test_a_plain_install_makes_gym_ids_and_full_hd_videos(tmp_path):
     finally:
         reader.close()
     assert frames == [(720, 1280, 3)] * 4
+    # The installed command trains, evaluates and resumes from any folder, on the package's configs.
+    script = site / "bin" / "mujoco-rl-train"
+    assert script.is_file(), sorted(p.name for p in (site / "bin").iterdir())
+    for args in (["max_episodes=3", "eval_episodes=0", "hydra.run.dir=trained"],
+                 ["mode=eval", "checkpoint=trained", "eval_episodes=2", "hydra.run.dir=evaluated"]):
+        proc = subprocess.run([sys.executable, str(script), "quiet=true", *args], cwd=work, env=env,
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, (args, proc.stderr[-3000:])
+    assert (work / "trained" / "model.pt").is_file() and "greedy evaluation over 2 episodes" in proc.stdout
+    proc = subprocess.run([sys.executable, "-m", "train", "resume=trained"], cwd=work, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "it is finished" in proc.stderr, proc.stderr[-3000:]
