@@ -44,9 +44,10 @@ FRAME_SENSORS = {"pos": ("framepos", 3), "quat": ("framequat", 4), "vel": ("fram
                  "angvel": ("frameangvel", 3), "zaxis": ("framezaxis", 3)}
 #: Every source a task can read, with what it names.
 SOURCES = {"joint_pos": "joint", "joint_vel": "joint", "sensor": "sensor",
-           **{f"{obj}_{q}": obj for obj in ("body", "site") for q in FRAME_SENSORS}}
+           **{f"{obj}_{q}": obj for obj in ("body", "site", "geom") for q in FRAME_SENSORS}}
 _KINDS = {"actuator": "actuator", "joint": "joint", "sensor": "sensor", "body": "body",
-          "site": "site"}
+          "site": "site", "geom": "geom"}
+FRAMES = ("site", "geom", "body")  # what a frame name may be, searched in this order
 _ONE_DOF = ("hinge", "slide")
 _PROBE = "probe:"  # names of the frame sensors the robot adds for its readers
 
@@ -134,6 +135,21 @@ class MjcfRobot(Robot):
         return [e.name for e in self.mjcf_model.find_all(_KINDS[kind])
                 if e.name and not e.name.startswith(_PROBE)]
 
+    def frame(self, name: str, where: str) -> tuple[str, object]:
+        """``(kind, element)`` of a frame: ``site:tip``, ``geom:target``, ``body:torso``, or a
+        bare name that one kind of :data:`FRAMES` has (a name two kinds share needs its kind)."""
+        kind, _, bare = str(name).rpartition(":")
+        if kind:
+            require(kind in FRAMES, f"{where}: a frame is site:, geom: or body: and a name", name)
+            return kind, self.element(kind, bare, where)
+        found = [k for k in FRAMES if self.mjcf_model.find(_KINDS[k], bare) is not None]
+        require(len(found) < 2, f"{where}: {bare!r} names a {' and a '.join(found)}; say which "
+                f"({', '.join(f'{k}:{bare}' for k in found)})", name)
+        if not found:
+            everything = [n for k in FRAMES for n in self.names(k)]
+            raise missing_name("frame (site, geom or body)", bare, everything, where)
+        return found[0], self.element(found[0], bare, where)
+
     def element(self, kind: str, name: str, where: str):
         """The model's ``kind`` element called ``name``; else one line naming ``where`` it was
         asked for, the close matches and the names the model has."""
@@ -168,6 +184,12 @@ class MjcfRobot(Robot):
                                      **gains[spec["mode"]], **keep)
 
     # -- readers and commands ------------------------------------------------------
+    def frame_reader(self, quantity: str, name: str, where: str) -> Reader:
+        """A frame sensor's :class:`Reader` of ``quantity`` (pos, quat, vel, angvel, zaxis) of
+        the frame ``name`` (see :meth:`frame`)."""
+        kind, element = self.frame(name, where)
+        return self.reader(f"{kind}_{quantity}", element.name, where)
+
     def reader(self, source: str, name: str, where: str) -> Reader:
         """A :class:`Reader` of ``source`` (a key of :data:`SOURCES`) for the element ``name``;
         a frame sensor is added to the model for a body or site quantity (before compiling)."""

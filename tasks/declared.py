@@ -82,11 +82,12 @@ class DeclaredTask(Task):
         self._rewards = [T.reward_term(self.robot, str(k), v, self._terms, f"task.rewards.{k}")
                          for k, v in self.rewards.items()]
         self._bounds = T.bounds(self.termination, self._terms)
-        self._measures = T.measures(self.measures, self._terms)
+        self._measures = T.measures(self.measures, self._terms, self.running_step)
         self._reset = self._reset_plan()
         self._setup_success()
         self.per_copy = PerCopy(command=(len(self._columns),), steps=(),
-                                **{f"m_{m}": () for m in self._measures})
+                                **{f"m_{m}": () for m in self._measures},
+                                **{f"w_{m}": (x.window,) for m, x in self._measures.items() if x.window})
 
     def _setup_success(self) -> None:
         offered = {"length": ("steps", "steps lasted")}
@@ -150,8 +151,10 @@ class DeclaredTask(Task):
             self.robot.set_joint(physics, joint, mask, pos, vel)
         self.per_copy.command[mask] = 0.0
         self.per_copy.steps[mask] = 0
-        for name in self._measures:
+        for name, m in self._measures.items():
             getattr(self.per_copy, f"m_{name}")[mask] = 0.0
+            if m.window:
+                getattr(self.per_copy, f"w_{name}")[mask] = 0.0
         self.robot.command(physics, self._columns, self.per_copy.command)
 
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
@@ -182,7 +185,11 @@ class DeclaredTask(Task):
         steps += 1
         for name, m in self._measures.items():
             acc, value = getattr(self.per_copy, f"m_{name}"), m.term.value(physics)[:, 0]
-            if m.reduce in ("max", "min"):
+            if m.window:  # the last ``window`` values, a ring per copy
+                getattr(self.per_copy, f"w_{name}")[np.arange(len(steps)), (steps.astype(np.int64) - 1) % m.window] = value
+            elif m.held is not None:
+                acc += m.passes(value)
+            elif m.reduce in ("max", "min"):
                 pick = np.maximum if m.reduce == "max" else np.minimum
                 acc[:] = np.where(steps == 1, value, pick(acc, value))
             elif m.reduce == "last":
@@ -192,13 +199,36 @@ class DeclaredTask(Task):
 
     def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
         """Each declared measure of the episode so far."""
-        out = {}
+        out, steps = {}, self.per_copy.steps
         for name, m in self._measures.items():
+            if m.window:
+                out[name] = self._windowed(m, getattr(self.per_copy, f"w_{name}"))
+                continue
             value = getattr(self.per_copy, f"m_{name}").copy()
+            if m.held is not None:
+                out[name] = (value / np.maximum(steps, 1) >= m.held).astype(np.float64)
+                continue
             if m.reduce == "mean":
-                value = value / np.maximum(self.per_copy.steps, 1)
-            out[name] = value if m.above is None else (value >= m.above).astype(np.float64)
+                value = value / np.maximum(steps, 1)
+            out[name] = m.judged(value)
         return out
+
+    def _windowed(self, m: T.Measure, ring: np.ndarray) -> np.ndarray:
+        """A measure over each copy's last ``m.window`` steps (fewer in a shorter episode; for
+        ``held``, the steps it did not reach count as not held)."""
+        steps = self.per_copy.steps
+        valid = np.arange(m.window)[None, :] < np.minimum(steps, m.window)[:, None]
+        if m.held is not None:
+            return ((m.passes(ring) & valid).sum(axis=1) / m.window >= m.held).astype(np.float64)
+        if m.reduce == "last":
+            value = ring[np.arange(len(steps)), (np.maximum(steps, 1).astype(np.int64) - 1) % m.window]
+        elif m.reduce in ("max", "min"):
+            fill = -np.inf if m.reduce == "max" else np.inf
+            value = getattr(np, m.reduce)(np.where(valid, ring, fill), axis=1)
+        else:
+            value = np.where(valid, ring, 0.0).sum(axis=1)
+            value = value / np.maximum(valid.sum(axis=1), 1) if m.reduce == "mean" else value
+        return m.judged(np.where(steps > 0, value, 0.0))
 
     def observation_range(self) -> tuple[np.ndarray, np.ndarray]:
         """[-1, 1] for sines, cosines, quaternions and axes; unbounded otherwise."""

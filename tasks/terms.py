@@ -8,9 +8,15 @@ A quantity is a mapping with one source and what to take of it::
     {joint_pos: shoulder, apply: sin}         # its sine (apply: sin, cos, abs, square)
     {site_pos: tip, axis: z}                  # a site's height (axis: x, y or z; index: i)
     {body_zaxis: torso, axis: z}              # the body's uprightness (cos of its tilt)
+    {geom_pos: target}                        # a geom's position (geom_quat, geom_zaxis, ...)
     {sensor: accelerometer}                   # a sensor of the model, all its numbers
+    {distance: [tip, target]}                 # between two frames (site, geom or body), m
+    {distance: [tip, target], axes: [x, y]}   # ... along some world axes only
+    {from: tip, to: target}                   # target minus tip, a world-frame 3-vector
 
-Sources: :data:`robots.mjcf_robot.SOURCES`. Every term reads the robot by name.
+A frame is named bare (``tip``) or with its kind (``site:tip``, ``geom:target``,
+``body:torso``) where two kinds share the name. Sources: :data:`robots.mjcf_robot.SOURCES`.
+Every term reads the robot by name.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
+from dm_control.utils import rewards
 
 from params import ConfigError, finite, require
 from robots.mjcf_robot import SOURCES, MjcfRobot, Reader
@@ -28,8 +35,34 @@ from robots.physics import BatchedPhysics
 AXES = {"x": 0, "y": 1, "z": 2}
 APPLY = {"sin": np.sin, "cos": np.cos, "abs": np.abs, "square": np.square}
 _PICKS = ("axis", "index", "apply")
+_RELATIVE = ("distance", "from", "to", "axes")  # a term between two frames
 _BOUNDED = ("quat", "zaxis")  # sources whose every entry lies in [-1, 1]
 REDUCE = ("max", "min", "last", "sum", "mean")
+
+
+@dataclass
+class Relative:
+    """``to``'s position minus ``from``'s (a world-frame 3-vector), or with ``norm`` its length
+    over ``axes``: a term between two frames, read from two frame sensors."""
+
+    start: Reader
+    end: Reader
+    norm: bool = False
+    axes: tuple[int, ...] = (0, 1, 2)
+
+    @property
+    def source(self) -> str:
+        return "distance" if self.norm else "difference"
+
+    @property
+    def size(self) -> int:
+        return 1 if self.norm else 3
+
+    def read(self, physics: BatchedPhysics) -> np.ndarray:
+        gap = self.end.read(physics) - self.start.read(physics)
+        if not self.norm:
+            return gap
+        return np.linalg.norm(gap[:, list(self.axes)], axis=1, keepdims=True)
 
 
 @dataclass
@@ -69,8 +102,11 @@ def _mapping(spec: Any, where: str, what: str) -> Mapping:
 def quantity(robot: MjcfRobot, name: str, spec: Any, where: str) -> Term:
     """The :class:`Term` of a quantity spec (see the module docstring)."""
     what = (f"a mapping with one source ({', '.join(SOURCES)}): a name of the model, and "
-            f"optionally axis (x, y, z), index and apply ({', '.join(APPLY)})")
+            f"optionally axis (x, y, z), index and apply ({', '.join(APPLY)}); or distance: "
+            f"[frame, frame] (optionally axes), or from: frame and to: frame")
     spec = _mapping(spec, where, what)
+    if any(k in spec for k in _RELATIVE):
+        return _relative(robot, name, spec, where, what)
     sources = [k for k in spec if k in SOURCES]
     other = sorted(set(spec) - set(SOURCES) - set(_PICKS))
     require(len(sources) == 1 and not other, f"{where} must be {what}", dict(spec))
@@ -80,6 +116,28 @@ def quantity(robot: MjcfRobot, name: str, spec: Any, where: str) -> Term:
     require(apply is None or apply in APPLY, f"{where}.apply must be one of {', '.join(APPLY)}",
             apply)
     return Term(name, reader, pick, apply)
+
+
+def _relative(robot: MjcfRobot, name: str, spec: Mapping, where: str, what: str) -> Term:
+    """A :class:`Relative` term: ``distance: [a, b]`` (``axes``), or ``from: a`` and ``to: b``."""
+    if "distance" in spec:
+        pair = spec["distance"]
+        require(isinstance(pair, (list, tuple)) and len(pair) == 2 and not set(spec) - {"distance", "axes", "apply"},
+                f"{where} must be {{distance: [frame, frame]}} with optionally axes: [x, y, z]", dict(spec))
+        axes = spec.get("axes", ["x", "y", "z"])
+        require(isinstance(axes, (list, tuple)) and len(axes) > 0 and all(a in AXES for a in axes)
+                and len(set(axes)) == len(axes), f"{where}.axes must be a list of x, y and z", axes)
+        start, end = (robot.frame_reader("pos", f, f"{where}.distance") for f in pair)
+        relative = Relative(start, end, norm=True, axes=tuple(AXES[a] for a in axes))
+    else:
+        require({"from", "to"} <= set(spec) and not set(spec) - {"from", "to", *_PICKS},
+                f"{where} must be {{from: frame, to: frame}} with optionally axis, index, apply", dict(spec))
+        relative = Relative(robot.frame_reader("pos", spec["from"], f"{where}.from"),
+                            robot.frame_reader("pos", spec["to"], f"{where}.to"))
+    pick = _pick(spec, relative.size, where)
+    apply = spec.get("apply")
+    require(apply is None or apply in APPLY, f"{where}.apply must be one of {', '.join(APPLY)}", apply)
+    return Term(name, relative, pick, apply)
 
 
 def _pick(spec: Mapping, size: int, where: str) -> int | None:
@@ -105,10 +163,17 @@ def named_terms(robot: MjcfRobot, specs: Mapping | None, where: str) -> dict[str
 
 
 # -- reward ------------------------------------------------------------------------
+SIGMOIDS = ("gaussian", "hyperbolic", "long_tail", "reciprocal", "cosine", "linear", "quadratic",
+            "tanh_squared")  # dm_control.utils.rewards.tolerance's
+TOLERANCE_KEYS = ("bounds", "margin", "sigmoid", "value_at_margin")
+
+
 @dataclass
 class RewardTerm:
     """``weight * value`` per step: ``alive`` (1), ``action_cost`` (the sum of the squared
-    commands), or a one-number term (its distance to ``target`` if given)."""
+    commands), or a one-number term (its distance to ``target`` if given; or, with
+    ``tolerance``, dm_control's shaping of it: 1 inside ``bounds``, falling off over ``margin``
+    as ``sigmoid`` says)."""
 
     name: str
     weight: float
@@ -116,6 +181,7 @@ class RewardTerm:
     term: Term | None = None
     target: float | None = None
     kernel: str = "abs"
+    tolerance: dict | None = None
 
     def value(self, physics: BatchedPhysics, command: np.ndarray) -> np.ndarray:
         if self.kind == "alive":
@@ -123,6 +189,8 @@ class RewardTerm:
         if self.kind == "action_cost":
             return np.square(command).sum(axis=1)
         value = self.term.value(physics)[:, 0]
+        if self.tolerance is not None:
+            return rewards.tolerance(value, **self.tolerance)
         if self.target is None:
             return value
         gap = value - self.target
@@ -136,7 +204,10 @@ def reward_term(robot: MjcfRobot, name: str, spec: Any, terms: Mapping[str, Term
     spec = dict(_mapping(spec, where, "a mapping: alive, action_cost, term or a quantity, "
                                       "with weight, target and kernel (abs or square)"))
     weight, target = spec.pop("weight", 1.0), spec.pop("target", None)
-    kernel = spec.pop("kernel", "abs")
+    kernel, tolerance = spec.pop("kernel", "abs"), spec.pop("tolerance", None)
+    if tolerance is not None:
+        require(target is None, f"{where} takes target or tolerance, not both", target)
+        tolerance = _tolerance(tolerance, f"{where}.tolerance")
     require(finite(weight), f"{where}.weight must be a finite number", weight)
     require(target is None or finite(target), f"{where}.target must be a finite number", target)
     require(kernel in ("abs", "square"), f"{where}.kernel must be abs or square", kernel)
@@ -152,7 +223,27 @@ def reward_term(robot: MjcfRobot, name: str, spec: Any, terms: Mapping[str, Term
         term = quantity(robot, name, spec, where)
     require(term.size == 1, f"{where} must be one number per step; {term.name} has {term.size} "
             f"(pick one with axis or index)", term.size)
-    return RewardTerm(name, float(weight), "term", term, target, kernel)
+    return RewardTerm(name, float(weight), "term", term, target, kernel, tolerance)
+
+
+def _tolerance(spec: Any, where: str) -> dict:
+    """dm_control's ``tolerance`` arguments: ``bounds`` [low, high] (.inf for none), ``margin``
+    (0: a step), ``sigmoid`` and ``value_at_margin``."""
+    spec = dict(_mapping(spec, where, "{bounds: [low, high], margin, sigmoid, value_at_margin}"))
+    require(set(spec) <= set(TOLERANCE_KEYS) and "bounds" in spec,
+            f"{where} must be {{bounds: [low, high], margin, sigmoid, value_at_margin}}", spec)
+    low_high = spec["bounds"]
+    require(isinstance(low_high, (list, tuple)) and len(low_high) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and not np.isnan(v) for v in low_high)
+            and low_high[0] <= low_high[1], f"{where}.bounds must be [low, high] with low <= high", low_high)
+    margin = spec.get("margin", 0.0)
+    require(finite(margin) and margin >= 0, f"{where}.margin must be a number >= 0", margin)
+    sigmoid = spec.get("sigmoid", "gaussian")
+    require(sigmoid in SIGMOIDS, f"{where}.sigmoid must be one of {', '.join(SIGMOIDS)}", sigmoid)
+    at_margin = spec.get("value_at_margin", 0.1)
+    require(finite(at_margin) and 0 < at_margin < 1, f"{where}.value_at_margin must be in (0, 1)", at_margin)
+    return {"bounds": (float(low_high[0]), float(low_high[1])), "margin": float(margin), "sigmoid": sigmoid,
+            "value_at_margin": float(at_margin)}
 
 
 # -- actions -----------------------------------------------------------------------
@@ -203,8 +294,11 @@ def bounds(spec: Any, terms: Mapping[str, Term]) -> dict[str, tuple[float, float
 
 @dataclass
 class Measure:
-    """What an episode achieved: a term reduced over its steps (``max``, ``min``, ``last``,
-    ``sum``, ``mean``), then, with ``above``, 1 if that reached it and 0 if not."""
+    """What an episode achieved, from a one-number term over a window of steps (the whole
+    episode, or its last ``window`` steps): reduced (``max``, ``min``, ``last``, ``sum``,
+    ``mean``), then, with ``above`` or ``below``, 1 if that passed it and 0 if not; or, with
+    ``held``, 1 if the term passed ``above`` / ``below`` on at least that fraction of the
+    window's steps (steps an episode ended before count as not held)."""
 
     name: str
     term: Term
@@ -212,25 +306,69 @@ class Measure:
     unit: str
     description: str
     above: float | None = None
+    below: float | None = None
+    window: int | None = None
+    held: float | None = None
+
+    def passes(self, value: np.ndarray) -> np.ndarray:
+        """Whether ``value`` passes the measure's bound (above: >=, below: <=)."""
+        return value >= self.above if self.above is not None else value <= self.below
+
+    def judged(self, value: np.ndarray) -> np.ndarray:
+        """The reduced value, or 1 / 0 for one that passes / fails the bound."""
+        if self.above is None and self.below is None:
+            return value
+        return self.passes(value).astype(np.float64)
 
 
-def measures(spec: Any, terms: Mapping[str, Term]) -> dict[str, Measure]:
-    """``task.measures``: ``name -> {term, reduce, unit, description, above}``."""
-    spec = _mapping(spec or {}, "task.measures", "a mapping of names to {term, reduce, unit, "
-                                                 "description, above}")
+MEASURE_KEYS = ("term", "reduce", "unit", "description", "above", "below", "last", "seconds", "held")
+
+
+def measures(spec: Any, terms: Mapping[str, Term], running_step: float = 1.0) -> dict[str, Measure]:
+    """``task.measures``: ``name -> {term, reduce, unit, description, above or below, last (steps)
+    or seconds, held}``; ``seconds`` count in ``running_step``s."""
+    shape = "{term, reduce, unit, description, above or below, last or seconds, held}"
+    spec = _mapping(spec or {}, "task.measures", f"a mapping of names to {shape}")
     out = {}
     for name, m in spec.items():
         where = f"task.measures.{name}"
-        m = _mapping(m, where, "{term, reduce, unit, description, above}")
-        require(set(m) <= {"term", "reduce", "unit", "description", "above"} and "term" in m,
-                f"{where} must be {{term, reduce, unit, description, above}}", dict(m))
+        m = _mapping(m, where, shape)
+        require(set(m) <= set(MEASURE_KEYS) and "term" in m, f"{where} must be {shape}", dict(m))
         require(m["term"] in terms and terms[m["term"]].size == 1, f"{where}.term must be a "
                 f"one-number declared term: {', '.join(terms)}", m["term"])
         require(m.get("reduce", "max") in REDUCE, f"{where}.reduce must be one of "
                 f"{', '.join(REDUCE)}", m.get("reduce"))
-        require(m.get("above") is None or finite(m["above"]), f"{where}.above must be a number",
-                m.get("above"))
-        out[str(name)] = Measure(str(name), terms[m["term"]], m.get("reduce", "max"),
-                                 str(m.get("unit", "")), str(m.get("description", name)),
-                                 m.get("above"))
+        for bound in ("above", "below"):
+            require(m.get(bound) is None or finite(m[bound]), f"{where}.{bound} must be a number", m.get(bound))
+        require(m.get("above") is None or m.get("below") is None, f"{where} takes above or below, not both",
+                dict(m))
+        out[str(name)] = Measure(str(name), terms[m["term"]], m.get("reduce", "max"), str(m.get("unit", "")),
+                                 str(m.get("description", name)), m.get("above"), m.get("below"),
+                                 _window(m, where, running_step), _held(m, where))
     return out
+
+
+def _window(m: Mapping, where: str, running_step: float) -> int | None:
+    """The window in steps: ``last: N`` or ``seconds: T`` (None: the whole episode)."""
+    require(not ("last" in m and "seconds" in m), f"{where} takes last (steps) or seconds, not both", dict(m))
+    if "last" in m:
+        last = m["last"]
+        require(isinstance(last, int) and not isinstance(last, bool) and 1 <= last <= 10**6,
+                f"{where}.last must be a whole number of steps in [1, 1000000]", last)
+        return last
+    if "seconds" in m:
+        require(finite(m["seconds"]) and m["seconds"] > 0, f"{where}.seconds must be a number > 0", m["seconds"])
+        return max(1, round(float(m["seconds"]) / running_step))
+    return None
+
+
+def _held(m: Mapping, where: str) -> float | None:
+    """The fraction of the window a bound must hold on (None: the window is reduced instead)."""
+    if "held" not in m:
+        return None
+    require(finite(m["held"]) and 0 < m["held"] <= 1, f"{where}.held must be a fraction in (0, 1]", m["held"])
+    require(m.get("above") is not None or m.get("below") is not None, f"{where}.held needs above or below "
+            "(what must hold)", dict(m))
+    require("reduce" not in m, f"{where} takes reduce or held, not both (held counts the steps that pass)",
+            dict(m))
+    return float(m["held"])
