@@ -107,16 +107,24 @@ def dqn(trees: dict[str, Path], seeds: list[int]) -> None:
         print(" ".join(line), f"ratio_per_step={per_step[1] / per_step[0]:.3f}", flush=True)
 
 
+def no_episode_cap(tree: Path) -> str:
+    """The override that lifts the episode budget in ``tree``: the run's ``max_episodes`` (0 =
+    none), or, in a tree from before the budget moved to the run, the learner's ``nepisodes``."""
+    moved = "max_episodes:" in (tree / "conf" / "config.yaml").read_text()
+    return "max_episodes=0" if moved else "learner.nepisodes=100000000"
+
+
 def batch(trees: dict[str, Path], learners: list[str], seeds: int, steps: dict[str, int]) -> None:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     for r, learner in enumerate(learners):
-        common = [f"learner={learner}", "quiet=true", f"max_env_steps={steps[learner]}",
-                  "max_episodes=0", "stop_when_solved=false"]
+        common = [f"learner={learner}", "quiet=true", f"max_env_steps={steps[learner]}", "stop_when_solved=false"]
 
         def both(tree: Path) -> tuple[float, float, Path]:
+            common.append(no_episode_cap(tree))
             where = Path("/tmp") / f"bench_before_after_{stamp}" / tree.name / learner
             one, _ = timed(tree, [*common, "seed=0", f"hydra.run.dir={where / 'one'}"])
             many, _ = timed(tree, ["-m", *common, f"seed=range({seeds})", f"hydra.sweep.dir={where / 'batch'}"])
+            common.pop()
             return one, many, where / "batch"
 
         for name, (one, many, folder) in pair(trees, r, both).items():
