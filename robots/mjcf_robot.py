@@ -159,15 +159,27 @@ class MjcfRobot(Robot):
         return found
 
     def actuators(self) -> list[str]:
-        """Every actuator's name, in the model's order."""
-        return self.names("actuator")
+        """Every actuator, in the model's order, by its name; an unnamed one by the joint it
+        drives (Gymnasium's models leave their motors unnamed), else ``actuator_<i>``."""
+        labels = []
+        for i, actuator in enumerate(self.mjcf_model.find_all("actuator")):
+            joint = getattr(actuator, "joint", None)
+            labels.append(actuator.name or getattr(joint, "name", None) or f"actuator_{i}")
+        return labels
+
+    def actuator_column(self, name: str, where: str) -> int:
+        """The index in :meth:`actuators` of the actuator ``name`` (its name, or its joint's)."""
+        order = self.actuators()
+        if str(name) not in order:
+            raise missing_name("actuator", str(name), order, where)
+        return order.index(str(name))
 
     # -- control modes -------------------------------------------------------------
     def _set_control(self, name: str, spec) -> None:
         """Replaces actuator ``name`` with one of ``spec``'s mode and gain, on the same joint and
         with the same control and force ranges."""
         where = f"robot.control.{name}"
-        old = self.element("actuator", name, where)
+        old = self.mjcf_model.find_all("actuator")[self.actuator_column(name, where)]
         require(isinstance(spec, dict) and set(spec) <= {"mode", "gain"} and spec.get("mode")
                 in CONTROL_MODES, f"{where} must be {{mode: {' | '.join(CONTROL_MODES)}, gain: "
                 f"number}}", spec)

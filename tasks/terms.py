@@ -270,8 +270,7 @@ def action_set(robot: MjcfRobot, spec: Any) -> tuple[np.ndarray, np.ndarray]:
     for row in rows:
         require(len(row) == len(names) and all(finite(v) for v in row), f"task.actions: each "
                 f"action must be {len(names)} finite numbers, one per actuator {names}", row)
-    order = robot.actuators()
-    columns = [order.index(robot.element("actuator", n, "task.actions").name) for n in names]
+    columns = [robot.actuator_column(n, "task.actions") for n in names]
     return np.asarray(columns, dtype=np.int64), np.asarray(rows, dtype=np.float64)
 
 

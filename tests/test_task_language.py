@@ -8,6 +8,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+import torch
 from dm_control.utils import rewards
 
 from params import ConfigError
@@ -166,3 +167,22 @@ def test_a_bad_measure_is_one_line(tmp_path, measure, says):
 def test_a_bad_frame_term_is_one_line(tmp_path, term, says):
     with pytest.raises(ConfigError, match=says.replace("[", r"\[").replace("{", r"\{").replace("}", r"\}")):
         task(tmp_path, terms={"bad": term})
+
+
+def test_an_unnamed_actuator_is_named_by_its_joint(tmp_path):
+    """Gymnasium's models leave their motors unnamed: ``task.actions`` names them by joint."""
+    (tmp_path / "arm.xml").write_text(ARM.replace(
+        '<actuator><motor name="elbow"', '<actuator><motor joint="shoulder" gear="1"/><motor name="elbow"'))
+    robot = MjcfRobot(model=str(tmp_path / "arm.xml"))
+    assert robot.actuators() == ["shoulder", "elbow"]
+    made = DeclaredTask(robot=robot, observations={"tip_z": {"site_pos": "tip", "axis": "z"}},
+                        actions={"values": {"shoulder": [-1.0, 1.0], "elbow": [0.5]}}, rewards={"t": {"alive": True}})
+    env = RobotTaskEnv(made, num_envs=2, seed=0)
+    td = env.reset()
+    td["action"] = torch.tensor([0, 1])
+    env.step(td)
+    np.testing.assert_allclose(env.physics.ctrl, [[-1.0, 0.5], [1.0, 0.5]])
+    env.close()
+    with pytest.raises(ConfigError, match="the model has no actuator 'wrist'"):
+        DeclaredTask(robot=MjcfRobot(model=str(tmp_path / "arm.xml")), observations={"z": {"site_pos": "tip"}},
+                     actions={"values": {"wrist": [1.0]}}, rewards={"t": {"alive": True}})
