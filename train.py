@@ -113,8 +113,8 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
         if not isinstance(cfg.resume, str):
             raise ConfigError(f"resume must be the path of a run folder; got {cfg.resume!r}")
         if is_sweep_folder(cfg.resume):  # every unfinished job of the sweep, seeds together
-            record()
             summaries = resume_sweep(cfg, overrides)
+            record()  # once it resumed something: a refused resume writes nothing there
             return next((s for s in summaries if s.get("interrupted")), {})
         cfg, run_dir = resumed_config(cfg, overrides)
         choices = read_run_json(run_dir)

@@ -251,10 +251,12 @@ def test_a_multirun_trains_its_seeds_in_one_batch_per_group(tmp_path):
     assert len(jobs_done) == 4, jobs_done
     assert "[seed 1] VERDICT" in proc.stdout and (tmp_path / "sweep" / "comparison.csv").is_file()
     # Nothing of a finished sweep to resume: one line, nothing touched.
+    before = sorted(p.name for p in (tmp_path / "sweep").iterdir())
     proc = run_cli([f"resume={tmp_path / 'sweep'}"], tmp_path)
     assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
         f"error: resume={tmp_path / 'sweep'}: every run of this sweep is finished; nothing to continue "
         f"(compare it with: python compare.py {tmp_path / 'sweep'})"], proc.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "sweep").iterdir()) == before  # no .hydra-resume/
 
 
 def test_a_resumed_sweep_with_a_job_that_never_started_says_how_to_run_it_and_exits_1(tmp_path):
