@@ -1,8 +1,9 @@
 """Exploration schedules TorchRL does not ship: each gives epsilon per step or per episode.
 
 A schedule has ``value`` (the current epsilon), ``step(n)`` (``n`` env
-transitions happened) and ``episode_end()`` (an episode finished). The learner
-copies ``value`` into TorchRL's ``EGreedyModule`` before acting.
+transitions happened) and ``episode_end()`` (an episode finished). The learner reads
+``value`` each time it acts, in its own epsilon-greedy draw over its members (the draw TorchRL's
+``EGreedyModule`` makes: a uniform per copy, then a random action where it falls below epsilon).
 """
 
 from __future__ import annotations
