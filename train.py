@@ -99,13 +99,13 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     (``hydra.job.env_set`` names it), its checked :class:`runs.lifecycle.Job`, which the seeds
     launcher trains with the others. A single run calls nothing of ``sweeps/``: only a
     tuning trial reports to its study, only ``resume=<sweep folder>`` resumes a sweep."""
-    hydra = HydraConfig.get()
+    hydra_cfg = HydraConfig.get()
     record = partial(write_hydra_record, run_dir, ".hydra-resume" if is_run_folder(cfg.get("resume")) else ".hydra",
-                     cfg, hydra, hydra.overrides.task)  # Hydra's record of the command (hydra.output_subdir: null)
+                     cfg, hydra_cfg, hydra_cfg.overrides.task)  # Hydra's record of the command (hydra.output_subdir: null)
     if in_sweep:  # a sweep keeps each job's record, a refused job's too (its error.txt beside it)
         record()
-    choices = run_choices(HydraConfig.get().runtime.choices)  # tuned: None where no file applies
-    sources = HydraConfig.get().runtime.config_sources  # conf/, then any --config-dir
+    choices = run_choices(hydra_cfg.runtime.choices)  # tuned: None where no file applies
+    sources = hydra_cfg.runtime.config_sources  # conf/, then any --config-dir
     use_config_dirs([s.path for s in sources if s.schema == "file" and s.provider != "main"])
     cfg = locate_model(cfg, choices.get("robot"), sources)
     resume = bool(cfg.get("resume"))
@@ -125,7 +125,7 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
     run_dir.mkdir(parents=True, exist_ok=True)
     job = Job(cfg, run_dir, choices, overrides, changes)
-    if in_sweep and not resume and batchable(cfg) and HydraConfig.get().job.env_set.get(COLLECT):
+    if in_sweep and not resume and batchable(cfg) and hydra_cfg.job.env_set.get(COLLECT):
         return job  # the seeds launcher trains it with the other seeds of its group
     if not resume:
         check_new_run(run_dir)  # before the lock too: a finished run's .lock is not touched
@@ -137,7 +137,7 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
         with tee_console(run_dir / "train.log"):
             # A resumed trial job trains without reporting: its study has moved on.
             trial = not resume and cfg.get("trial") is not None
-            progress = trial_link(cfg, run_dir, HydraConfig.get().sweeper) if trial else None
+            progress = trial_link(cfg, run_dir, hydra_cfg.sweeper) if trial else None
             return execute(cfg, run_dir, resume=resume, choices=choices, changes=changes,
                            overrides=overrides, progress=progress)
 

@@ -120,11 +120,10 @@ def batch(trees: dict[str, Path], learners: list[str], seeds: int, steps: dict[s
         common = [f"learner={learner}", "quiet=true", f"max_env_steps={steps[learner]}", "stop_when_solved=false"]
 
         def both(tree: Path) -> tuple[float, float, Path]:
-            common.append(no_episode_cap(tree))
             where = Path("/tmp") / f"bench_before_after_{stamp}" / tree.name / learner
-            one, _ = timed(tree, [*common, "seed=0", f"hydra.run.dir={where / 'one'}"])
-            many, _ = timed(tree, ["-m", *common, f"seed=range({seeds})", f"hydra.sweep.dir={where / 'batch'}"])
-            common.pop()
+            args = [*common, no_episode_cap(tree)]
+            one, _ = timed(tree, [*args, "seed=0", f"hydra.run.dir={where / 'one'}"])
+            many, _ = timed(tree, ["-m", *args, f"seed=range({seeds})", f"hydra.sweep.dir={where / 'batch'}"])
             return one, many, where / "batch"
 
         for name, (one, many, folder) in pair(trees, r, both).items():

@@ -41,6 +41,7 @@ MODES = ("train", "eval")
 MOVED = {"learner.nepisodes": "max_episodes", "learner.nsteps": "task.max_episode_steps", "win": "task.win"}
 _WHY = {"max_episodes": "the run's budget, beside max_env_steps",
         "task.max_episode_steps": "the task's time limit, the only one", "task.win": "the task's success rule"}
+_ABSENT = object()
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
 SEED_LIMIT = 2**63
 
@@ -52,11 +53,11 @@ def check_run_config(cfg: DictConfig) -> None:
                                       resolve=True)
     except OmegaConfBaseException as err:
         raise ConfigError(f"config does not resolve: {_first_line(err)}") from None
+    for old in MOVED:  # a key of an older config, in a config file or a run folder's
+        value = OmegaConf.select(cfg, old, default=_ABSENT)
+        if value is not _ABSENT:
+            raise ConfigError(moved(old, value))
     _check_top_level(conf)
-    for old, new in MOVED.items():
-        group, _, key = old.partition(".")
-        if key and isinstance(conf.get(group), dict) and key in conf[group]:
-            raise ConfigError(moved(old, conf[group][key]))
     if conf.get("mode") == "train" and not conf.get("max_episodes") and not conf.get("max_env_steps"):
         raise ConfigError("max_episodes and max_env_steps are both 0 (no limit), so training would never "
                           "end; allowed: a budget in either or both, e.g. max_episodes=1000; got "
@@ -167,7 +168,7 @@ GROUPS = ("robot", "task", "learner", "logger")
 
 def _check_top_level(conf: dict) -> None:
     declared = [s.name for s in specs(RunSettings)]
-    unknown = sorted(set(conf) - set(declared) - set(GROUPS) - {"win"})
+    unknown = sorted(set(conf) - set(declared) - set(GROUPS))
     if unknown:
         hint = did_you_mean(unknown[0], declared + list(GROUPS))
         raise ConfigError(f"{unknown[0]} is not a setting; {hint}allowed: {', '.join(declared)} and "
@@ -180,9 +181,6 @@ def _check_top_level(conf: dict) -> None:
     # Whether the file exists and fits is load_checkpoint's (it says so in one line).
     if not conf.get("checkpoint") and conf.get("mode") == "eval":
         raise ConfigError("mode=eval needs checkpoint=<path to a saved model.pt>")
-    if "win" in conf:
-        raise ConfigError("win is the task's now: set task.win.threshold, task.win.min_episodes, ... "
-                          f"(see conf/task/<task>.yaml); got win={conf['win']!r}")
     _check_logger(conf.get("logger"))
 
 

@@ -106,11 +106,12 @@ def quantity(robot: MjcfRobot, name: str, spec: Any, where: str) -> Term:
             f"[frame, frame] (optionally axes), or from: frame and to: frame")
     spec = _mapping(spec, where, what)
     if any(k in spec for k in _RELATIVE):
-        return _relative(robot, name, spec, where, what)
-    sources = [k for k in spec if k in SOURCES]
-    other = sorted(set(spec) - set(SOURCES) - set(_PICKS))
-    require(len(sources) == 1 and not other, f"{where} must be {what}", dict(spec))
-    reader = robot.reader(sources[0], spec[sources[0]], where)
+        reader = _relative(robot, spec, where)
+    else:
+        sources = [k for k in spec if k in SOURCES]
+        other = sorted(set(spec) - set(SOURCES) - set(_PICKS))
+        require(len(sources) == 1 and not other, f"{where} must be {what}", dict(spec))
+        reader = robot.reader(sources[0], spec[sources[0]], where)
     pick = _pick(spec, reader.size, where)
     apply = spec.get("apply")
     require(apply is None or apply in APPLY, f"{where}.apply must be one of {', '.join(APPLY)}",
@@ -118,8 +119,8 @@ def quantity(robot: MjcfRobot, name: str, spec: Any, where: str) -> Term:
     return Term(name, reader, pick, apply)
 
 
-def _relative(robot: MjcfRobot, name: str, spec: Mapping, where: str, what: str) -> Term:
-    """A :class:`Relative` term: ``distance: [a, b]`` (``axes``), or ``from: a`` and ``to: b``."""
+def _relative(robot: MjcfRobot, spec: Mapping, where: str) -> Relative:
+    """The reader of ``distance: [a, b]`` (``axes``), or of ``from: a`` and ``to: b``."""
     if "distance" in spec:
         pair = spec["distance"]
         require(isinstance(pair, (list, tuple)) and len(pair) == 2 and not set(spec) - {"distance", "axes", "apply"},
@@ -128,16 +129,11 @@ def _relative(robot: MjcfRobot, name: str, spec: Mapping, where: str, what: str)
         require(isinstance(axes, (list, tuple)) and len(axes) > 0 and all(a in AXES for a in axes)
                 and len(set(axes)) == len(axes), f"{where}.axes must be a list of x, y and z", axes)
         start, end = (robot.frame_reader("pos", f, f"{where}.distance") for f in pair)
-        relative = Relative(start, end, norm=True, axes=tuple(AXES[a] for a in axes))
-    else:
-        require({"from", "to"} <= set(spec) and not set(spec) - {"from", "to", *_PICKS},
-                f"{where} must be {{from: frame, to: frame}} with optionally axis, index, apply", dict(spec))
-        relative = Relative(robot.frame_reader("pos", spec["from"], f"{where}.from"),
-                            robot.frame_reader("pos", spec["to"], f"{where}.to"))
-    pick = _pick(spec, relative.size, where)
-    apply = spec.get("apply")
-    require(apply is None or apply in APPLY, f"{where}.apply must be one of {', '.join(APPLY)}", apply)
-    return Term(name, relative, pick, apply)
+        return Relative(start, end, norm=True, axes=tuple(AXES[a] for a in axes))
+    require({"from", "to"} <= set(spec) and not set(spec) - {"from", "to", *_PICKS},
+            f"{where} must be {{from: frame, to: frame}} with optionally axis, index, apply", dict(spec))
+    return Relative(robot.frame_reader("pos", spec["from"], f"{where}.from"),
+                    robot.frame_reader("pos", spec["to"], f"{where}.to"))
 
 
 def _pick(spec: Mapping, size: int, where: str) -> int | None:
