@@ -37,6 +37,12 @@ def hold(env, action: int, steps: int) -> list:
     return out
 
 
+def action_of(env, *commands: float) -> int:
+    """The index of the action whose commands are ``commands`` (in the order of the task's
+    actuators)."""
+    return [tuple(row) for row in env.task._commands].index(tuple(commands))
+
+
 def test_the_double_pendulum_falls_without_control():
     """Cart command 0 (the middle action): from near upright, the poles fall and the episode
     terminates on the tip height (below 1 m) within 2 s."""
@@ -115,6 +121,61 @@ def test_the_acrobot_measure_counts_a_reached_line_and_ends_the_episode():
     td = env.step(td.set("action", torch.tensor([1])))["next"]
     assert td["terminated"].item()
     assert env.task.episode_info(env.physics)["reached"][0] == 1.0
+    env.close()
+
+
+def test_the_point_mass_reaches_the_motors_terminal_speed_and_reads_the_target_geom():
+    """dm_control's point mass: a motor's full push (0.1 N) against the slide's damping
+    (1 N s/m) settles at 0.1 m/s; the target, a geom of the world at the origin, is read by
+    name: ``to_target`` is its position minus the ball's, ``distance`` their gap."""
+    env = env_of("point_mass", "task.reset.joints={root_x: -0.2, root_y: 0.1}",
+                 "task.reset.position_noise=0.0")
+    push_x = action_of(env, 1.0, 0.0)
+    td = hold(env, push_x, 20)[-1]  # 2 s, some 7 time constants (0.3 kg / 1 N s/m)
+    (x, y), (vx, vy) = env.physics.qpos[0], env.physics.qvel[0]
+    assert vx == pytest.approx(0.1 * (1 - math.exp(-2 / 0.3)), rel=1e-3) and vy == pytest.approx(0.0, abs=1e-9)
+    # Frame quantities are read at the start of the last physics step: one 0.02 s step old.
+    assert td["observation"][0, 0].item() == pytest.approx(-(x - 0.02 * vx), abs=1e-5)  # target 0 - ball x
+    assert td["observation"][0, 1].item() == pytest.approx(-y, abs=1e-6)  # (float32)
+    env.physics.forward(np.ones(1, dtype=bool))
+    gap = env.task._terms["to_target"].value(env.physics)[0, 0]
+    assert gap == pytest.approx(math.hypot(x, y), abs=1e-6)
+    env.close()
+
+
+@pytest.mark.parametrize("start, held", [(0.0, 1.0), (0.05, 0.0)])
+def test_the_point_mass_measure_holds_only_inside_the_target(start, held):
+    """At rest in the target (1.5 cm radius) for the whole episode the measure is 1; at rest
+    5 cm away it is 0."""
+    env = env_of("point_mass", f"task.reset.joints={{root_x: {start}, root_y: 0.0}}",
+                 "task.reset.position_noise=0.0")
+    steps = hold(env, action_of(env, 0.0, 0.0), env.task.max_episode_steps)
+    assert steps[-1]["truncated"].item()
+    assert env.task.episode_info(env.physics)["held"][0] == held
+    env.close()
+
+
+def test_the_pendulum_hangs_at_rest_and_its_motor_alone_cannot_lift_it():
+    """dm_control's pendulum: hanging at rest it stays down (``upright`` = cos of the tilt =
+    -1); a constant full torque (1 N m, under the 4.9 N m that holding the 1 kg ball level at
+    0.5 m takes) only tilts it to asin(1 / 4.9) = 11.8 degrees; pumping, the torque along the
+    velocity, swings it up."""
+    env = env_of("pendulum", "task.reset.position_noise=0.0", "task.reset.velocity_noise=0.0")
+    upright = env.task._terms["upright"]
+    index = {u: action_of(env, u) for u in (-1.0, 0.0, 1.0)}
+    hold(env, index[0.0], 50)
+    assert env.physics.qpos[0, 0] == pytest.approx(math.pi, abs=1e-3)
+    assert upright.value(env.physics)[0, 0] == pytest.approx(-1.0, abs=1e-6)
+    hold(env, index[1.0], 150)  # 15 s: the damped swing settles
+    tilt = abs(env.physics.qpos[0, 0] - math.pi)
+    assert tilt == pytest.approx(math.asin(1 / (9.81 * 0.5)), abs=0.02)
+    assert upright.value(env.physics)[0, 0] == pytest.approx(-math.cos(tilt), abs=1e-3)  # nearly at rest
+    td, highest = env.reset(), -1.0
+    for _ in range(100):
+        push = index[1.0] if env.physics.qvel[0, 0] >= 0 else index[-1.0]
+        td = env.step(td.set("action", torch.tensor([push])))["next"]
+        highest = max(highest, float(upright.value(env.physics)[0, 0]))
+    assert highest > 0.9
     env.close()
 
 
@@ -201,10 +262,11 @@ def test_a_bad_model_or_declaration_is_one_line_and_nothing_written(args, words,
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("robot", ["acrobot", "double_pendulum"])
+@pytest.mark.parametrize("robot", ["acrobot", "double_pendulum", "point_mass", "pendulum"])
 def test_dqn_solves_the_shipped_example(robot, tmp_path):
     """The shipped examples are learnable as shipped: dqn with the tuned file, seed 0, ends
-    with the task's verdict true (acrobot ~45 s, double pendulum ~90 s on 2 cores)."""
+    with the task's verdict true (acrobot ~45 s, double pendulum ~90 s, point mass ~10 s,
+    pendulum ~15 s on 2 cores)."""
     cmd = [sys.executable, "train.py", f"robot={robot}", "learner=dqn", "quiet=true",
            "max_episodes=5000", f"hydra.run.dir={tmp_path}"]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
