@@ -126,7 +126,9 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     run_dir.mkdir(parents=True, exist_ok=True)
     job = Job(cfg, run_dir, choices, overrides, changes)
     if in_sweep and not resume and batchable(cfg) and hydra_cfg.job.env_set.get(COLLECT):
-        return job  # the seeds launcher trains it with the other seeds of its group
+        if cfg.get("trial") is not None:  # a tuning trial's job reports to its study from the batch
+            job.progress = trial_link(cfg, run_dir, hydra_cfg.sweeper)
+        return job  # the seeds launcher trains it with the other jobs of its group
     if not resume:
         check_new_run(run_dir)  # before the lock too: a finished run's .lock is not touched
     with taken(run_dir, REFUSALS):  # one run's record per folder: nothing written before the lock

@@ -6,8 +6,12 @@ single run (a batch of one). A learner is a dataclass made from its config node
 it learns is held for all its members at once (a Q-table ``[members, states, actions]``,
 a network's parameters ``[members, ...]``), and each call serves every member:
 
-1. ``build(task, generators)``: sizes the table or networks from the task, one member per
-   generator (each member's own random stream: its exploration, its minibatch draws);
+1. ``build(task, generators, variants)``: sizes the table or networks from the task, one
+   member per generator (each member's own random stream: its exploration, its minibatch
+   draws); ``variants``, where given, is each member's own learner made from its config
+   (a tuning trial's): they may differ in the learner's ``MEMBER_WISE`` settings only
+   (learning rates, discount, exploration, ...: what keeps every shape), which each member
+   then takes from its own (:func:`member_settings`);
 2. ``act(td, live)``: every member's actions on its block of rows (block ``b`` is rows
    ``b * n`` to ``(b + 1) * n``), the members of ``live`` drawing from their streams;
 3. ``observe(td, live)``: each live member learns from its block of the transitions;
@@ -25,12 +29,15 @@ and never drives the training loop (:mod:`runs.loop` does).
 
 from __future__ import annotations
 
+import dataclasses
 from contextlib import contextmanager
 from typing import Any, Iterator, Mapping, Protocol, Sequence, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
+
+from params import ConfigError
 
 
 class StateMismatch(ValueError):
@@ -66,14 +73,47 @@ def check_state(saved: Any, mine: Mapping, where: str, deep: Sequence[str] = ())
     walk(saved, mine, "")
 
 
+def member_settings(learner: Any, variants: Sequence[Any] | None, members: int) -> list[Any]:
+    """Each member's settings: ``variants`` (one learner of ``learner``'s class per member,
+    unbuilt) or ``learner`` itself for every member. One line naming the first setting
+    outside ``learner.MEMBER_WISE`` in which a variant differs (those change shapes or what
+    the learner builds: such members cannot share it)."""
+    if variants is None:
+        return [learner] * members
+    variants = list(variants)
+    if len(variants) != members:
+        raise ValueError(f"{len(variants)} variants for {members} members")
+    for variant in variants:
+        if type(variant) is not type(learner):
+            raise ConfigError(f"members of one batch must share a learner; got {type(learner).__name__} "
+                              f"and {type(variant).__name__}")
+        for field in dataclasses.fields(learner):
+            if field.name not in learner.MEMBER_WISE and getattr(variant, field.name) != getattr(learner, field.name):
+                raise ConfigError(
+                    f"learner.{field.name} differs between members ({getattr(learner, field.name)!r}, "
+                    f"{getattr(variant, field.name)!r}): only {', '.join(learner.MEMBER_WISE)} may differ in one batch")
+    return variants
+
+
+def per_member(values: Sequence[float], dtype: torch.dtype, device: Any = "cpu") -> float | torch.Tensor:
+    """One value per member: the value itself where every member has the same (the
+    arithmetic of a learner alone), else a ``[members, 1]`` tensor to scale each member's
+    rows."""
+    first = values[0]
+    if all(v == first for v in values):
+        return first
+    return torch.tensor([[float(v)] for v in values], dtype=dtype, device=device)
+
+
 @runtime_checkable
 class Learner(Protocol):
     """A learning algorithm over a member axis, as the run package uses it."""
 
     kind: str  # the learner family a saved state belongs to ("qlearn", "dqn")
+    MEMBER_WISE: tuple[str, ...]  # settings members of one batch may differ in
     members: int  # set by build
 
-    def build(self, task, generators: Sequence[torch.Generator]) -> None: ...
+    def build(self, task, generators: Sequence[torch.Generator], variants: Sequence[Any] | None = None) -> None: ...
 
     def begin(self) -> None: ...
 
@@ -137,7 +177,8 @@ class MemberPolicy(TensorDictModuleBase):
 class Member:
     """Member ``index`` of ``learner`` seen alone: its numbers, its policy, its saved states.
 
-    Config values (``lr``, ``gamma``, ...) read through to the learner.
+    Config values (``lr``, ``gamma``, ...) read through to the learner, a member-wise one
+    from the member's own settings.
     """
 
     def __init__(self, learner: Learner, index: int) -> None:
@@ -150,6 +191,8 @@ class Member:
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__") or name in ("learner", "index"):
             raise AttributeError(name)
+        if name in self.learner.MEMBER_WISE:
+            return getattr(self.learner.settings[self.index], name)
         return getattr(self.learner, name)
 
     @contextmanager

@@ -52,7 +52,7 @@ from torch import nn
 from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 from torchrl.modules import MLP, QValueActor
 
-from learners.base import Member, StateMismatch, check_state, everyone, single
+from learners.base import Member, StateMismatch, check_state, everyone, member_settings, per_member, single
 from params.private_api import with_entries
 from learners.device import DEVICE_NOTE, check_device, resolve_device
 from params import require
@@ -407,6 +407,10 @@ class DQN:
 
     kind = "dqn"
     out_keys = ("action",)
+    # Settings members of one batch may differ in (a tuning study's trials side by side):
+    # none changes a shape; all must have a target network or none.
+    MEMBER_WISE = ("lr", "lr_decay", "gamma", "tau", "target_update", "epsilon", "updates", "learning_starts",
+                   "grad_clip", "done_episode_reward", "reward_scale")
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -450,14 +454,20 @@ class DQN:
             net = nn.Sequential(ObsScale(scale), *net)
         return net
 
-    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None) -> None:
+    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None,
+              variants: Sequence[DQN] | None = None) -> None:
         """The networks, optimizer state and replay buffers of one member per generator: its
         stream initialises its network (as ``nn.Linear`` does from torch's global stream) and
-        then draws its exploration and minibatches."""
+        then draws its exploration and minibatches; ``variants``: each member's own settings
+        (:data:`MEMBER_WISE`)."""
         from torchrl.data import Categorical
 
         self.generators = single(generators)
         self.members = m = len(self.generators)
+        self.settings = own = member_settings(self, variants, m)
+        targets = {bool(v.target_update or v.tau) for v in own}
+        require(len(targets) == 1, "learner.tau and learner.target_update: members of one batch must all "
+                "have a target network or none", [(v.tau, v.target_update) for v in own])
         self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
         with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
             template = self._template(task)
@@ -480,7 +490,7 @@ class DQN:
         self.steps = [0] * m  # optimizer steps per member
         self.credit = [0.0] * m  # updates owed, fractions carried over
         self.owed = [0] * m  # whole updates owed, run by settle
-        self.schedules = [self.epsilon] + [copy.deepcopy(self.epsilon) for _ in range(m - 1)]  # each its own
+        self.schedules = [v.epsilon if b == 0 else copy.deepcopy(v.epsilon) for b, v in enumerate(own)]  # each its own
         self.trackers = [UpdateStats() for _ in range(m)]
         self.buffers = [RowReplayBuffer(self.buffer_size, 2 * self.n_obs + 3, self.batch_size, self.device)
                         for _ in range(m)]
@@ -500,12 +510,14 @@ class DQN:
     def member(self, b: int) -> Member:
         return Member(self, b)
 
-    def lr_of(self, b: int) -> float:
-        """Member ``b``'s learning rate now (Keras' legacy decay: lr / (1 + decay * updates))."""
-        return self.lr * (1.0 / (1.0 + self.lr_decay * self.steps[b])) if self.lr_decay else self.lr
+    def lr_of(self, b: int, steps: int | None = None) -> float:
+        """Member ``b``'s learning rate after ``steps`` updates (default: its updates so far;
+        Keras' legacy decay: lr / (1 + decay * updates))."""
+        own, steps = self.settings[b], self.steps[b] if steps is None else steps
+        return own.lr * (1.0 / (1.0 + own.lr_decay * steps)) if own.lr_decay else own.lr
 
     def stats(self, b: int) -> dict[str, float]:
-        return {"alpha": self.lr_of(b), "gamma": self.gamma, "epsilon": float(self.schedules[b].value)}
+        return {"alpha": self.lr_of(b), "gamma": self.settings[b].gamma, "epsilon": float(self.schedules[b].value)}
 
     def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
         """``train/*`` of member ``b``: ``loss``, ``q_mean`` (of the taken actions),
@@ -516,7 +528,7 @@ class DQN:
         wall-clock second since the last reset). ``reset=False`` reads without starting a
         new interval (for a progress bar shown between the logger's reads)."""
         stats = self.trackers[b].read(self.steps[b], reset)
-        if self.grad_clip == 0 and self.steps[b]:
+        if self.settings[b].grad_clip == 0 and self.steps[b]:
             stats["grad_norm"] = float(torch.linalg.vector_norm(self.grads[b]))
         return {**stats, "epsilon": float(self.schedules[b].value), "lr": self.lr_of(b)}
 
@@ -560,24 +572,29 @@ class DQN:
         return with_entries(td, action=action.reshape(td.batch_size))
 
     # -- learning ------------------------------------------------------------
-    def rows_of(self, tensordict: TensorDictBase) -> torch.Tensor:
+    def rows_of(self, tensordict: TensorDictBase, own: DQN | None = None) -> torch.Tensor:
         """The buffer's rows (:func:`pack`) of the transitions of ``tensordict``, the
         terminating rewards replaced if ``done_episode_reward`` says so and all of them
-        scaled by ``reward_scale``, on ``device``."""
+        scaled by ``reward_scale`` (``own``'s: a member's settings; default the learner's),
+        on ``device``."""
+        own = self if own is None else own
         batch = Transitions.of(tensordict)
-        if self.done_episode_reward is not None:
+        if own.done_episode_reward is not None:
             batch = batch._replace(reward=torch.where(
-                batch.terminated, float(self.done_episode_reward), batch.reward))
-        if self.reward_scale != 1.0:
-            batch = batch._replace(reward=batch.reward * float(self.reward_scale))
+                batch.terminated, float(own.done_episode_reward), batch.reward))
+        if own.reward_scale != 1.0:
+            batch = batch._replace(reward=batch.reward * float(own.reward_scale))
         return pack(batch).to(self.device)
 
     def store(self, td: TensorDictBase, live: Sequence[int] | None = None) -> int:
         """Each live member adds its block's transitions to its replay buffer; the block size."""
-        rows = self.rows_of(td)
-        n = len(rows) // self.members
+        n = td.numel() // self.members
+        alike = all(v is self.settings[0] for v in self.settings)
+        rows = self.rows_of(td) if alike else None
         for b in everyone(self, live):
-            self.buffers[b].put(rows[b * n:(b + 1) * n])
+            block = rows[b * n:(b + 1) * n] if alike else self.rows_of(td.reshape(-1)[b * n:(b + 1) * n],
+                                                                        self.settings[b])
+            self.buffers[b].put(block)
         return n
 
     def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
@@ -587,7 +604,7 @@ class DQN:
         for b in everyone(self, live):
             self.schedules[b].step(n)
             if self.train_every == "step":
-                self._owe(b, self.updates * n)
+                self._owe(b, self.settings[b].updates * n)
         self.settle()
 
     def optimize(self, n: int, members: Sequence[int] | None = None) -> None:
@@ -603,13 +620,13 @@ class DQN:
             for _ in range(count):
                 self.schedules[b].episode_end()
                 if self.train_every == "episode":
-                    self._owe(b, self.updates)
+                    self._owe(b, self.settings[b].updates)
         self.settle()
 
     def _owe(self, b: int, updates: float) -> None:
         """Adds ``updates`` to member ``b``'s credit once its buffer holds ``learning_starts``
         transitions; the whole ones are owed."""
-        if len(self.buffers[b]) < max(self.learning_starts, 1):
+        if len(self.buffers[b]) < max(self.settings[b].learning_starts, 1):
             return
         self.credit[b] += updates
         whole = int(self.credit[b])
@@ -641,18 +658,25 @@ class DQN:
             target = self.target.index_select(0, index) if self.has_target else params
             valued = self.net.layers(target)
         online = self.net.layers(params, grads)
+        own = [self.settings[b] for b in due]
+        gamma = per_member([v.gamma for v in own], params.dtype, params.device)
         q, td_target = td_terms(lambda x: self.net.q(online, x), lambda x: self.net.q(valued, x), batch,
-                                self.gamma, self.double_dqn)
+                                gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma, self.double_dqn)
         loss = _DISTANCES[self.loss_function](q, td_target, reduction="none").mean((1, 2))
         loss.sum().backward()
         with torch.no_grad():
             norms = torch.linalg.vector_norm(grads, dim=1)
-            if self.grad_clip > 0:
-                grads.mul_((self.grad_clip / (norms + 1e-6)).clamp_(max=1.0).unsqueeze(1))
+            clip = per_member([v.grad_clip for v in own], params.dtype, params.device)
+            if isinstance(clip, torch.Tensor):  # members' own clips; 0 (none) scales by 1
+                clip = clip.squeeze(1)
+                factor = torch.where(clip > 0, (clip / (norms + 1e-6)).clamp_(max=1.0), 1.0)
+                grads.mul_(factor.unsqueeze(1))
+            elif clip > 0:
+                grads.mul_((clip / (norms + 1e-6)).clamp_(max=1.0).unsqueeze(1))
             self._step(due, index, params, target, grads)
         for j, b in enumerate(due):
             self.trackers[b].add(loss[j].detach(), q[j].detach(), td_target[j],
-                                 norms[j] if self.grad_clip > 0 else None)
+                                 norms[j] if own[j].grad_clip > 0 else None)
 
     def _step(self, due: list[int], index: torch.Tensor | None, params: torch.Tensor, target: torch.Tensor,
               grads: torch.Tensor) -> None:
@@ -661,17 +685,17 @@ class DQN:
         rows written back."""
         for b in due:
             self.steps[b] += 1
-        lrs = [self.lr * (1.0 / (1.0 + self.lr_decay * (self.steps[b] - 1))) if self.lr_decay else self.lr
-               for b in due]
+        lrs = [self.lr_of(b, self.steps[b] - 1) for b in due]
         exp_avg = self.exp_avg if index is None else self.exp_avg.index_select(0, index)
         exp_avg_sq = self.exp_avg_sq if index is None else self.exp_avg_sq.index_select(0, index)
         adam_step(params, grads, exp_avg, exp_avg_sq, [self.steps[b] for b in due], lrs)
-        if self.tau:
-            target.lerp_(params, self.tau)
-        elif self.target_update:
-            for j, b in enumerate(due):
-                if self.steps[b] % self.target_update == 0:
-                    target[j].copy_(params[j])
+        own = [self.settings[b] for b in due]
+        tau = per_member([v.tau for v in own], params.dtype, params.device)
+        if isinstance(tau, torch.Tensor) or tau:  # (a member with tau 0 moves by 0: exactly not)
+            target.lerp_(params, tau)
+        for j, b in enumerate(due):
+            if own[j].target_update and self.steps[b] % own[j].target_update == 0:
+                target[j].copy_(params[j])
         if index is None:
             return
         for whole, part in ((self.params, params), (self.exp_avg, exp_avg), (self.exp_avg_sq, exp_avg_sq),
@@ -698,7 +722,7 @@ class DQN:
         group = {"lr": self.lr_of(b), "betas": ADAM_BETAS, "eps": ADAM_EPS, "weight_decay": 0,
                  "amsgrad": False, "maximize": False, "foreach": None, "capturable": False,
                  "differentiable": False, "fused": True, "decoupled_weight_decay": False,
-                 "initial_lr": self.lr, "params": list(range(len(shapes)))}
+                 "initial_lr": self.settings[b].lr, "params": list(range(len(shapes)))}
         return {"state": state, "param_groups": [group]}
 
     @torch.no_grad()
@@ -717,7 +741,8 @@ class DQN:
         return {
             "format": FORMAT, "arch": self._arch(), "net": self._net_state(self.params[b]),
             "target_net": self._net_state(self.target[b]), "optimizer": self._optimizer_state(b),
-            "lr_schedule": {"base_lrs": [self.lr], "last_epoch": self.steps[b] if self.lr_decay else 0,
+            "lr_schedule": {"base_lrs": [self.settings[b].lr],
+                            "last_epoch": self.steps[b] if self.settings[b].lr_decay else 0,
                             "_last_lr": [self.lr_of(b)]},
             "schedule": self.schedules[b].state_dict(), "optimizer_steps": self.steps[b],
             "credit": self.credit[b], "buffer": self.buffers[b].state_dict(),

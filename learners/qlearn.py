@@ -45,7 +45,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 
-from learners.base import Member, StateMismatch, check_state, single
+from learners.base import Member, StateMismatch, check_state, member_settings, per_member, single
 from params.private_api import with_entries
 from params import require
 from params.declare import check_fields, param
@@ -126,6 +126,8 @@ class QLearn:
 
     kind = "qlearn"
     out_keys = ("state_index", "action_value", "action")
+    # Settings members of one batch may differ in (a tuning study's trials side by side).
+    MEMBER_WISE = ("alpha", "gamma", "epsilon", "epsilon_discount", "epsilon_min", "initial_q")
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -138,11 +140,13 @@ class QLearn:
         self.members = 0
 
     # -- building ------------------------------------------------------------
-    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None) -> None:
+    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None,
+              variants: Sequence[QLearn] | None = None) -> None:
         """The Q-tables of one member per generator (its stream) for ``task``'s tabular state
-        and actions."""
+        and actions; ``variants``: each member's own settings (:data:`MEMBER_WISE`)."""
         self.generators = single(generators)
         self.members = len(self.generators)
+        self.settings = member_settings(self, variants, self.members)
         self.discretizer = Discretizer(task.tabular_bounds, self.number_splits)
         self.n_actions, self.n_states = int(task.n_actions), self.discretizer.n_states
         table_bytes = self.members * self.n_states * self.n_actions * 9  # float64 values + visited flags
@@ -152,8 +156,13 @@ class QLearn:
                 f"{self.n_actions} actions = {table_bytes / 2**30:.3g} GiB", self.number_splits)
         shape = (self.members, self.n_states, self.n_actions)
         self.table = torch.full(shape, float(self.initial_q), dtype=torch.float64)
+        for b, own in enumerate(self.settings):
+            if own.initial_q != self.initial_q:
+                self.table[b].fill_(float(own.initial_q))
         self.visited = torch.zeros(shape, dtype=torch.bool)
-        self.epsilons = [float(self.epsilon)] * self.members
+        self.epsilons = [float(own.epsilon) for own in self.settings]
+        self._alpha = per_member([own.alpha for own in self.settings], torch.float64)
+        self._gamma = per_member([own.gamma for own in self.settings], torch.float64)
         self._offsets: torch.Tensor | None = None
         self._draw_buffer: torch.Tensor | None = None
 
@@ -161,7 +170,8 @@ class QLearn:
         return Member(self, b)
 
     def stats(self, b: int) -> dict[str, float]:
-        return {"alpha": self.alpha, "gamma": self.gamma, "epsilon": self.epsilons[b]}
+        own = self.settings[b]
+        return {"alpha": own.alpha, "gamma": own.gamma, "epsilon": self.epsilons[b]}
 
     def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
         """``train/*``: ``epsilon`` and ``visited_fraction``, the share of member ``b``'s
@@ -255,6 +265,9 @@ class QLearn:
             value = value.reshape(self.members * n)
             return value if rows is None else value.index_select(0, rows)
 
+        def each(value: float | torch.Tensor) -> float | torch.Tensor:  # a member's value on each of its rows
+            return pick(value.expand(self.members, n)) if isinstance(value, torch.Tensor) else value
+
         offset = pick(self._offset(None, n))
         state = pick(td.get("state_index")) + offset
         action = pick(td.get("action"))
@@ -265,10 +278,10 @@ class QLearn:
         bootstrap = self.table.view(-1, a).index_select(0, next_state).amax(-1)
         if not self.bootstrap_terminal:
             bootstrap.masked_fill_(terminated, 0.0)
-        target = reward + self.gamma * bootstrap
+        target = reward + each(self._gamma) * bootstrap
         pair = state * a + action  # (s, a)'s index in the flat table
         old = self.table.view(-1).index_select(0, pair)
-        new = old + self.alpha * (target - old)
+        new = old + each(self._alpha) * (target - old)
         if self.first_visit_reward:
             new = torch.where(self.visited.view(-1).index_select(0, pair), new, reward)
         self._add_mean_increments(pair, new - old, n)
@@ -289,9 +302,10 @@ class QLearn:
     def end_episodes(self, ended: Mapping[int, int]) -> None:
         """After each finished episode of a member: its epsilon decays (down to ``epsilon_min``)."""
         for b, count in ended.items():
+            own = self.settings[b]
             for _ in range(count):
-                if self.epsilons[b] > self.epsilon_min:
-                    self.epsilons[b] *= self.epsilon_discount
+                if self.epsilons[b] > own.epsilon_min:
+                    self.epsilons[b] *= own.epsilon_discount
 
     # -- persistence ---------------------------------------------------------
     def model_state(self, b: int) -> dict:

@@ -41,7 +41,7 @@ from typing import IO, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
+from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 
@@ -64,7 +64,9 @@ from tasks.factory import build_env
 EVAL_SEED_OFFSET = 10_000  # greedy evaluations start from seed + this (never the training streams)
 VIDEO_SEED_OFFSET = 20_000  # the policy video's env
 # Settings a batched job may not have: each makes a run that is not a fresh training run.
-NOT_BATCHED = ("resume", "checkpoint", "trial")
+NOT_BATCHED = ("resume", "checkpoint")
+# Keys in which the jobs of one batch may differ, besides the learner's MEMBER_WISE settings.
+OWN_KEYS = ("seed", "resume", "trial")
 
 
 @dataclasses.dataclass
@@ -110,40 +112,61 @@ class Session:
 
 # -- what may share a batch ----------------------------------------------------
 def batchable(cfg: DictConfig) -> bool:
-    """Whether a job with ``cfg`` can train in a seed batch (a fresh training run)."""
+    """Whether a job with ``cfg`` can train in a batch (a fresh training run, a tuning
+    trial's included)."""
     return cfg.mode == "train" and not any(cfg.get(key) not in (None, "", False) for key in NOT_BATCHED)
 
 
 def check_batch(jobs: Sequence[Job]) -> None:
-    """One line unless ``jobs`` are fresh training runs whose configs differ only in an
-    integer seed, each seed once."""
+    """One line unless ``jobs`` are fresh (or resumed) training runs whose configs differ only
+    in an integer seed, a tuning trial and the learner's member-wise settings
+    (:func:`batch_key`), no two of them the same run."""
     seeds = [job.cfg.seed for job in jobs]
     if any(type(s) is not int for s in seeds):
         raise ConfigError(f"seed must be an integer in a seed batch; got {seeds}")
-    twice = sorted({s for s in seeds if seeds.count(s) > 1})
-    if twice:
-        raise ConfigError(f"seed {twice[0]} appears twice in one sweep; give each seed once")
+    runs = [repr(_own(job.cfg)) for job in jobs]
+    twice = next((seeds[i] for i, run in enumerate(runs) if runs.count(run) > 1), None)
+    if twice is not None:
+        raise ConfigError(f"seed {twice} appears twice in one sweep; give each seed once")
     if not all(batchable(job.cfg) for job in jobs if not job.resume) or not all(
             job.cfg.mode == "train" and not job.cfg.get("checkpoint") for job in jobs if job.resume):
         raise ConfigError(f"a seed batch trains fresh or resumed runs only (no {', '.join(NOT_BATCHED[1:])})")
-    first = _without_seed(jobs[0].cfg)
+    first = batch_key(jobs[0].cfg)
     for job in jobs[1:]:
-        if _without_seed(job.cfg) != first:
-            raise ConfigError(f"jobs {jobs[0].run_dir.name} and {job.run_dir.name} differ in more "
-                              "than their seed: they cannot share a seed batch")
+        if batch_key(job.cfg) != first:
+            raise ConfigError(f"jobs {jobs[0].run_dir.name} and {job.run_dir.name} differ in more than their "
+                              "seed, trial and the learner's member-wise settings: they cannot share a batch")
 
 
-def _without_seed(cfg: DictConfig) -> dict:
-    """The config but its seed (and a resumed run's own folder)."""
-    return {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in ("seed", "resume")}
+def member_wise(cfg: DictConfig) -> tuple[str, ...]:
+    """The learner settings (``learner.<key>``) in which members of one batch may differ: its
+    class's ``MEMBER_WISE`` (none for a class that does not say)."""
+    try:
+        return tuple(getattr(get_class(str(cfg.learner._target_)), "MEMBER_WISE", ()))
+    except Exception:  # noqa: BLE001 - a learner that cannot be found is refused when built
+        return ()
+
+
+def batch_key(cfg: DictConfig) -> dict:
+    """What the jobs of one batch share: the config but its :data:`OWN_KEYS` and the
+    learner's member-wise settings."""
+    shared = {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k not in OWN_KEYS}
+    own = member_wise(cfg)
+    shared["learner"] = {k: v for k, v in shared["learner"].items() if k not in own}
+    return shared
+
+
+def _own(cfg: DictConfig) -> dict:
+    """What makes a job's run its own in a batch: its config but a resumed run's folder."""
+    return {k: v for k, v in OmegaConf.to_container(cfg, resolve=True).items() if k != "resume"}
 
 
 def same_batch(cfgs: Sequence[DictConfig]) -> list[list[int]]:
-    """Indices of ``cfgs`` grouped by their config but the seed (first-seen order): the
-    batches they may train in."""
+    """Indices of ``cfgs`` grouped by :func:`batch_key` (first-seen order): the batches they
+    may train in."""
     groups: dict[str, list[int]] = {}
     for i, cfg in enumerate(cfgs):
-        groups.setdefault(repr(_without_seed(cfg)), []).append(i)
+        groups.setdefault(repr(batch_key(cfg)), []).append(i)
     return list(groups.values())
 
 
@@ -339,7 +362,11 @@ def _build(slots: list[_Slot]):
     if not solo:
         _check_memory(env, cfg, len(slots))
     learner = instantiate(cfg.learner, _convert_="all")
-    learner.build(env.task, generators)
+    own = member_wise(cfg)
+    alike = all({k: slot.job.cfg.learner.get(k) for k in own} == {k: cfg.learner.get(k) for k in own}
+                for slot in slots)
+    variants = None if alike else [instantiate(slot.job.cfg.learner, _convert_="all") for slot in slots]
+    learner.build(env.task, generators, variants)
     for slot in slots:
         member = learner.member(slot.index)
         if slot.job.cfg.checkpoint and not slot.job.resume:

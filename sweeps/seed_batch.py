@@ -1,13 +1,15 @@
-"""The ``seeds`` launcher's work: a sweep's jobs grouped by every override but ``seed``, each
-group of fresh training runs trained as one seed batch (:func:`runs.lifecycle.run_jobs`).
+"""The ``seeds`` launcher's work: a sweep's jobs grouped by their configs but the seed, a
+tuning trial and the learner's member-wise settings (:func:`runs.lifecycle.same_batch`:
+a study's trials side by side), each group of fresh training runs trained as one batch
+(:func:`runs.lifecycle.run_jobs`).
 
 Every job still goes through Hydra's ``run_job`` (its folder, ``.hydra/`` files, logging)
 and ``train.py``'s checks; a job run with ``hydra.job.env_set.RL_SEED_BATCH_JOB`` set (a
 batch's jobs) returns its checked :class:`~runs.lifecycle.Job` instead of training, and the launcher
 trains the batch of them (:func:`runs.lifecycle.run_jobs`) once all of its group has
 been checked. A group of one, and jobs that are not fresh
-training runs (``resume=``, ``mode=eval``, a tuning ``trial``), run alone as with
-``hydra/launcher=basic``.
+training runs (``resume=``, ``mode=eval``), run alone as with ``hydra/launcher=basic``.
+The submitit launchers group by the overrides but ``seed``.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
 
 from params import ConfigError
-from runs.lifecycle import Job, run_jobs
+from runs.lifecycle import Job, run_jobs, same_batch
 
 log = logging.getLogger(__name__)
 # The key a batch's job is run with in its ``hydra.job.env_set`` (the job's own config, which
@@ -49,12 +51,14 @@ def group_jobs(job_overrides: Sequence[Sequence[str]]) -> list[list[int]]:
     return list(groups.values())
 
 
-def batches(job_overrides: Sequence[Sequence[str]], initial_job_idx: int,
-            max_seeds: int) -> list[list[tuple[int, list[str]]]]:
-    """The sweep's jobs (job index, overrides) in batches: each group of :func:`group_jobs`
-    cut into batches of ``max_seeds`` at most."""
+def batches(job_overrides: Sequence[Sequence[str]], initial_job_idx: int, max_seeds: int,
+            groups: list[list[int]] | None = None) -> list[list[tuple[int, list[str]]]]:
+    """The sweep's jobs (job index, overrides) in batches: each group (default: of
+    :func:`group_jobs`, which refuses a seed given twice) cut into batches of ``max_seeds``
+    at most."""
+    checked = group_jobs(job_overrides)
     return [[(initial_job_idx + i, list(job_overrides[i])) for i in members[start:start + max_seeds]]
-            for members in group_jobs(job_overrides) for start in range(0, len(members), max_seeds)]
+            for members in (checked if groups is None else groups) for start in range(0, len(members), max_seeds)]
 
 
 def check_max_seeds(max_seeds) -> None:
@@ -75,7 +79,8 @@ class SeedBatchLaunch:
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> list[JobReturn]:
         setup_globals()
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
-        chunks = batches(job_overrides, initial_job_idx, self.max_seeds)  # refused before any job starts
+        groups = same_batch([self._compose(overrides) for overrides in job_overrides])
+        chunks = batches(job_overrides, initial_job_idx, self.max_seeds, groups)  # refused before any job starts
         Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
         log.info(f"Launching {len(job_overrides)} jobs in this process, seeds of the same "
                  f"settings together ({len(chunks)} batch{'es' * (len(chunks) != 1)})")
@@ -83,6 +88,13 @@ class SeedBatchLaunch:
         for chunk in chunks:
             returns.update(self.run_chunk(chunk))
         return [returns[initial_job_idx + i] for i in range(len(job_overrides))]
+
+    def _compose(self, overrides: Sequence[str]) -> DictConfig:
+        """A job's config as Hydra composes it for the job (its ``hydra`` node left out)."""
+        cfg = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+        with open_dict(cfg):
+            del cfg["hydra"]
+        return cfg
 
     def run_chunk(self, chunk: list[tuple[int, list[str]]]) -> dict[int, JobReturn]:
         """One batch's jobs (job index, overrides): trained together, or alone if one."""
@@ -108,8 +120,9 @@ class SeedBatchLaunch:
         returns = {idx: self._run(idx, overrides, collect=True) for idx, overrides in chunk}
         jobs = [ret.return_value for ret in returns.values() if isinstance(_value(ret), Job)]
         if jobs:  # (fewer than the chunk where a job failed its checks)
-            log.info(f"Training {len(jobs)} seed{'s' * (len(jobs) != 1)} together: "
-                     f"{', '.join(str(j.cfg.seed) for j in jobs)}")
+            trials = any(j.cfg.get("trial") is not None for j in jobs)
+            log.info(f"Training {len(jobs)} {'runs' if trials else 'seeds'} together: " + ", ".join(
+                f"trial {j.cfg.trial} seed {j.cfg.seed}" if trials else str(j.cfg.seed) for j in jobs))
         summaries = _batch(jobs) if jobs else []
         stopped = [s for s in summaries if s.get("interrupted")]
         if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)

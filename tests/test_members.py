@@ -11,6 +11,7 @@ import pytest
 import torch
 from hydra.utils import instantiate
 
+from params import ConfigError
 from tasks.catalog import compose
 from runs.training_state import seed_everything
 from tasks.factory import build_env
@@ -33,18 +34,20 @@ def config(learner: str, overrides=()):
     return compose("cartpole", learner=learner, overrides=[f"task.max_episode_steps={LIMIT}", *overrides])
 
 
-def made(cfg, seeds):
-    """A learner of one member per seed, each stream seeded as a run of that seed seeds it."""
+def made(cfg, seeds, cfgs=None):
+    """A learner of one member per seed, each stream seeded as a run of that seed seeds it;
+    ``cfgs``: each member's own config (its member-wise learner settings)."""
     generators = [seed_everything(seed) for seed in seeds]
     learner = instantiate(cfg.learner, _convert_="all")
-    learner.build(build_env(cfg, 1, seeds[0]).task, generators)
+    variants = None if cfgs is None else [instantiate(c.learner, _convert_="all") for c in cfgs]
+    learner.build(build_env(cfg, 1, seeds[0]).task, generators, variants)
     return learner
 
 
-def trained(cfg, seeds, n: int, steps: int):
+def trained(cfg, seeds, n: int, steps: int, cfgs=None):
     """A learner of ``seeds`` trained on ``n`` copies a member (the loop of runs.loop.train
     without runs): the learner and each member's actions per step."""
-    learner = made(cfg, seeds)
+    learner = made(cfg, seeds, cfgs)
     env = build_env(cfg, n * len(seeds), list(seeds) if len(seeds) > 1 else seeds[0])
     learner.begin()
     td, actions = env.reset(), []
@@ -60,10 +63,12 @@ def trained(cfg, seeds, n: int, steps: int):
     return learner, actions
 
 
-def same_as_alone(cfg, n: int, steps: int) -> None:
-    together, actions = trained(cfg, SEEDS, n, steps)
+def same_as_alone(cfg, n: int, steps: int, cfgs=None) -> None:
+    """Each member of a learner of :data:`SEEDS` (``cfgs``: each with its own config) as its
+    seed alone with its config."""
+    together, actions = trained(cfg, SEEDS, n, steps, cfgs)
     for b, seed in enumerate(SEEDS):
-        single, single_actions = trained(cfg, (seed,), n, steps)
+        single, single_actions = trained(cfg if cfgs is None else cfgs[b], (seed,), n, steps)
         for t, (a, s) in enumerate(zip(actions, single_actions)):
             assert torch.equal(a[b], s[0]), (seed, "action", t)
         assert tensors_equal(together.training_state(b), single.training_state(0)), seed
@@ -106,6 +111,42 @@ def test_a_dqn_member_learns_bit_for_bit_as_alone(case):
 ])
 def test_a_qlearn_member_learns_bit_for_bit_as_alone(n, overrides):
     same_as_alone(config("qlearn", overrides), n, steps=150)
+
+
+# Trials side by side: members that differ in their member-wise settings (MEMBER_WISE).
+TRIAL_CASES = {
+    "qlearn": ("qlearn", 3, [], [[], ["learner.alpha=0.3", "learner.gamma=0.9"],
+                                 ["learner.epsilon=0.5", "learner.epsilon_discount=0.99", "learner.epsilon_min=0.2",
+                                  "learner.initial_q=5"]]),
+    "dqn": ("dqn", 2, ["learner.batch_size=32", "learner.learning_starts=100", "learner.updates=3"],
+            [[], ["learner.lr=0.003", "learner.gamma=0.95", "learner.tau=0.05", "learner.lr_decay=0.001"],
+             ["learner.updates=1.5", "learner.learning_starts=60", "learner.grad_clip=0", "learner.reward_scale=0.1",
+              "learner.epsilon.steps=500", "learner.done_episode_reward=-5"]]),
+    # hard target copies every 20, 7 and 13 updates beside Polyak: all have a target network
+    "mbalunovic": ("mbalunovic", 2, ["learner.batch_size=8"],
+                   [["learner.target_update=20"], ["learner.target_update=7", "learner.gamma=0.9"],
+                    ["learner.target_update=0", "learner.tau=0.02"]]),
+}
+
+
+@pytest.mark.parametrize("case", TRIAL_CASES)
+def test_members_with_their_own_settings_learn_each_as_alone(case):
+    name, n, shared, own = TRIAL_CASES[case]
+    cfgs = [config(name, [*shared, *extra]) for extra in own]
+    same_as_alone(cfgs[0], n, steps=120, cfgs=cfgs)
+
+
+@pytest.mark.parametrize("name, a, b, says", [
+    ("dqn", [], ["learner.hidden=[32]"], "learner.hidden differs between members"),
+    ("dqn", [], ["learner.tau=0", "learner.double_dqn=false"], "learner.double_dqn differs"),
+    ("mbalunovic", ["learner.target_update=20"], ["learner.target_update=0"], "a target network or none"),
+    ("qlearn", [], ["learner.number_splits=4"], "learner.number_splits differs"),
+])
+def test_members_that_differ_in_a_shape_are_refused_in_one_line(name, a, b, says):
+    cfgs = [config(name, a), config(name, b)]
+    with pytest.raises(ConfigError, match=says) as err:
+        made(cfgs[0], SEEDS[:2], cfgs)
+    assert "\n" not in str(err.value)
 
 
 def snapshot(learner, b: int) -> dict:

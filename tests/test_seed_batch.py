@@ -92,22 +92,46 @@ def test_seeds_that_end_at_one_step_are_evaluated_together_as_each_alone(tmp_pat
 
 def same_files(tmp_path: Path, seeds) -> None:
     for seed in seeds:
-        together, alone = tmp_path / f"batch{seed}", tmp_path / f"alone{seed}"
-        for name in SAME_FILES:
-            assert (together / name).read_bytes() == (alone / name).read_bytes(), (seed, name)
-        summaries = [json.loads((d / "summary.json").read_text()) for d in (together, alone)]
-        assert [{k: v for k, v in s.items() if k not in WALL_CLOCK} for s in summaries][0] == \
-            {k: v for k, v in summaries[1].items() if k not in WALL_CLOCK}
-        for name, keys in (("model.pt", ("meta", "checksum")), ("checkpoint.pt", ("identity", "checksum"))):
-            a, b = (torch.load(d / name, weights_only=True) for d in (together, alone))
-            for state, folder in ((a, together), (b, alone)):
-                state.get("run", {}).pop("wall_s", None)  # the run's clock
-                if "log_sizes" in state.get("run", {}):  # the logger's files, under the folder's name
-                    state["run"]["log_sizes"] = {k.replace(f"/{folder.name}/", "/RUN/"): v
-                                                 for k, v in state["run"]["log_sizes"].items()
-                                                 if not k.endswith(CLOCK_SCALARS)}
-            assert tensors_equal({k: v for k, v in a.items() if k not in keys},
-                                 {k: v for k, v in b.items() if k not in keys}), (seed, name)
+        same_run_files(tmp_path / f"batch{seed}", tmp_path / f"alone{seed}")
+
+
+def same_run_files(together: Path, alone: Path) -> None:
+    """The run in ``together`` (trained in a batch) is the run in ``alone``, file for file."""
+    for name in SAME_FILES:
+        assert (together / name).read_bytes() == (alone / name).read_bytes(), (together.name, name)
+    summaries = [json.loads((d / "summary.json").read_text()) for d in (together, alone)]
+    assert [{k: v for k, v in s.items() if k not in WALL_CLOCK} for s in summaries][0] == \
+        {k: v for k, v in summaries[1].items() if k not in WALL_CLOCK}
+    for name, keys in (("model.pt", ("meta", "checksum")), ("checkpoint.pt", ("identity", "checksum"))):
+        a, b = (torch.load(d / name, weights_only=True) for d in (together, alone))
+        for state, folder in ((a, together), (b, alone)):
+            state.get("run", {}).pop("wall_s", None)  # the run's clock
+            if "log_sizes" in state.get("run", {}):  # the logger's files, under the folder's name
+                state["run"]["log_sizes"] = {k.replace(f"/{folder.name}/", "/RUN/"): v
+                                             for k, v in state["run"]["log_sizes"].items()
+                                             if not k.endswith(CLOCK_SCALARS)}
+        assert tensors_equal({k: v for k, v in a.items() if k not in keys},
+                             {k: v for k, v in b.items() if k not in keys}), (together.name, name)
+
+
+@pytest.mark.parametrize("learner, settings", [
+    ("qlearn", ["learner.alpha=0.3", "learner.gamma=0.9", "learner.epsilon_discount=0.99"]),
+    ("dqn", ["learner.lr=0.003", "learner.tau=0.05", "learner.updates=3"]),
+])
+def test_trials_side_by_side_are_each_their_run_alone(tmp_path, learner, settings):
+    """Two trials (other member-wise settings) x two seeds, one seed in both, as one batch of
+    four members: each run is its run alone, file for file."""
+    trials = jobs(learner, tmp_path, "batch_a"), jobs(learner, tmp_path, "batch_b", settings)
+    run_jobs([*trials[0], *trials[1]])
+    for extra, batch in zip(((), settings), trials):
+        for job in jobs(learner, tmp_path, "alone_" + batch[0].run_dir.name[6], extra):
+            job.run_dir.mkdir()
+            execute(job.cfg, job.run_dir, choices=job.choices)
+    for seed in SEEDS:
+        for trial in "ab":
+            same_run_files(tmp_path / f"batch_{trial}{seed}", tmp_path / f"alone_{trial}{seed}")
+    assert (tmp_path / f"batch_a{SEEDS[0]}" / "metrics.csv").read_bytes() != \
+        (tmp_path / f"batch_b{SEEDS[0]}" / "metrics.csv").read_bytes()  # the settings made a difference
 
 
 def test_a_stopped_batch_seed_resumes_alone_to_its_uninterrupted_run(tmp_path, monkeypatch):
@@ -221,7 +245,7 @@ def test_a_failed_learner_call_ends_every_seed_with_its_trace(tmp_path, monkeypa
 
 @pytest.mark.parametrize("change, message", [
     (lambda js: js[1].cfg.__setitem__("seed", js[0].cfg.seed), "appears twice"),
-    (lambda js: js[1].cfg.learner.__setitem__("alpha", 0.5), "differ in more than their seed"),
+    (lambda js: js[1].cfg.learner.__setitem__("number_splits", 4), "differ in more than their seed"),
     (lambda js: js[1].cfg.__setitem__("mode", "eval"), "fresh or resumed runs only"),
 ])
 def test_a_batch_of_unlike_jobs_is_refused_before_any_work(tmp_path, change, message):

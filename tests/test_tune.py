@@ -129,6 +129,26 @@ def test_a_trial_below_the_median_is_pruned_and_reports_only_from_its_first_seed
     assert lead(20, 1.0) is False  # a trial already told (a resumed job) is left alone
 
 
+def test_trials_that_differ_in_member_wise_settings_train_as_one_batch(tmp_path):
+    """trials_per_batch=2 with a space of member-wise settings only: the two trials x two seeds
+    train as the four members of one batch, each job reporting to its study from there."""
+    space = tmp_path / "space.yaml"
+    space.write_text("learner.lr: tag(log, interval(0.0001, 0.01))\nlearner.gamma: interval(0.9, 0.999)\n")
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    proc = cli("-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=dqn", "num_envs=2", "eval_episodes=2",
+               "hydra.sweeper.n_trials=2", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[0,1]",
+               "hydra.sweeper.budget_steps=600", "hydra.sweeper.report_every=5", "hydra.sweeper.pruner=null",
+               f"hydra.sweeper.search={space}", f"hydra.sweeper.storage={url}",
+               f"hydra.sweep.dir={tmp_path / 'sweep'}")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    out = proc.stdout + proc.stderr
+    assert "Training 4 runs together: trial 0 seed 0, trial 0 seed 1, trial 1 seed 0, trial 1 seed 1" in out, out[-3000:]
+    study = optuna.load_study(study_name="cartpole-stay_up-dqn", storage=url)
+    trials = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(trials) == 2 and all(t.intermediate_values for t in trials)
+    assert trials[0].params != trials[1].params
+
+
 def test_the_tuned_file_keeps_the_previous_ones_other_settings():
     text = tuned_text({"learner.alpha": 0.3, "learner.number_splits": 7},
                       {"num_envs": 8, "learner": {"alpha": 0.1, "gamma": 0.99}}, ["study x", "best 1.2"])
