@@ -172,7 +172,12 @@ class TuningSweep:
         import optuna
 
         storage = open_storage(self.storage_url)
-        sampler = optuna.samplers.TPESampler(n_startup_trials=self.startup_trials, seed=self.sampler_seed)
+        with warnings.catch_warnings():  # constant_liar is "experimental" in Optuna 5
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            # Trials asked together (trials_per_batch) or by sweeps sharing the study: each
+            # running trial counts as a poor result, so those asked at once spread out.
+            sampler = optuna.samplers.TPESampler(n_startup_trials=self.startup_trials, seed=self.sampler_seed,
+                                                 constant_liar=True)
         study = optuna.create_study(study_name=self.study_name, storage=storage, sampler=sampler,
                                     pruner=make_pruner(self.pruner), direction="maximize", load_if_exists=True)
         known = study.user_attrs.get("measure")  # a study of an earlier version names only its measure

@@ -75,11 +75,14 @@ class SeedBatchLaunch:
         check_max_seeds(max_seeds)
         self.hydra_context, self.task_function, self.config = hydra_context, task_function, config
         self.max_seeds = max_seeds
+        self.composed: dict[int, DictConfig] = {}  # each job's composed config, by job index
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> list[JobReturn]:
         setup_globals()
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
-        groups = same_batch([self._compose(overrides) for overrides in job_overrides])
+        self.composed = {initial_job_idx + i: self.hydra_context.config_loader.load_sweep_config(
+            self.config, list(overrides)) for i, overrides in enumerate(job_overrides)}  # each job's, once
+        groups = same_batch([_without_hydra(self.composed[initial_job_idx + i]) for i in range(len(job_overrides))])
         chunks = batches(job_overrides, initial_job_idx, self.max_seeds, groups)  # refused before any job starts
         Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
         log.info(f"Launching {len(job_overrides)} jobs in this process, seeds of the same "
@@ -89,13 +92,6 @@ class SeedBatchLaunch:
             returns.update(self.run_chunk(chunk))
         return [returns[initial_job_idx + i] for i in range(len(job_overrides))]
 
-    def _compose(self, overrides: Sequence[str]) -> DictConfig:
-        """A job's config as Hydra composes it for the job (its ``hydra`` node left out)."""
-        cfg = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
-        with open_dict(cfg):
-            del cfg["hydra"]
-        return cfg
-
     def run_chunk(self, chunk: list[tuple[int, list[str]]]) -> dict[int, JobReturn]:
         """One batch's jobs (job index, overrides): trained together, or alone if one."""
         return self._launch_batch(chunk) if len(chunk) > 1 else {chunk[0][0]: self._run(*chunk[0])}
@@ -104,7 +100,9 @@ class SeedBatchLaunch:
         """One job through Hydra's ``run_job``, as the basic launcher runs it; ``collect``: a
         batchable job returns its checked :class:`~runs.lifecycle.Job` instead of training."""
         log.info(f"\t#{idx} : {' '.join(filter_overrides(overrides))}")
-        sweep_config = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+        composed = self.composed.pop(idx, None)  # launch composed it to group the jobs
+        sweep_config = composed if composed is not None else \
+            self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
         with open_dict(sweep_config):
             sweep_config.hydra.job.id = idx
             sweep_config.hydra.job.num = idx
@@ -128,6 +126,14 @@ class SeedBatchLaunch:
         if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)
             raise SystemExit(128 + int(stopped[0].get("signal", 2)))
         return returns
+
+
+def _without_hydra(cfg: DictConfig) -> DictConfig:
+    """A copy of a job's composed config without its ``hydra`` node (what the job sees)."""
+    cfg = cfg.copy()
+    with open_dict(cfg):
+        del cfg["hydra"]
+    return cfg
 
 
 def _value(ret: JobReturn):
