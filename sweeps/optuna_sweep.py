@@ -23,8 +23,10 @@ from params import ConfigError
 from tasks.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name
 from runs.settings import check_run_config
 from runs.summary import measure_keys, summarize_run
-from sweeps.tuning import (Plan, check_space, check_sweeper_settings, current_trial, load_space, make_pruner,
-                           now_utc, open_storage, override_value, replace_tuned, shown_url, tuned_text)
+from sweeps.resume import continuable, resume_runs
+from sweeps.tuning import (Plan, abandoned, check_space, check_sweeper_settings, claim, current_trial, job_folders_of,
+                           load_space, make_pruner, now_utc, open_storage, override_value, replace_tuned, shown_url,
+                           tuned_text)
 from tasks.base import Success
 from tasks.factory import build_task
 
@@ -145,10 +147,13 @@ class TuningSweep:
                 print("  trial 0 is the current configuration (start_from_current)", flush=True)
             else:
                 print("  the current configuration lies outside the space: every trial is sampled", flush=True)
+        self._take_over(study, plan)
         results, done = [], 0
         while done < self.n_trials and not (sweep_dir / ".stop").exists():
             batch = [study.ask({k: p.distribution for k, p in plan.params.items()})
                      for _ in range(min(self.trials_per_batch, self.n_trials - done))]
+            for trial in batch:
+                claim(self._storage, self._trial_id(study, trial.number), self.seeds)
             results.append(self._run_batch(study, batch, plan, first_job=done * len(self.seeds)))
             done += len(batch)
         self._finish(study, plan, sweep_dir)
@@ -163,15 +168,48 @@ class TuningSweep:
         returns = self.launcher.launch(jobs, initial_job_idx=first_job)
         n = len(self.seeds)
         for i, (trial, vals) in enumerate(zip(batch, values)):
-            self._tell(study, trial, plan, vals, returns[i * n:(i + 1) * n])
+            self._tell(study, trial.number, plan, vals, [_run_dir(r) for r in returns[i * n:(i + 1) * n]])
         return returns
+
+    def _trial_id(self, study, number: int) -> int:
+        """The storage's id of trial ``number`` of ``study``."""
+        study_id = self._storage.get_study_id_from_name(study.study_name)
+        return self._storage.get_trial_id_from_study_id_trial_number(study_id, number)
+
+    def _take_over(self, study, plan: Plan) -> None:
+        """Finishes the trials of this study that a stopped sweep left running
+        (:func:`sweeps.tuning.abandoned`): a trial whose every job has a folder to continue
+        from resumes there (each job from its checkpoint, as it would have run on) and is
+        told its value; any other is told failed and asked again with its values (the next
+        trial this sweep asks)."""
+        import optuna
+
+        running = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))
+        for trial in [t for t in running if abandoned(t)]:
+            seeds = trial.user_attrs.get("seeds", [])
+            claim(self._storage, self._trial_id(study, trial.number), seeds)
+            folders = job_folders_of(trial)
+            values = {k: p.value(trial.params[k]) for k, p in plan.params.items() if k in trial.params}
+            if seeds and len(folders) == len(seeds) and all(continuable(f) for f in folders):
+                print(f"trial {trial.number} was left running by a sweep that stopped: resuming its jobs "
+                      f"{', '.join(str(f) for f in folders)}", flush=True)
+                summaries = resume_runs(folders)
+                stopped = [s for s in summaries if s.get("interrupted")]
+                if stopped:
+                    raise SystemExit(128 + int(stopped[0].get("signal", 2)))
+                self._tell(study, trial.number, plan, values, folders)
+            else:
+                study.tell(trial.number, state=optuna.trial.TrialState.FAIL)
+                study.enqueue_trial(trial.params, user_attrs={"retry_of": trial.number})
+                print(f"trial {trial.number} was left running by a sweep that stopped before all its jobs "
+                      "could continue: told failed, and asked again as a new trial", flush=True)
 
     def _open_study(self, plan: Plan):
         """The study (made, or loaded), its objective named ``plan.objective`` (Optuna's metric
         name); a study of another measure or objective is refused in one line."""
         import optuna
 
-        storage = open_storage(self.storage_url)
+        storage = self._storage = open_storage(self.storage_url)
         with warnings.catch_warnings():  # constant_liar is "experimental" in Optuna 5
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
             # Trials asked together (trials_per_batch) or by sweeps sharing the study: each
@@ -194,30 +232,30 @@ class TuningSweep:
                 study.set_metric_names([plan.objective])
         return study
 
-    def _tell(self, study, trial, plan: Plan, values: dict, returns: list) -> None:
-        """The trial's value: the mean over its seeds of ``plan.objective`` (pruned if any job was pruned)."""
+    def _tell(self, study, number: int, plan: Plan, values: dict, run_dirs: list) -> None:
+        """Trial ``number``'s value: the mean over its seeds' job folders ``run_dirs`` of
+        ``plan.objective`` (pruned if any job was pruned)."""
         import optuna
 
-        jobs = [summarize_run(_run_dir(r)) if _run_dir(r) else {"status": "failed", "error": "no run folder"}
-                for r in returns]
+        jobs = [summarize_run(d) if d else {"status": "failed", "error": "no run folder"} for d in run_dirs]
         failed = [j for j in jobs if j.get("status") != "ok"]
         pruned = [j for j in jobs if j.get("pruned_at") is not None]
         shown = " ".join(f"{k}={override_value(v)}" for k, v in values.items())
         if failed:
-            study.tell(trial, state=optuna.trial.TrialState.FAIL)
-            print(f"trial {trial.number} failed: {failed[0].get('error') or failed[0].get('status')} ({shown})",
+            study.tell(number, state=optuna.trial.TrialState.FAIL)
+            print(f"trial {number} failed: {failed[0].get('error') or failed[0].get('status')} ({shown})",
                   flush=True)
             return
         objective = [j.get(plan.objective) for j in jobs]
         if pruned:
-            study.tell(trial, state=optuna.trial.TrialState.PRUNED)
-            print(f"trial {trial.number} pruned at episode {pruned[0]['pruned_at']} ({shown})", flush=True)
+            study.tell(number, state=optuna.trial.TrialState.PRUNED)
+            print(f"trial {number} pruned at episode {pruned[0]['pruned_at']} ({shown})", flush=True)
             return
         value = statistics.fmean(float(v) for v in objective if v is not None) if any(
             v is not None for v in objective) else float("nan")
-        study.tell(trial, value)
+        study.tell(number, value)
         per_seed = ", ".join(f"{v:.4g}" if v is not None else "-" for v in objective)
-        print(f"trial {trial.number}: {plan.objective} {value:.4g} (seeds {per_seed}) {shown}", flush=True)
+        print(f"trial {number}: {plan.objective} {value:.4g} (seeds {per_seed}) {shown}", flush=True)
 
     def _finish(self, study, plan: Plan, sweep_dir: Path) -> None:
         """The study's counts, its best trial, and the tuned file."""

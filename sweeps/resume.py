@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from params import ConfigError
 from runs.lifecycle import Job, run_jobs, same_batch
@@ -71,6 +71,26 @@ def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Job]
         raise CheckpointError(f"resume={folder}: none of its {len(unfinished)} unfinished runs can continue "
                               f"(the first: {skipped[0][1]})")
     return jobs, [f"not resumed: {name}: {why}" for name, why in skipped]
+
+
+def continuable(run_dir: Path) -> bool:
+    """Whether ``run_dir`` is a run that is finished or has a checkpoint to continue from."""
+    return is_run_folder(run_dir) and (is_finished(run_dir) or (run_dir / "checkpoint.pt").is_file())
+
+
+def resume_runs(folders: Sequence[Path]) -> list[dict]:
+    """Continues the unfinished runs among ``folders`` (each from its checkpoint, with its own
+    config), those that may share a batch together; their summaries."""
+    jobs = []
+    for run_dir in folders:
+        if not is_finished(run_dir):
+            saved, run_dir = resumed_config(OmegaConf.create({"resume": str(run_dir)}), [])
+            check_run_config(saved)
+            jobs.append(Job(saved, run_dir, read_run_json(run_dir), resume=True))
+    summaries = []
+    for members in same_batch([job.cfg for job in jobs]):
+        summaries += run_jobs([jobs[i] for i in members])
+    return summaries
 
 
 def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:

@@ -116,6 +116,10 @@ def report_stopped_sweep(folder: Path) -> None:
             print(f"not started: {job.name}")
     if resumable > 1:
         print(f"or all of them, seeds of one setting together: python train.py resume={folder}")
+    record = folder / "multirun.yaml"
+    if record.is_file() and "rl_optuna_sweeper" in record.read_text(errors="replace"):
+        print("or the same tuning command again: the next sweep of the study resumes the trials this "
+              "one left running, tells the study their values and goes on")
 
 
 def end_stopped_sweep() -> int | None:

@@ -17,6 +17,11 @@ metric name). Each job reports its
 rolling measure to the study every ``report_every`` episodes (:class:`TrialLink`); the
 first seed's values are the trial's intermediate values, and every seed's job stops
 when the pruner says the trial is hopeless.
+
+A trial the sweeper asked is its own (:func:`claim`: ``sweeper`` = host and process,
+``alive_at`` renewed by every report of its jobs) until told. A trial left running by a
+sweeper that is gone (:func:`abandoned`: its process ended on this machine, or no word
+from it for :data:`LEASE_S` seconds) is taken over by the next sweep of its study.
 """
 
 from __future__ import annotations
@@ -52,6 +57,43 @@ class Plan:
     measure: str
     objective: str  # the number each job is valued by, as summary.json names it (the study's metric)
     current: dict | None = None  # the run's own values as a trial, where the space holds them
+
+
+LEASE_S = 600  # seconds without word from another machine's trial before it counts as abandoned
+
+
+def claim(storage: Any, trial_id: int, seeds: Iterable[int]) -> None:
+    """Marks a trial as this process's (``sweeper``: host and process id; ``alive_at``: now;
+    ``seeds``: the seeds its jobs run)."""
+    storage.set_trial_user_attr(trial_id, "sweeper", f"{socket.gethostname()}:{os.getpid()}")
+    storage.set_trial_user_attr(trial_id, "alive_at", time.time())
+    storage.set_trial_user_attr(trial_id, "seeds", [int(s) for s in seeds])
+
+
+def abandoned(trial: Any, now: float | None = None) -> bool:
+    """Whether a running trial's sweeper is gone: its process has ended on this machine, or
+    (on another) neither it nor the trial's jobs have said anything for :data:`LEASE_S`
+    seconds. A trial with no ``sweeper`` (asked by an older version) is left alone."""
+    owner = trial.user_attrs.get("sweeper")
+    if not isinstance(owner, str) or ":" not in owner:
+        return False
+    host, pid = owner.rsplit(":", 1)
+    if host == socket.gethostname():
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            return True
+        except (PermissionError, ValueError):
+            return False
+        return False
+    return (time.time() if now is None else now) - float(trial.user_attrs.get("alive_at", 0)) > LEASE_S
+
+
+def job_folders_of(trial: Any) -> list[Path]:
+    """The job folders a trial's jobs reported from (``run_dir_seed<s>``), in its seeds' order;
+    fewer than its seeds where a job never reported."""
+    attrs = trial.user_attrs
+    return [Path(attrs[f"run_dir_seed{s}"]) for s in attrs.get("seeds", []) if f"run_dir_seed{s}" in attrs]
 
 
 # The sweeper's whole numbers: (least, most). Bounds keep a typo (1e308) from running for ever.
@@ -336,7 +378,7 @@ class TrialLink:
     and the run goes on unpruned."""
 
     def __init__(self, storage: str, study: str, number: int, lead: bool,
-                 pruner: Mapping[str, Any] | None, every: int, run_dir: Path) -> None:
+                 pruner: Mapping[str, Any] | None, every: int, run_dir: Path, seed: int = 0) -> None:
         import optuna
 
         self.every, self.lead, self.number = int(every), lead, number
@@ -350,6 +392,8 @@ class TrialLink:
         self._storage.set_trial_user_attr(self._trial_id, key, where)
         if lead:
             self._storage.set_trial_user_attr(self._trial_id, "run_dir", str(run_dir))
+        # Where each seed's job runs: a sweep that takes the trial over resumes it there.
+        self._storage.set_trial_user_attr(self._trial_id, f"run_dir_seed{seed}", str(Path(run_dir).resolve()))
 
     def __call__(self, step: int, value: float) -> bool:
         """Reports ``value`` at ``step`` episodes; True when the study prunes the trial."""
@@ -359,6 +403,7 @@ class TrialLink:
             frozen = self._storage.get_trial(self._trial_id)
             if frozen.state != optuna.trial.TrialState.RUNNING:
                 return False  # told already (e.g. a resumed job): nothing to report to
+            self._storage.set_trial_user_attr(self._trial_id, "alive_at", time.time())  # the trial's lease
             if self.lead and math.isfinite(value):
                 self._storage.set_trial_intermediate_value(self._trial_id, step, float(value))
                 frozen = self._storage.get_trial(self._trial_id)
@@ -424,7 +469,7 @@ def trial_link(cfg: Any, run_dir: Path, sweeper: Any) -> TrialLink | None:
     try:
         return TrialLink(str(sweeper.storage), str(sweeper.study), int(cfg.trial),
                          lead=int(cfg.seed) == int(sweeper.seeds[0]), pruner=sweeper.pruner,
-                         every=int(sweeper.report_every), run_dir=run_dir)
+                         every=int(sweeper.report_every), run_dir=run_dir, seed=int(cfg.seed))
     except ConfigError:
         raise
     except Exception as err:  # noqa: BLE001 - a missing study or trial, a database error

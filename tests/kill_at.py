@@ -2,7 +2,8 @@
 where ``<point>`` says (a test's way to land a kill exactly there; a real kill gives no
 warning, so nothing after the point runs: no ``finally``, no flush).
 
-Points: ``second_checkpoint`` (just after the second periodic checkpoint.pt is saved),
+Points: ``second_checkpoint`` (just after the second periodic checkpoint.pt is saved;
+``checkpoint:N`` after the N-th, counting every run of a batch),
 ``final_evaluation`` (training done, before the final greedy evaluation),
 ``final_checkpoint`` (just after the final checkpoint.pt, before the files of the end),
 ``model`` (just after model.pt, before eval.json and summary.json).
@@ -44,6 +45,8 @@ def after(function, calls: int = 1):
 def arm(point: str) -> None:
     if point == "second_checkpoint":
         session.save_training_state = after(session.save_training_state, calls=2)
+    elif point.startswith("checkpoint:"):
+        session.save_training_state = after(session.save_training_state, calls=int(point.split(":")[1]))
     elif point == "final_evaluation":
         session.final_evaluation = die
     elif point == "final_checkpoint":

@@ -149,6 +149,57 @@ def test_trials_that_differ_in_member_wise_settings_train_as_one_batch(tmp_path)
     assert trials[0].params != trials[1].params
 
 
+def tuning(tmp_path: Path, study: str, folder: str, kill: str | None = None) -> subprocess.CompletedProcess:
+    """A small qlearn study on the cart-pole (one trial, two seeds), killed where ``kill`` says
+    (tests/kill_at.py)."""
+    args = ["-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=qlearn", "num_envs=2", "eval_episodes=2",
+            "checkpoint_every=10", "hydra.sweeper.n_trials=1", "hydra.sweeper.seeds=[0,1]",
+            "hydra.sweeper.budget_steps=1500", "hydra.sweeper.pruner=null", "hydra.sweeper.sampler_seed=0",
+            f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}", f"hydra.sweeper.study={study}",
+            f"hydra.sweep.dir={tmp_path / folder}"]
+    script = ["tests/kill_at.py", kill] if kill else ["train.py"]
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return subprocess.run([sys.executable, *script, *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=600, env=env)
+
+
+def test_a_killed_study_is_taken_over_by_the_next_sweep_and_ends_as_never_stopped(tmp_path):
+    """A tuning sweep killed (SIGKILL) while its first trial trains leaves the trial running
+    in the study; the same command again resumes that trial's jobs from their checkpoints,
+    tells the study the value an unstopped sweep finds, and goes on: no trial lost, none
+    counted twice, none left running."""
+    def sweep(study: str, folder: str, kill: str | None = None) -> subprocess.CompletedProcess:
+        return tuning(tmp_path, study, folder, kill)
+
+    killed = sweep("s", "first", kill="checkpoint:4")
+    assert killed.returncode == -9, killed.stdout[-2000:] + killed.stderr[-2000:]
+    study = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}")
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.RUNNING]
+    again = sweep("s", "second")
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    assert "trial 0 was left running by a sweep that stopped: resuming its jobs" in again.stdout
+    plain = sweep("plain", "plain")
+    assert plain.returncode == 0, plain.stderr[-2000:]
+    study = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}")
+    unstopped = optuna.load_study(study_name="plain", storage=f"sqlite:///{tmp_path / 's.db'}")
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 2
+    assert study.trials[0].value == unstopped.trials[0].value  # as if never stopped
+    assert study.trials[0].params == unstopped.trials[0].params
+
+
+def test_a_trial_killed_before_its_jobs_could_continue_is_asked_again(tmp_path):
+    """Killed after the first checkpoint of one seed (the other seed has none): the next sweep
+    tells the stopped trial failed and runs its values again as its new trial."""
+    killed = tuning(tmp_path, "s", "first", kill="checkpoint:1")
+    assert killed.returncode == -9, killed.stderr[-2000:]
+    again = tuning(tmp_path, "s", "second")
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    assert "trial 0 was left running by a sweep that stopped before all its jobs could continue" in again.stdout
+    trials = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}").trials
+    assert [t.state for t in trials] == [optuna.trial.TrialState.FAIL, optuna.trial.TrialState.COMPLETE]
+    assert trials[1].params == trials[0].params and trials[1].user_attrs["retry_of"] == 0
+
+
 def test_the_tuned_file_keeps_the_previous_ones_other_settings():
     text = tuned_text({"learner.alpha": 0.3, "learner.number_splits": 7},
                       {"num_envs": 8, "learner": {"alpha": 0.1, "gamma": 0.99}}, ["study x", "best 1.2"])
