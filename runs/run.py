@@ -67,9 +67,11 @@ TRAIN_LOG_STEPS = 1000
 
 class Progress(Protocol):
     """A tuning trial's link (:class:`sweeps.tuning.TrialLink`): called with the episodes
-    so far and the rolling measure every ``every`` episodes (0: no more); True stops the run."""
+    so far and the rolling measure every ``every`` episodes (0: no more); True stops the run,
+    as does ``pruned`` at any step (the trial stopped by another of its runs' reports)."""
 
     every: int
+    pruned: bool
 
     def __call__(self, episodes: int, rolling: float) -> bool: ...
 
@@ -306,6 +308,8 @@ class Run:
         self.log_train()
         if self.progress is not None and self.progress.every and self.n_episodes >= self._next_progress:
             self._report_progress()
+        if self.progress is not None and self.pruned_at is None and not self.done and self.progress.pruned:
+            self.pruned_at = self.n_episodes  # pruned by another seed's report: stop now
         if self.judge.candidate is not None and not self.stop_requested:
             self.evaluate_greedy()
             self.judge.confirmed(self.evals[-1]["value"], self.n_episodes)

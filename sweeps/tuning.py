@@ -15,8 +15,8 @@ own measure as its judge sees it (``greedy_<measure>`` or
 ``train_<measure>_last<window>``, :meth:`runs.summary.MeasureKeys.headline`; the study's
 metric name). Each job reports its
 rolling measure to the study every ``report_every`` episodes (:class:`TrialLink`); the
-first seed's values are the trial's intermediate values, and every seed's job stops
-when the pruner says the trial is hopeless.
+mean over the trial's seeds is its intermediate value, and every seed's job stops when
+the pruner says the trial is hopeless.
 
 A trial the sweeper asked is its own (:func:`claim`: ``sweeper`` = host and process,
 ``alive_at`` renewed by every report of its jobs) until told. A trial left running by a
@@ -100,7 +100,14 @@ def job_folders_of(trial: Any) -> list[Path]:
 SWEEPER_INTS = {"n_trials": (1, 10**6), "trials_per_batch": (1, 10**4), "budget_steps": (1, 10**12),
                 "report_every": (1, 10**8), "startup_trials": (0, 10**6)}
 SEED_LIMIT = 2**32  # numpy's (and so Optuna's samplers') seeds; a run's own seeds are checked by the run
-PRUNER_KEYS = ("n_startup_trials", "n_warmup_steps", "interval_steps", "n_min_trials")
+# Optuna's pruners by ``hydra.sweeper.pruner.kind`` (steps are episodes): their class and settings.
+PRUNERS = {
+    "median": ("MedianPruner", ("n_startup_trials", "n_warmup_steps", "interval_steps", "n_min_trials")),
+    "successive_halving": ("SuccessiveHalvingPruner", ("min_resource", "reduction_factor",
+                                                       "min_early_stopping_rate", "bootstrap_count")),
+    "hyperband": ("HyperbandPruner", ("min_resource", "max_resource", "reduction_factor", "bootstrap_count")),
+}
+AUTO = ("min_resource", "max_resource")  # settings Optuna also takes as "auto"
 
 
 def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
@@ -139,19 +146,34 @@ def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _checked_pruner(pruner: Any, refuse: Callable[[str, str], ConfigError]) -> dict | None:
-    """The median pruner's settings (null or {} for none), each a whole number >= 0."""
+    """The pruner's ``kind`` (median by default; :data:`PRUNERS`) and settings (null or {}
+    for none), each a whole number >= 0 (``min_resource``/``max_resource`` also ``auto``)."""
     if pruner is None or pruner == {}:
         return None
     if not isinstance(pruner, dict):
-        raise refuse("pruner", f"null, or a mapping of {', '.join(PRUNER_KEYS)} to integers >= 0")
+        raise refuse("pruner", f"null, or a mapping: kind ({', '.join(PRUNERS)}) and its settings")
+    kind = pruner.get("kind", "median")
+    if kind not in PRUNERS:
+        raise ConfigError(f"hydra.sweeper.pruner.kind must be one of {', '.join(PRUNERS)}; got {kind!r}")
+    keys = PRUNERS[kind][1]
+    out: dict[str, Any] = {"kind": kind}
     for key, value in pruner.items():
-        if key not in PRUNER_KEYS:
-            hint = did_you_mean(str(key), PRUNER_KEYS, "hydra.sweeper.pruner.")
-            raise ConfigError(f"hydra.sweeper.pruner.{key} is not a setting of the median pruner; {hint}"
-                              f"allowed: {', '.join(PRUNER_KEYS)}")
-        if not (is_integer(value) and 0 <= value <= 10**9):
-            raise ConfigError(f"hydra.sweeper.pruner.{key} must be an integer >= 0 and <= 1e+09; got {value!r}")
-    return {k: int(v) for k, v in pruner.items()}
+        if key == "kind":
+            continue
+        if key not in keys:
+            hint = did_you_mean(str(key), keys, "hydra.sweeper.pruner.")
+            raise ConfigError(f"hydra.sweeper.pruner.{key} is not a setting of the {kind} pruner; {hint}"
+                              f"allowed: kind, {', '.join(keys)}")
+        if key in AUTO and value == "auto":
+            out[key] = value
+            continue
+        least = 2 if key == "reduction_factor" else 1 if key in AUTO else 0
+        if not (is_integer(value) and least <= value <= 10**9):
+            more = " or auto" if key in AUTO else ""
+            raise ConfigError(f"hydra.sweeper.pruner.{key} must be an integer >= {least} and <= 1e+09{more}; "
+                              f"got {value!r}")
+        out[key] = int(value)
+    return out
 
 
 def _plain(value: Any) -> Any:
@@ -308,13 +330,17 @@ def current_trial(params: Mapping[str, Param], config: Any) -> dict[str, Any] | 
 
 
 def make_pruner(settings: Mapping[str, Any] | None):
-    """Optuna's median pruner with ``settings`` (``n_startup_trials``, ``n_warmup_steps``:
-    episodes), or none for ``None``/``{}``."""
+    """Optuna's pruner of ``settings``' ``kind`` (median by default; :data:`PRUNERS`) with
+    its other settings (steps are episodes), or none for ``None``/``{}``. The median pruner
+    compares a trial with finished ones only; successive halving and Hyperband with every
+    trial that reached its rung, running ones too (trials trained side by side)."""
     import optuna
 
     if not settings:
         return optuna.pruners.NopPruner()
-    return optuna.pruners.MedianPruner(**dict(settings))
+    settings = dict(settings)
+    name = PRUNERS[settings.pop("kind", "median")][0]
+    return getattr(optuna.pruners, name)(**settings)
 
 
 JOURNAL = "journal://"  # journal:///shared/fs/studies.log: Optuna's journal file storage
@@ -373,15 +399,25 @@ def _engine_kwargs(url: str) -> dict:
 
 
 class TrialLink:
-    """A trial job's line to its study: reports the rolling measure (the first seed's job
-    only) and asks the pruner whether to stop. A study it cannot reach is one warning,
-    and the run goes on unpruned."""
+    """A trial job's line to its study: reports the rolling measure and asks the pruner
+    whether to stop. Every seed's job reports its value at a step (``step<s>_seed<seed>``);
+    once all the trial's seeds have, their mean is the trial's intermediate value at that
+    step (a trial of one seed: its value). A study it cannot reach is one warning, and the
+    run goes on unpruned.
+
+    A trial pruned by one seed's report stops its other seeds' runs in this process at
+    their next step (:attr:`pruned`), and elsewhere at their next report."""
+
+    # Trials this process has seen pruned, (storage, study, number): shared by the links of
+    # one trial's seeds that train side by side.
+    _pruned: set[tuple[str, str, int]] = set()
 
     def __init__(self, storage: str, study: str, number: int, lead: bool,
                  pruner: Mapping[str, Any] | None, every: int, run_dir: Path, seed: int = 0) -> None:
         import optuna
 
-        self.every, self.lead, self.number = int(every), lead, number
+        self.every, self.lead, self.number, self.seed = int(every), lead, number, int(seed)
+        self._key = (storage, study, number)
         self._storage = open_storage(storage)
         self._study = optuna.load_study(study_name=study, storage=self._storage, pruner=make_pruner(pruner))
         study_id = self._storage.get_study_id_from_name(study)
@@ -395,6 +431,11 @@ class TrialLink:
         # Where each seed's job runs: a sweep that takes the trial over resumes it there.
         self._storage.set_trial_user_attr(self._trial_id, f"run_dir_seed{seed}", str(Path(run_dir).resolve()))
 
+    @property
+    def pruned(self) -> bool:
+        """Whether this process has seen the trial pruned (by any of its seeds' reports)."""
+        return self._key in TrialLink._pruned
+
     def __call__(self, step: int, value: float) -> bool:
         """Reports ``value`` at ``step`` episodes; True when the study prunes the trial."""
         import optuna
@@ -403,16 +444,37 @@ class TrialLink:
             frozen = self._storage.get_trial(self._trial_id)
             if frozen.state != optuna.trial.TrialState.RUNNING:
                 return False  # told already (e.g. a resumed job): nothing to report to
+            if frozen.user_attrs.get("pruned_at_step") is not None:
+                TrialLink._pruned.add(self._key)  # another seed's report pruned it
+                return True
             self._storage.set_trial_user_attr(self._trial_id, "alive_at", time.time())  # the trial's lease
-            if self.lead and math.isfinite(value):
-                self._storage.set_trial_intermediate_value(self._trial_id, step, float(value))
+            if math.isfinite(value):
+                self._report(step, float(value), frozen)
                 frozen = self._storage.get_trial(self._trial_id)
-            return bool(self._pruner.prune(self._study, frozen))
+            if self._pruner.prune(self._study, frozen):
+                self._storage.set_trial_user_attr(self._trial_id, "pruned_at_step", step)
+                TrialLink._pruned.add(self._key)
+                return True
+            return False
         except Exception as err:  # noqa: BLE001 - the study is a remote database too
             print(f"warning: trial {self.number}: cannot reach the study ({type(err).__name__}: "
                   f"{str(err).splitlines()[0] if str(err) else ''}); the run goes on unpruned")
             self.every = 0
             return False
+
+    def _report(self, step: int, value: float, frozen: Any) -> None:
+        """This seed's value at ``step``; the trial's intermediate value there once every seed's
+        is in (the first seed's alone for a trial asked without its seeds)."""
+        seeds = frozen.user_attrs.get("seeds")
+        if not seeds:
+            if self.lead:
+                self._storage.set_trial_intermediate_value(self._trial_id, step, value)
+            return
+        self._storage.set_trial_user_attr(self._trial_id, f"step{step}_seed{self.seed}", value)
+        values = {**frozen.user_attrs, f"step{step}_seed{self.seed}": value}
+        reported = [values.get(f"step{step}_seed{s}") for s in seeds]
+        if all(v is not None for v in reported) and step not in frozen.intermediate_values:
+            self._storage.set_trial_intermediate_value(self._trial_id, step, sum(reported) / len(reported))
 
 
 def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header: list[str]) -> str:

@@ -200,6 +200,28 @@ def test_a_trial_killed_before_its_jobs_could_continue_is_asked_again(tmp_path):
     assert trials[1].params == trials[0].params and trials[1].user_attrs["retry_of"] == 0
 
 
+def test_every_seed_reports_and_the_mean_is_the_trials_value_and_a_prune_stops_its_siblings(tmp_path):
+    """A trial asked with its seeds: each seed's job reports its value at a step; once both
+    have, their mean is the trial's intermediate value there. Pruned by one seed's report,
+    the trial stops the other seed's run in this process at its next step (``pruned``)."""
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    pruner = {"n_startup_trials": 1, "n_warmup_steps": 0}
+    study = optuna.create_study(study_name="s", storage=url, direction="maximize",
+                                pruner=optuna.pruners.MedianPruner(**pruner))
+    good = study.ask()
+    good.report(100.0, 10)
+    study.tell(good, 100.0)
+    poor = study.ask()
+    poor.set_user_attr("seeds", [0, 1])
+    links = [TrialLink(url, "s", poor.number, lead=seed == 0, pruner=pruner, every=10,
+                       run_dir=tmp_path / f"j{seed}", seed=seed) for seed in (0, 1)]
+    assert links[1](10, 3.0) is False and not links[0].pruned  # one seed in: no trial value yet
+    assert study.trials[poor.number].intermediate_values == {}
+    assert links[0](10, 1.0) is True  # both in: mean 2.0, below the median 100
+    assert study.trials[poor.number].intermediate_values == {10: 2.0}
+    assert links[1].pruned and study.trials[poor.number].user_attrs["run_dir_seed1"] == str(tmp_path / "j1")
+
+
 def test_the_tuned_file_keeps_the_previous_ones_other_settings():
     text = tuned_text({"learner.alpha": 0.3, "learner.number_splits": 7},
                       {"num_envs": 8, "learner": {"alpha": 0.1, "gamma": 0.99}}, ["study x", "best 1.2"])
@@ -305,6 +327,13 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     ({"pruner": {"n_warmup_steps": -1}}, [], "hydra.sweeper.pruner.n_warmup_steps must be an integer >= 0"),
     ({"pruner": {"n_warmup_step": 1}}, [], "did you mean hydra.sweeper.pruner.n_warmup_steps?"),
     ({"pruner": 5}, [], "hydra.sweeper.pruner must be null, or a mapping"),
+    ({"pruner": {"kind": "asha"}}, [], "hydra.sweeper.pruner.kind must be one of median, successive_halving"),
+    ({"pruner": {"kind": "successive_halving", "n_warmup_steps": 5}}, [],
+     "hydra.sweeper.pruner.n_warmup_steps is not a setting of the successive_halving pruner"),
+    ({"pruner": {"kind": "hyperband", "reduction_factor": 1}}, [],
+     "hydra.sweeper.pruner.reduction_factor must be an integer >= 2"),
+    ({"pruner": {"kind": "hyperband", "min_resource": "soon"}}, [],
+     "hydra.sweeper.pruner.min_resource must be an integer >= 1 and <= 1e+09 or auto"),
     ({}, ["learner.lr=0.1,0.2"], "the study picks the values"),
     ({}, ["trial=3"], "the sweeper sets trial for each job"),
     ({}, ["max_env_steps=10"], "hydra.sweeper.budget_steps"),
@@ -318,13 +347,25 @@ def test_the_sweepers_own_checks(settings, args, words):
         sweep._fixed(args)
 
 
+@pytest.mark.parametrize("settings, kind", [
+    (None, optuna.pruners.NopPruner),
+    ({"n_startup_trials": 2}, optuna.pruners.MedianPruner),
+    ({"kind": "successive_halving", "min_resource": 50, "reduction_factor": 3}, optuna.pruners.SuccessiveHalvingPruner),
+    ({"kind": "hyperband", "min_resource": "auto", "max_resource": 400}, optuna.pruners.HyperbandPruner),
+])
+def test_each_pruner_kind_is_optunas(settings, kind):
+    from sweeps.tuning import make_pruner
+
+    assert type(make_pruner(settings)) is kind
+
+
 def test_checked_sweeper_settings_keep_their_types():
     from sweeps.optuna_sweep import TuningSweep
 
     sweep = TuningSweep(study="s", storage="sqlite://", n_trials=3.0, seeds=OmegaConf.create([2, 0]),
                         pruner=OmegaConf.create({"n_warmup_steps": 10}))
     sweep._check_settings()
-    assert (sweep.n_trials, sweep.seeds, sweep.pruner) == (3, [2, 0], {"n_warmup_steps": 10})
+    assert (sweep.n_trials, sweep.seeds, sweep.pruner) == (3, [2, 0], {"kind": "median", "n_warmup_steps": 10})
     assert type(sweep.n_trials) is int and sweep.write_tuned is False
 
 
