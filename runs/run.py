@@ -66,14 +66,16 @@ TRAIN_LOG_STEPS = 1000
 
 
 class Progress(Protocol):
-    """A tuning trial's link (:class:`sweeps.tuning.TrialLink`): called with the episodes
-    so far and the rolling measure every ``every`` episodes (0: no more); True stops the run,
-    as does ``pruned`` at any step (the trial stopped by another of its runs' reports)."""
+    """A tuning trial's link (:class:`sweeps.tuning.TrialLink`): called with the env steps
+    so far and the rolling measure every ``every`` env steps (0: no more; env steps, as a
+    trial's budget is: trials of long and short episodes are compared at equal cost); True
+    stops the run, as does ``pruned`` at any step (the trial stopped by another of its runs'
+    reports)."""
 
     every: int
     pruned: bool
 
-    def __call__(self, episodes: int, rolling: float) -> bool: ...
+    def __call__(self, env_steps: int, rolling: float) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -306,7 +308,7 @@ class Run:
         Returns ``td``, the next step's input."""
         self.last_td = td
         self.log_train()
-        if self.progress is not None and self.progress.every and self.n_episodes >= self._next_progress:
+        if self.progress is not None and self.progress.every and self.env_steps >= self._next_progress:
             self._report_progress()
         if self.progress is not None and self.pruned_at is None and not self.done and self.progress.pruned:
             self.pruned_at = self.n_episodes  # pruned by another seed's report: stop now
@@ -379,9 +381,9 @@ class Run:
 
     def _report_progress(self) -> None:
         """The rolling measure to the ``progress`` hook at the last multiple of ``progress.every``
-        episodes passed (the same steps for every run it is compared with); it may stop the run."""
+        env steps passed (the same steps for every run it is compared with); it may stop the run."""
         every = self.progress.every
-        step = self.n_episodes // every * every
+        step = self.env_steps // every * every
         self._next_progress = step + every
         if step > 0 and not self.done and self.progress(step, self.rolling()):
             self.pruned_at = self.n_episodes

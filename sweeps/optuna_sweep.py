@@ -39,13 +39,14 @@ class TuningSweep:
 
     def __init__(self, study: str, storage: str, n_trials: int = 12, trials_per_batch: int = 1,
                  seeds: Sequence[int] = (0, 1), search: str | None = None, budget_steps: int = 50_000,
-                 report_every: int = 50, pruner: dict | None = None, startup_trials: int = 5,
+                 report_every: int = 5000, pruner: str | dict | None = None, pruners: dict | None = None,
+                 startup_trials: int = 5,
                  sampler_seed: int | None = None, write_tuned: bool = False, start_from_current: bool = True) -> None:
         # As given: :meth:`_check_settings` checks each and keeps it in its type (1.5 trials is
         # refused, not rounded; ``write_tuned=maybe`` is refused, not taken as true).
         self.settings = dict(study=study, storage=storage, n_trials=n_trials, trials_per_batch=trials_per_batch,
                              seeds=seeds, search=search, budget_steps=budget_steps, report_every=report_every,
-                             pruner=pruner, startup_trials=startup_trials, sampler_seed=sampler_seed,
+                             pruner=pruner, pruners=pruners, startup_trials=startup_trials, sampler_seed=sampler_seed,
                              write_tuned=write_tuned, start_from_current=start_from_current)
         self.study_name, self.storage_url = str(study), str(storage)
         self.search, self.pruner, self.sampler_seed = search, pruner, sampler_seed

@@ -14,7 +14,7 @@ as one job per seed and tells the study the mean over them of its objective, the
 own measure as its judge sees it (``greedy_<measure>`` or
 ``train_<measure>_last<window>``, :meth:`runs.summary.MeasureKeys.headline`; the study's
 metric name). Each job reports its
-rolling measure to the study every ``report_every`` episodes (:class:`TrialLink`); the
+rolling measure to the study every ``report_every`` env steps (:class:`TrialLink`); the
 mean over the trial's seeds is its intermediate value, and every seed's job stops when
 the pruner says the trial is hopeless.
 
@@ -100,7 +100,7 @@ def job_folders_of(trial: Any) -> list[Path]:
 SWEEPER_INTS = {"n_trials": (1, 10**6), "trials_per_batch": (1, 10**4), "budget_steps": (1, 10**12),
                 "report_every": (1, 10**8), "startup_trials": (0, 10**6)}
 SEED_LIMIT = 2**32  # numpy's (and so Optuna's samplers') seeds; a run's own seeds are checked by the run
-# Optuna's pruners by ``hydra.sweeper.pruner.kind`` (steps are episodes): their class and settings.
+# Optuna's pruners by ``hydra.sweeper.pruner`` (steps are env steps): their class and settings.
 PRUNERS = {
     "median": ("MedianPruner", ("n_startup_trials", "n_warmup_steps", "interval_steps", "n_min_trials")),
     "successive_halving": ("SuccessiveHalvingPruner", ("min_resource", "reduction_factor",
@@ -141,17 +141,37 @@ def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
     if sampler_seed is not None and not (is_integer(sampler_seed) and 0 <= sampler_seed < SEED_LIMIT):
         raise refuse("sampler_seed", "null or an integer from 0 to 2^32-1")
     out["sampler_seed"] = None if sampler_seed is None else int(sampler_seed)
-    out["pruner"] = _checked_pruner(_plain(settings["pruner"]), refuse)
+    out["pruner"] = pruner_settings(settings["pruner"], settings.get("pruners"), refuse)
     return out
 
 
-def _checked_pruner(pruner: Any, refuse: Callable[[str, str], ConfigError]) -> dict | None:
+def pruner_settings(pruner: Any, pruners: Any = None,
+                    refuse: Callable[[str, str], ConfigError] | None = None) -> dict | None:
+    """The pruner a sweep uses, ``{"kind": ..., <settings>}`` or None: ``pruner`` names a kind
+    (:data:`PRUNERS`) whose settings are ``pruners[kind]`` (``hydra.sweeper.pruners``), or is
+    itself a mapping of ``kind`` (median by default) and settings, or null for none."""
+    pruner, pruners = _plain(pruner), _plain(pruners) or {}
+    if refuse is None:
+        def refuse(name: str, allowed: str) -> ConfigError:
+            return ConfigError(f"hydra.sweeper.{name} must be {allowed}; got {pruner!r}")
+    if isinstance(pruner, str):
+        if pruner not in PRUNERS:
+            raise ConfigError(f"hydra.sweeper.pruner must be null or one of {', '.join(PRUNERS)}; got {pruner!r}")
+        own = pruners.get(pruner) or {}
+        if not isinstance(own, dict):
+            raise ConfigError(f"hydra.sweeper.pruners.{pruner} must be a mapping of its settings; got {own!r}")
+        return _checked_pruner({**own, "kind": pruner}, refuse, f"hydra.sweeper.pruners.{pruner}.")
+    return _checked_pruner(pruner, refuse)
+
+
+def _checked_pruner(pruner: Any, refuse: Callable[[str, str], ConfigError],
+                    where: str = "hydra.sweeper.pruner.") -> dict | None:
     """The pruner's ``kind`` (median by default; :data:`PRUNERS`) and settings (null or {}
     for none), each a whole number >= 0 (``min_resource``/``max_resource`` also ``auto``)."""
     if pruner is None or pruner == {}:
         return None
     if not isinstance(pruner, dict):
-        raise refuse("pruner", f"null, or a mapping: kind ({', '.join(PRUNERS)}) and its settings")
+        raise refuse("pruner", f"null, one of {', '.join(PRUNERS)}, or a mapping: kind and its settings")
     kind = pruner.get("kind", "median")
     if kind not in PRUNERS:
         raise ConfigError(f"hydra.sweeper.pruner.kind must be one of {', '.join(PRUNERS)}; got {kind!r}")
@@ -161,8 +181,8 @@ def _checked_pruner(pruner: Any, refuse: Callable[[str, str], ConfigError]) -> d
         if key == "kind":
             continue
         if key not in keys:
-            hint = did_you_mean(str(key), keys, "hydra.sweeper.pruner.")
-            raise ConfigError(f"hydra.sweeper.pruner.{key} is not a setting of the {kind} pruner; {hint}"
+            hint = did_you_mean(str(key), keys, where)
+            raise ConfigError(f"{where}{key} is not a setting of the {kind} pruner; {hint}"
                               f"allowed: kind, {', '.join(keys)}")
         if key in AUTO and value == "auto":
             out[key] = value
@@ -170,7 +190,7 @@ def _checked_pruner(pruner: Any, refuse: Callable[[str, str], ConfigError]) -> d
         least = 2 if key == "reduction_factor" else 1 if key in AUTO else 0
         if not (is_integer(value) and least <= value <= 10**9):
             more = " or auto" if key in AUTO else ""
-            raise ConfigError(f"hydra.sweeper.pruner.{key} must be an integer >= {least} and <= 1e+09{more}; "
+            raise ConfigError(f"{where}{key} must be an integer >= {least} and <= 1e+09{more}; "
                               f"got {value!r}")
         out[key] = int(value)
     return out
@@ -331,7 +351,7 @@ def current_trial(params: Mapping[str, Param], config: Any) -> dict[str, Any] | 
 
 def make_pruner(settings: Mapping[str, Any] | None):
     """Optuna's pruner of ``settings``' ``kind`` (median by default; :data:`PRUNERS`) with
-    its other settings (steps are episodes), or none for ``None``/``{}``. The median pruner
+    its other settings (steps are env steps), or none for ``None``/``{}``. The median pruner
     compares a trial with finished ones only; successive halving and Hyperband with every
     trial that reached its rung, running ones too (trials trained side by side)."""
     import optuna
@@ -437,7 +457,7 @@ class TrialLink:
         return self._key in TrialLink._pruned
 
     def __call__(self, step: int, value: float) -> bool:
-        """Reports ``value`` at ``step`` episodes; True when the study prunes the trial."""
+        """Reports ``value`` at ``step`` env steps; True when the study prunes the trial."""
         import optuna
 
         try:
@@ -530,7 +550,8 @@ def trial_link(cfg: Any, run_dir: Path, sweeper: Any) -> TrialLink | None:
                           "tune with: python train.py -m hydra/sweeper=optuna ...")
     try:
         return TrialLink(str(sweeper.storage), str(sweeper.study), int(cfg.trial),
-                         lead=int(cfg.seed) == int(sweeper.seeds[0]), pruner=sweeper.pruner,
+                         lead=int(cfg.seed) == int(sweeper.seeds[0]),
+                         pruner=pruner_settings(sweeper.pruner, sweeper.get("pruners")),
                          every=int(sweeper.report_every), run_dir=run_dir, seed=int(cfg.seed))
     except ConfigError:
         raise

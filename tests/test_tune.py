@@ -137,7 +137,7 @@ def test_trials_that_differ_in_member_wise_settings_train_as_one_batch(tmp_path)
     url = f"sqlite:///{tmp_path / 's.db'}"
     proc = cli("-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=dqn", "num_envs=2", "eval_episodes=2",
                "hydra.sweeper.n_trials=2", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[0,1]",
-               "hydra.sweeper.budget_steps=600", "hydra.sweeper.report_every=5", "hydra.sweeper.pruner=null",
+               "hydra.sweeper.budget_steps=600", "hydra.sweeper.report_every=100", "hydra.sweeper.pruner=null",
                f"hydra.sweeper.search={space}", f"hydra.sweeper.storage={url}",
                f"hydra.sweep.dir={tmp_path / 'sweep'}")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
@@ -270,7 +270,7 @@ def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(projec
     proc = cli("-m", "hydra/sweeper=optuna", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
                "robot=cartpole", "learner=n1try", "eval_episodes=2", "num_envs=4",
                "hydra.sweeper.n_trials=2", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[3]",
-               "hydra.sweeper.budget_steps=400", "hydra.sweeper.report_every=5", "hydra.sweeper.write_tuned=true",
+               "hydra.sweeper.budget_steps=400", "hydra.sweeper.report_every=100", "hydra.sweeper.write_tuned=true",
                f"hydra.sweeper.storage={url}", f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=project_copy)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     study = optuna.load_study(study_name="cartpole-stay_up-n1try", storage=url)
@@ -326,7 +326,7 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     ({"sampler_seed": 2**40}, [], "hydra.sweeper.sampler_seed must be null or an integer"),
     ({"pruner": {"n_warmup_steps": -1}}, [], "hydra.sweeper.pruner.n_warmup_steps must be an integer >= 0"),
     ({"pruner": {"n_warmup_step": 1}}, [], "did you mean hydra.sweeper.pruner.n_warmup_steps?"),
-    ({"pruner": 5}, [], "hydra.sweeper.pruner must be null, or a mapping"),
+    ({"pruner": 5}, [], "hydra.sweeper.pruner must be null, one of median, successive_halving, hyperband, or a"),
     ({"pruner": {"kind": "asha"}}, [], "hydra.sweeper.pruner.kind must be one of median, successive_halving"),
     ({"pruner": {"kind": "successive_halving", "n_warmup_steps": 5}}, [],
      "hydra.sweeper.pruner.n_warmup_steps is not a setting of the successive_halving pruner"),
@@ -415,7 +415,7 @@ def test_a_trial_that_loses_its_study_warns_once_and_trains_on(tmp_path, capsys)
     run = Run(tmp_path / "run", 1, 1000, Success("length", "steps", "steps balanced", math.inf), quiet=True,
               hooks=Hooks(progress=link))
     for n in (10, 20, 30):
-        run.episodes.n_episodes = n
+        run.episodes.n_episodes, run.episodes.env_steps = n, n  # reports go by env steps
         run.episodes.values.append(1.0)
         run.end_step(None)
     warned = [line for line in capsys.readouterr().out.splitlines() if "cannot reach the study" in line]
