@@ -97,7 +97,7 @@ def job_folders_of(trial: Any) -> list[Path]:
 
 
 # The sweeper's whole numbers: (least, most). Bounds keep a typo (1e308) from running for ever.
-SWEEPER_INTS = {"n_trials": (1, 10**6), "trials_per_batch": (1, 10**4), "budget_steps": (1, 10**12),
+SWEEPER_INTS = {"n_trials": (0, 10**6), "trials_per_batch": (1, 10**4), "budget_steps": (1, 10**12),
                 "report_every": (1, 10**8), "startup_trials": (0, 10**6)}
 SEED_LIMIT = 2**32  # numpy's (and so Optuna's samplers') seeds; a run's own seeds are checked by the run
 # Optuna's pruners by ``hydra.sweeper.pruner`` (steps are env steps): their class and settings.

@@ -264,6 +264,33 @@ def project_copy(tmp_path):
     return copy
 
 
+def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_copy):
+    """``python -m bench.benchmark --tune``: a pair's study asks its trials, writes the pair's
+    tuned file with the study in its header and keeps its record in bench/studies/; the
+    same command again finds the study complete and runs nothing."""
+    shutil.copytree(ROOT / "bench", project_copy / "bench", ignore=shutil.ignore_patterns("__pycache__", "studies"))
+    plan = OmegaConf.load(project_copy / "bench" / "benchmark.yaml")
+    plan.tasks.cartpole.budget_steps = 400
+    plan.tuning = {"trials": 2, "seeds": [0], "pruner": "successive_halving", "first_rung": 4}
+    OmegaConf.save(plan, project_copy / "bench" / "benchmark.yaml")
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+
+    def grid() -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "bench.benchmark", "--tune", "--tasks", "cartpole",
+                               "--learners", "qlearn"], cwd=project_copy, capture_output=True, text=True,
+                              timeout=600, env=env)
+
+    first = grid()
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    record = project_copy / "bench" / "studies" / "cartpole_qlearn.log"
+    study = optuna.load_study(study_name="bench-cartpole-qlearn", storage=open_storage(f"journal://{record}"))
+    assert len(study.trials) == 2 and all(t.state.is_finished() for t in study.trials)
+    tuned = (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").read_text()
+    assert "study bench-cartpole-qlearn in journal://bench/studies/cartpole_qlearn.log" in tuned
+    again = grid()
+    assert again.returncode == 0 and "cartpole_qlearn: study complete (2 trials)" in again.stdout, again.stdout
+
+
 def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(project_copy, tmp_path):
     url = f"sqlite:///{tmp_path / 'studies.db'}"
     assert not (project_copy / "conf" / "tuned" / "cartpole_n1try.yaml").exists()

@@ -1,0 +1,97 @@
+"""``python -m bench.benchmark --tune``: every pair of the benchmark's plan tuned by one study
+each, on the same terms, resuming where it stopped.
+
+Per task x learner of ``bench/benchmark.yaml`` (its ``tuning`` block: trials, seeds,
+pruner; the env-step budget a trial's seed gets is the task's ``budget_steps``, the
+benchmark's own), one Optuna study, ``bench-<task>-<learner>``, kept in a journal file
+in the repository (``bench/studies/<task>_<learner>.log``: how each tuned file was found
+can be read there later). Each pair runs ``train.py -m hydra/sweeper=optuna`` with every
+trial x seed trained side by side (``trials_per_batch``: all of them), asking only the
+trials its study still lacks: run the same command again after a stop and each study
+takes over the trials the stop left running and goes on to its count. A study that
+finishes writes the pair's ``conf/tuned/`` file (``write_tuned``; its header: the study,
+budget, trials, seeds and best value). Its first trial is the current configuration
+(the hand-picked tuned file where the space holds its values), so a hand pick is kept
+wherever no sampled trial beats it on the tuning seeds. Tasks the plan runs with extra
+overrides (``cube_minus_y``) are variants of another task's config and are not tuned.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDIES = Path("bench") / "studies"  # from ROOT (the URL in each tuned file's header names no machine)
+
+
+def study_counts(name: str, path: Path) -> tuple[int, int]:
+    """(trials the study holds that count: finished, pruned, failed but not asked again;
+    trials running) of study ``name`` in the journal file ``path`` ((0, 0) if none)."""
+    import optuna
+
+    if not (ROOT / path).is_file():
+        return 0, 0
+    from sweeps.tuning import open_storage
+
+    try:
+        study = optuna.load_study(study_name=name, storage=open_storage(f"journal://{ROOT / path}"))
+    except KeyError:
+        return 0, 0
+    state = optuna.trial.TrialState
+    retried = {t.user_attrs.get("retry_of") for t in study.trials}
+    counted = [t for t in study.trials if t.state in (state.COMPLETE, state.PRUNED)
+               or (t.state == state.FAIL and t.number not in retried)]
+    return len(counted), sum(t.state == state.RUNNING for t in study.trials)
+
+
+def command(task: str, spec: dict, learner: str, tuning: dict, missing: int) -> list[str]:
+    """The tuning sweep of one pair: ``missing`` more trials of its study."""
+    budget = int(spec["budget_steps"])
+    rung = max(budget // int(tuning.get("first_rung", 9)), 1)
+    name = f"{task}_{learner}"
+    return [sys.executable, "train.py", "-m", "hydra/sweeper=optuna", f"robot={spec['robot']}", f"task={spec['task']}",
+            f"learner={learner}", f"hydra.sweeper.study=bench-{task}-{learner}",
+            f"hydra.sweeper.storage=journal://{STUDIES / f'{name}.log'}",
+            f"hydra.sweeper.n_trials={missing}", f"hydra.sweeper.trials_per_batch={int(tuning['trials'])}",
+            f"hydra.sweeper.seeds=[{','.join(str(s) for s in tuning['seeds'])}]",
+            f"hydra.sweeper.budget_steps={budget}", f"hydra.sweeper.report_every={max(rung // 3, 1)}",
+            f"hydra.sweeper.pruner={tuning['pruner']}",
+            *([f"hydra.sweeper.pruners.{tuning['pruner']}.min_resource={rung}"]
+              if tuning["pruner"] in ("successive_halving", "hyperband") else []),
+            "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(tuning.get('write_tuned', True)).lower()}",
+            f"hydra.sweep.dir=tuning/bench/{name}/{time.strftime('%Y%m%d-%H%M%S')}"]
+
+
+def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_run: bool = False) -> int:
+    """Tunes every pair asked for (the plan's by default); the number of pairs left unfinished."""
+    tuning = plan["tuning"]
+    (ROOT / STUDIES).mkdir(parents=True, exist_ok=True)
+    left = 0
+    for task in tasks or list(plan["tasks"]):
+        spec = plan["tasks"][task]
+        if spec.get("overrides"):
+            print(f"{task}: a variant of {spec['robot']}/{spec['task']} (overrides {spec['overrides']}): not tuned")
+            continue
+        for learner in learners or plan["learners"]:
+            name = f"{task}_{learner}"
+            counted, running = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
+            missing = int(tuning["trials"]) - counted - running
+            if missing <= 0 and not running:
+                print(f"{name}: study complete ({counted} trials)")
+                continue
+            cmd = command(task, spec, learner, tuning, max(missing, 0))
+            print(f"{name}: {counted} trials done, {running} left running, {max(missing, 0)} to ask\n  "
+                  + " ".join(cmd[1:]), flush=True)
+            if dry_run:
+                left += 1
+                continue
+            code = subprocess.call(cmd, cwd=ROOT)
+            if code != 0:
+                print(f"{name}: the sweep exited {code}; run the same command again to go on", flush=True)
+                left += 1
+                if code >= 128:  # stopped (Ctrl-C, a kill): the grid stops too
+                    return left
+    return left
