@@ -47,6 +47,17 @@ def study_counts(name: str, path: Path) -> tuple[int, int]:
     return len(counted), sum(t.state == state.RUNNING for t in study.trials)
 
 
+def written(spec: dict, learner: str, task: str) -> bool:
+    """Whether the pair's tuned file is its study's (its header names the study): a study
+    that finished without writing it (write_tuned off) gets a sweep of no new trials that
+    writes it."""
+    from tasks.catalog import default_task, tuned_file
+
+    per_task = spec["task"] != default_task(spec["robot"])
+    path = tuned_file(spec["robot"], learner, spec["task"] if per_task else None)
+    return path.is_file() and f"study bench-{task}-{learner} in" in path.read_text()
+
+
 def command(task: str, spec: dict, learner: str, tuning: dict, missing: int) -> list[str]:
     """The tuning sweep of one pair: ``missing`` more trials of its study."""
     budget = int(spec["budget_steps"])
@@ -79,7 +90,7 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             name = f"{task}_{learner}"
             counted, running = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
             missing = int(tuning["trials"]) - counted - running
-            if missing <= 0 and not running:
+            if missing <= 0 and not running and (written(spec, learner, task) or not tuning.get("write_tuned", True)):
                 print(f"{name}: study complete ({counted} trials)")
                 continue
             cmd = command(task, spec, learner, tuning, max(missing, 0))

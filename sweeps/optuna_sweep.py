@@ -141,6 +141,12 @@ class TuningSweep:
               f"  {self.n_trials} trials x seeds {self.seeds}, {self.budget_steps} env steps each, objective: "
               f"{plan.objective} (mean over the seeds), pruning: {self.pruner or 'off'}, space: {plan.space_file}",
               flush=True)
+        if not study.trials:  # the tuned file its trials run with: the study's final file builds on it
+            ran_with = self.config.hydra.runtime.choices.get(
+                TASK_TUNED if _per_task(plan.robot, plan.task, self.config.hydra.runtime.choices.get(TASK_TUNED))
+                else "tuned")
+            ran_file = conf_dir() / "tuned" / f"{ran_with}.yaml"
+            study.set_user_attr("tuned_file_text", ran_file.read_text() if ran_with and ran_file.is_file() else "")
         if self.start_from_current and not study.trials:
             if plan.current is not None:  # the study's first trial: what a plain run does now
                 # skip_if_exists: a sweep started beside this one on the same new study may have queued it
@@ -288,7 +294,11 @@ class TuningSweep:
         # name no file); a task's file goes on top of the robot's, which stays as it is.
         ran_with = choices.get(TASK_TUNED if per_task else "tuned")
         ran_file = conf_dir() / "tuned" / f"{ran_with}.yaml"
-        base_values = OmegaConf.to_container(OmegaConf.load(ran_file)) if ran_with and ran_file.is_file() else None
+        # As it was when the study began (its trials ran with that), not as it may be now.
+        ran_text = study.user_attrs.get("tuned_file_text")
+        if ran_text is None and ran_with and ran_file.is_file():
+            ran_text = ran_file.read_text()
+        base_values = OmegaConf.to_container(OmegaConf.create(ran_text)) if ran_text else None
         if per_task:
             header.append(f"for task {plan.task} only: applied on top of {tuned_name(robot, learner)}.yaml "
                           "(where there is one), which the trials ran with too")

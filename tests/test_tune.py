@@ -289,6 +289,15 @@ def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_
     assert "study bench-cartpole-qlearn in journal://bench/studies/cartpole_qlearn.log" in tuned
     again = grid()
     assert again.returncode == 0 and "cartpole_qlearn: study complete (2 trials)" in again.stdout, again.stdout
+    (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").write_text("# @package _global_\nnum_envs: 8\n")
+    rewrite = grid()  # a finished study whose file is not its own: a sweep of no new trials writes it
+    assert rewrite.returncode == 0 and "0 to ask" in rewrite.stdout, rewrite.stdout[-2000:] + rewrite.stderr[-2000:]
+    rewritten = (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").read_text()
+
+    def settings(text: str) -> list[str]:
+        return [line for line in text.splitlines() if not line.startswith("#")]
+
+    assert settings(rewritten) == settings(tuned) and "study bench-cartpole-qlearn in" in rewritten
 
 
 def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(project_copy, tmp_path):
@@ -339,8 +348,8 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
 
 
 @pytest.mark.parametrize("settings, args, words", [
-    ({"n_trials": 0}, [], "hydra.sweeper.n_trials must be an integer >= 1 and <= 1e+06; got 0"),
-    ({"n_trials": 1.5}, [], "hydra.sweeper.n_trials must be an integer >= 1 and <= 1e+06; got 1.5"),
+    ({"n_trials": -1}, [], "hydra.sweeper.n_trials must be an integer >= 0 and <= 1e+06; got -1"),
+    ({"n_trials": 1.5}, [], "hydra.sweeper.n_trials must be an integer >= 0 and <= 1e+06; got 1.5"),
     ({"budget_steps": 1e308}, [], "hydra.sweeper.budget_steps must be an integer >= 1 and <= 1e+12; got 1e+308"),
     ({"startup_trials": -1}, [], "hydra.sweeper.startup_trials must be an integer >= 0 and <= 1e+06; got -1"),
     ({"report_every": "5"}, [], "hydra.sweeper.report_every must be an integer >= 1"),
