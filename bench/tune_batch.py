@@ -7,8 +7,9 @@ one trial at a time (run by hand).
 Runs ``train.py -m hydra/sweeper=optuna`` twice on the same pair, side by side in this run:
 ``trials_per_batch=1`` (each trial's seeds one batch, as a study ran before trials batched)
 and ``trials_per_batch=<trials>`` (every trial x seed a member of one batch), each with
-its own new study (SQLite under the bench's folder), the same sampler seed, no pruner and
-the same env-step budget per trial and seed. The default space holds member-wise settings
+its own new study (SQLite under the bench's folder), the same sampler seed, no pruner, every
+trial sampled (not the current configuration first) and the same env-step budget per
+trial and seed. The default space holds member-wise settings
 only (a space with a shape setting splits the batch: ``--space`` to try one). Prints
 each study's wall seconds (start to exit), best value, and the batched study's physics
 floor (its copy-steps priced at this machine's rollout cost at its widths, as
@@ -50,7 +51,8 @@ def study(args, tag: str, per_batch: int, space: Path, out: Path) -> tuple[float
            f"hydra.sweeper.study={tag}", f"hydra.sweeper.storage={url}", f"hydra.sweeper.search={space}",
            f"hydra.sweeper.n_trials={args.trials}", f"hydra.sweeper.trials_per_batch={per_batch}",
            f"hydra.sweeper.seeds=[{','.join(map(str, args.seeds))}]", f"hydra.sweeper.budget_steps={args.budget}",
-           "hydra.sweeper.pruner=null", "hydra.sweeper.sampler_seed=0", f"hydra.sweep.dir={out / tag}", *args.extra]
+           "hydra.sweeper.pruner=null", "hydra.sweeper.sampler_seed=0", "hydra.sweeper.start_from_current=false",
+           f"hydra.sweep.dir={out / tag}", *args.extra]
     seconds, _, _ = timed(cmd)
     best = optuna.load_study(study_name=tag, storage=url).best_value
     return seconds, best

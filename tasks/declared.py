@@ -71,7 +71,6 @@ class DeclaredTask(Task):
         require(isinstance(self.robot, MjcfRobot), "a declared task needs robot=<a robot made "
                 "from a model: robots.mjcf_robot.MjcfRobot>", type(self.robot).__name__)
         self.physics_timestep = self.physics_timestep or self.robot.timestep
-        self.n_substeps = substeps_for(self.running_step, self.physics_timestep)
         self._obs_terms = T.named_terms(self.robot, self.observations, "task.observations")
         self._terms = {**self._obs_terms, **T.named_terms(self.robot, self.terms, "task.terms")}
         self.observation_names = tuple(n for t in self._obs_terms.values() for n in t.labels())
@@ -79,6 +78,8 @@ class DeclaredTask(Task):
                 "quantity", self.observations)
         self._columns, self._commands = T.action_set(self.robot, self.actions)
         self.n_actions = len(self._commands)
+        # After the names: a task written for another model says so before its timing does.
+        self.n_substeps = substeps_for(self.running_step, self.physics_timestep)
         self._rewards = [T.reward_term(self.robot, str(k), v, self._terms, f"task.rewards.{k}")
                          for k, v in self.rewards.items()]
         self._bounds = T.bounds(self.termination, self._terms)
