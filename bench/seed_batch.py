@@ -107,30 +107,36 @@ def copy_steps(folder: Path) -> tuple[int, int, int]:
 
 
 def physics_floor(learner: str, n: str, seeds: int, folder: Path) -> float:
-    """Seconds the batch under ``folder`` needs for its physics alone: its copy-steps, each
-    priced at this machine's cost per copy-step of a ``mujoco.rollout`` call as wide as its
-    steps are (training: ``seeds`` x the copies a seed; evaluations: their copies), the
+    """Seconds the batch under ``folder`` needs for its physics alone (:func:`floor_of` at
+    ``seeds`` x the copies a seed)."""
+    copies_a_seed = TUNED[learner] if n == "tuned" else int(n)
+    return floor_of("cartpole", folder, seeds * copies_a_seed)
+
+
+def floor_of(robot: str, folder: Path, copies: int) -> float:
+    """Seconds the job folders under ``folder`` need for their physics alone: their
+    copy-steps, each priced at this machine's cost per copy-step of a ``mujoco.rollout``
+    call as wide as its steps are (training: ``copies``; evaluations: their copies), the
     rollout pool's threads as the env uses them. Below this no batch can go here."""
     sys.path.insert(0, str(ROOT))
     from robots.physics import BatchedPhysics
     from tasks import catalog
 
-    env = catalog.make_env("cartpole")
+    env = catalog.make_env(robot)
     model, substeps = env.physics.model, env.task.n_substeps
     env.close()
-    copies_a_seed = TUNED[learner] if n == "tuned" else int(n)
     train, evals, width = copy_steps(folder)
 
-    def per_copy_step(copies: int) -> float:
-        physics = BatchedPhysics(model, copies)
+    def per_copy_step(n: int) -> float:
+        physics = BatchedPhysics(model, n)
         physics.step(substeps)
         calls, t0 = 0, time.perf_counter()
         while time.perf_counter() - t0 < 2.0:
             physics.step(substeps)
             calls += 1
-        return (time.perf_counter() - t0) / (calls * copies)
+        return (time.perf_counter() - t0) / (calls * n)
 
-    return train * per_copy_step(seeds * copies_a_seed) + evals * per_copy_step(max(width, 1))
+    return train * per_copy_step(copies) + evals * per_copy_step(max(width, 1))
 
 
 def load() -> str:

@@ -2,11 +2,11 @@
 one trial at a time (run by hand).
 
     python bench/tune_batch.py [--robot cartpole] [--learner dqn] [--trials 12] [--seeds 0 1]
-                               [--budget 5000] [--space <file>] [-- extra overrides]
+                               [--budget 5000] [--per-batch N] [--space <file>] [-- extra overrides]
 
 Runs ``train.py -m hydra/sweeper=optuna`` twice on the same pair, side by side in this run:
 ``trials_per_batch=1`` (each trial's seeds one batch, as a study ran before trials batched)
-and ``trials_per_batch=<trials>`` (every trial x seed a member of one batch), each with
+and ``trials_per_batch=<per-batch>`` (default: every trial x seed a member of one batch), each with
 its own new study (SQLite under the bench's folder), the same sampler seed, no pruner, every
 trial sampled (not the current configuration first) and the same env-step budget per
 trial and seed. The default space holds member-wise settings
@@ -15,7 +15,7 @@ each study's wall seconds (start to exit), best value, and the batched study's p
 floor (its copy-steps priced at this machine's rollout cost at its widths, as
 ``bench/seed_batch.py`` prices a seed batch).
 
-Last lines: ``TUNE <robot> <learner> trials=<n> seeds=<s> budget=<steps> sequential_s=<v>
+Last lines: ``TUNE <robot> <learner> trials=<n> per_batch=<k> seeds=<s> budget=<steps> sequential_s=<v>
 batched_s=<v> ratio=<batched/sequential> physics_floor_s=<v> floor_ratio=<batched/floor>
 sequential_best=<v> batched_best=<v>``.
 """
@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from seed_batch import copy_steps, load, timed  # noqa: E402
+from seed_batch import floor_of, load, timed  # noqa: E402
 
 SPACES = {  # member-wise settings (the learners' MEMBER_WISE)
     "qlearn": {"learner.alpha": "tag(log, interval(0.02, 1.0))", "learner.gamma": "interval(0.6, 0.999)",
@@ -58,28 +58,6 @@ def study(args, tag: str, per_batch: int, space: Path, out: Path) -> tuple[float
     return seconds, best
 
 
-def floor(robot: str, folder: Path, copies: int) -> float:
-    """The physics seconds of the study under ``folder`` trained as one batch of ``copies``."""
-    from robots.physics import BatchedPhysics
-    from tasks import catalog
-
-    env = catalog.make_env(robot)
-    model, substeps = env.physics.model, env.task.n_substeps
-    env.close()
-    train, evals, width = copy_steps(folder)
-
-    def per_copy_step(n: int) -> float:
-        physics = BatchedPhysics(model, n)
-        physics.step(substeps)
-        calls, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < 2.0:
-            physics.step(substeps)
-            calls += 1
-        return (time.perf_counter() - t0) / (calls * n)
-
-    return train * per_copy_step(copies) + evals * per_copy_step(max(width, 1))
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="cartpole")
@@ -87,6 +65,7 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=12)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--budget", type=int, default=5000)
+    parser.add_argument("--per-batch", type=int, help="trials asked together by the batched study (default: all)")
     parser.add_argument("--space", type=Path)
     parser.add_argument("extra", nargs="*", help="overrides for every job (after --)")
     args = parser.parse_args()
@@ -99,12 +78,14 @@ def main() -> None:
         space.write_text("".join(f"{k}: {v}\n" for k, v in SPACES[args.learner].items()))
     print(f"load average (1/5/15 min) at the start: {load()} on {os.cpu_count()} cores", flush=True)
     sequential_s, sequential_best = study(args, "sequential", 1, space, out)
-    batched_s, batched_best = study(args, "batched", args.trials, space, out)
+    per_batch = args.per_batch or args.trials
+    batched_s, batched_best = study(args, "batched", per_batch, space, out)
     from tasks import catalog
     copies = int(catalog.compose(args.robot, learner=args.learner, overrides=list(args.extra)).num_envs)
-    floor_s = floor(args.robot, out / "batched", args.trials * len(args.seeds) * copies)
+    floor_s = floor_of(args.robot, out / "batched", per_batch * len(args.seeds) * copies)
     print(f"load average (1/5/15 min) at the end: {load()}")
-    print(f"TUNE {args.robot} {args.learner} trials={args.trials} seeds={len(args.seeds)} budget={args.budget} "
+    print(f"TUNE {args.robot} {args.learner} trials={args.trials} per_batch={per_batch} seeds={len(args.seeds)} "
+          f"budget={args.budget} "
           f"sequential_s={sequential_s:.1f} batched_s={batched_s:.1f} ratio={batched_s / sequential_s:.2f} "
           f"physics_floor_s={floor_s:.1f} floor_ratio={batched_s / floor_s:.2f} "
           f"sequential_best={sequential_best:.4g} batched_best={batched_best:.4g}")
