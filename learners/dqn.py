@@ -55,6 +55,7 @@ from torchrl.modules import MLP, QValueActor
 from learners.base import Member, StateMismatch, check_state, everyone, member_settings, per_member, single
 from params.private_api import with_entries
 from learners.device import DEVICE_NOTE, check_device, resolve_device
+from learners.nstep import NStep
 from params import require
 from params.declare import REQUIRED, check_fields, param
 
@@ -72,13 +73,15 @@ ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8  # torch.optim.Adam's defaults
 
 class Transitions(NamedTuple):
     """Transitions as plain tensors: ``observation`` and ``next_observation`` ``[..., n_obs]``,
-    ``action`` ``[..., 1]`` (int64), ``reward`` ``[..., 1]``, ``terminated`` ``[..., 1]`` (bool)."""
+    ``action`` ``[..., 1]`` (int64), ``reward`` ``[..., 1]``, ``terminated`` ``[..., 1]`` (bool);
+    ``steps`` ``[..., 1]``: the rewards an n-step row sums (:mod:`learners.nstep`; None: one)."""
 
     observation: torch.Tensor
     action: torch.Tensor
     reward: torch.Tensor
     next_observation: torch.Tensor
     terminated: torch.Tensor
+    steps: torch.Tensor | None = None
 
     @classmethod
     def of(cls, td: TensorDictBase) -> Transitions:
@@ -90,18 +93,21 @@ class Transitions(NamedTuple):
 
 
 def pack(batch: Transitions) -> torch.Tensor:
-    """One float row per transition: observation, next observation, action, reward, terminated."""
+    """One float row per transition: observation, next observation, action, reward, terminated
+    (and steps, for n-step rows)."""
     dtype = batch.observation.dtype
+    steps = () if batch.steps is None else (batch.steps.to(dtype),)
     return torch.cat((batch.observation, batch.next_observation, batch.action.to(dtype),
-                      batch.reward.to(dtype), batch.terminated.to(dtype)), dim=-1)
+                      batch.reward.to(dtype), batch.terminated.to(dtype), *steps), dim=-1)
 
 
 def unpack(rows: torch.Tensor) -> Transitions:
     """The :class:`Transitions` of rows made by :func:`pack` (``[..., width]``; views, but
-    action and terminated)."""
+    action and terminated); an odd width carries ``steps``."""
     n = (rows.shape[-1] - 3) // 2
+    steps = rows[..., 2 * n + 3:] if rows.shape[-1] == 2 * n + 4 else None
     return Transitions(rows[..., :n], rows[..., 2 * n:2 * n + 1].long(), rows[..., 2 * n + 1:2 * n + 2],
-                       rows[..., n:2 * n], rows[..., 2 * n + 2:] != 0)
+                       rows[..., n:2 * n], rows[..., 2 * n + 2:2 * n + 3] != 0, steps)
 
 
 QFunction = Callable[[torch.Tensor], torch.Tensor]  # observations -> Q-values
@@ -116,7 +122,8 @@ def td_loss(net: QFunction, target_net: QFunction, batch: Transitions, gamma: fl
 def td_terms(net: QFunction, target_net: QFunction, batch: Transitions, gamma: float,
              double_dqn: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """``(q, target)``, each ``[..., batch, 1]``: ``net``'s value of the taken actions and
-    their TD(0) targets (no gradient), where ``target_net`` values the next state.
+    their TD targets (no gradient: one step, or gamma^k for an n-step row of ``steps`` k),
+    where ``target_net`` values the next state.
 
     ``double_dqn``: the next action is ``net``'s argmax, valued by ``target_net``.
     Terminated transitions do not bootstrap; truncated ones do.
@@ -128,7 +135,8 @@ def td_terms(net: QFunction, target_net: QFunction, batch: Transitions, gamma: f
             next_value = next_q.gather(-1, net(batch.next_observation).argmax(-1, keepdim=True))
         else:
             next_value = next_q.amax(-1, keepdim=True)
-        target = batch.reward + gamma * next_value * ~batch.terminated
+        discount = gamma if batch.steps is None else gamma ** batch.steps  # n-step rows: gamma^k
+        target = batch.reward + discount * next_value * ~batch.terminated
     return q, target
 
 
@@ -382,6 +390,7 @@ class DQN:
     lr: float = param(1e-3, "Adam's learning rate", gt=0)
     lr_decay: float = param(0.0, "Keras-style decay: lr / (1 + lr_decay * updates)", ge=0)
     gamma: float = param(0.99, "discount of the next state's value", ge=0, le=1)
+    n_step: int = param(1, "rewards summed before bootstrapping (n-step returns; 1: one-step TD)", ge=1, le=100)
     loss: str = param("huber", "TD error's loss", choices=tuple(LOSSES))
     double_dqn: bool = param(True, "the online network picks the next action, the target values it")
     target_update: int = param(0, "hard copies of the target network every N updates", ge=0,
@@ -492,9 +501,10 @@ class DQN:
         self.owed = [0] * m  # whole updates owed, run by settle
         self.schedules = [v.epsilon if b == 0 else copy.deepcopy(v.epsilon) for b, v in enumerate(own)]  # each its own
         self.trackers = [UpdateStats() for _ in range(m)]
-        self.buffers = [RowReplayBuffer(self.buffer_size, 2 * self.n_obs + 3, self.batch_size, self.device)
-                        for _ in range(m)]
-        self._minibatch = torch.empty(m, self.batch_size, 2 * self.n_obs + 3, device=self.device)
+        width = 2 * self.n_obs + 3 + (self.n_step > 1)  # n-step rows carry their steps
+        self.buffers = [RowReplayBuffer(self.buffer_size, width, self.batch_size, self.device) for _ in range(m)]
+        self._minibatch = torch.empty(m, self.batch_size, width, device=self.device)
+        self.nsteps: list[NStep] = []  # each member's queues, made at its first step (copies known then)
 
     def _initial(self, generator: torch.Generator) -> torch.Tensor:
         """Fresh parameters of the template's layers drawn from ``generator`` (their own
@@ -572,11 +582,10 @@ class DQN:
         return with_entries(td, action=action.reshape(td.batch_size))
 
     # -- learning ------------------------------------------------------------
-    def rows_of(self, tensordict: TensorDictBase, own: DQN | None = None) -> torch.Tensor:
-        """The buffer's rows (:func:`pack`) of the transitions of ``tensordict``, the
-        terminating rewards replaced if ``done_episode_reward`` says so and all of them
-        scaled by ``reward_scale`` (``own``'s: a member's settings; default the learner's),
-        on ``device``."""
+    def transitions_of(self, tensordict: TensorDictBase, own: DQN | None = None) -> Transitions:
+        """The transitions of ``tensordict``, the terminating rewards replaced if
+        ``done_episode_reward`` says so and all of them scaled by ``reward_scale`` (``own``'s:
+        a member's settings; default the learner's)."""
         own = self if own is None else own
         batch = Transitions.of(tensordict)
         if own.done_episode_reward is not None:
@@ -584,11 +593,19 @@ class DQN:
                 batch.terminated, float(own.done_episode_reward), batch.reward))
         if own.reward_scale != 1.0:
             batch = batch._replace(reward=batch.reward * float(own.reward_scale))
-        return pack(batch).to(self.device)
+        return batch
+
+    def rows_of(self, tensordict: TensorDictBase, own: DQN | None = None) -> torch.Tensor:
+        """The buffer's rows (:func:`pack`) of :meth:`transitions_of`, on ``device``."""
+        return pack(self.transitions_of(tensordict, own)).to(self.device)
 
     def store(self, td: TensorDictBase, live: Sequence[int] | None = None) -> int:
-        """Each live member adds its block's transitions to its replay buffer; the block size."""
+        """Each live member adds its block's transitions to its replay buffer (with
+        ``n_step`` > 1, the n-step rows that leave its queues); the block size."""
         n = td.numel() // self.members
+        if self.n_step > 1:
+            self._store_n_step(td.reshape(-1), n, live)
+            return n
         alike = all(v is self.settings[0] for v in self.settings)
         rows = self.rows_of(td) if alike else None
         for b in everyone(self, live):
@@ -596,6 +613,16 @@ class DQN:
                                                                         self.settings[b])
             self.buffers[b].put(block)
         return n
+
+    def _store_n_step(self, flat: TensorDictBase, n: int, live: Sequence[int] | None) -> None:
+        if not self.nsteps:
+            self.nsteps = [NStep(self.n_step, n, self.n_obs, own.gamma) for own in self.settings]
+        done = flat.get(("next", "done")).reshape(-1)
+        for b in everyone(self, live):
+            block = slice(b * n, (b + 1) * n)
+            rows = self.nsteps[b].push(self.transitions_of(flat[block], self.settings[b]), done[block])
+            if rows is not None:
+                self.buffers[b].put(pack(rows).to(self.device))
 
     def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
         """Each live member stores its block's transitions and counts them (schedule, update
@@ -747,6 +774,7 @@ class DQN:
             "schedule": self.schedules[b].state_dict(), "optimizer_steps": self.steps[b],
             "credit": self.credit[b], "buffer": self.buffers[b].state_dict(),
             "generator": self.generators[b].get_state(),
+            **({"n_step_queues": self.nsteps[b].state_dict()} if self.nsteps else {}),
         }
 
     @torch.no_grad()
@@ -768,6 +796,12 @@ class DQN:
         self.steps[b] = int(state["optimizer_steps"])
         self.credit[b] = float(state["credit"])
         self.buffers[b].load_state_dict(state["buffer"])
+        if self.n_step > 1 and "n_step_queues" in state:
+            queues = state["n_step_queues"]
+            if not self.nsteps:
+                copies = len(queues["count"])
+                self.nsteps = [NStep(self.n_step, copies, self.n_obs, own.gamma) for own in self.settings]
+            self.nsteps[b].load_state_dict(queues)
         if "generator" in state:  # a checkpoint of an earlier version: the run's torch stream
             self.generators[b].set_state(state["generator"])
 

@@ -92,6 +92,9 @@ DQN_CASES = {
     "mbalunovic": ("mbalunovic", 2, ["learner.target_update=20", "learner.batch_size=8"]),
     # l2, no target network, per episode, replay of 2000
     "ruippeixotog": ("ruippeixotog", 3, []),
+    # n-step returns (3): each member's queues, rows with their steps, gamma^k targets
+    "dqn n-step": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
+                              "learner.n_step=3"]),
     # a fixed input factor before the first layer (conf/tuned/cube_dqn.yaml's kind)
     "dqn with obs_scale": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                                       "+learner.obs_scale={cart_pos: 0.5, pole_vel: 3.0}"]),
