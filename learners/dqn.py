@@ -228,7 +228,21 @@ class ObsScale(nn.Module):
         return x * self.scale
 
 
-_FUNCTIONS = {nn.Tanh: torch.tanh, nn.ReLU: torch.relu}
+def dueling(x: torch.Tensor) -> torch.Tensor:
+    """Q from a value and advantages (Wang et al. 2016, the mean-advantage form): ``x``'s
+    first entry is V(s), the rest A(s, a); Q = V + A - mean_a A."""
+    value, advantage = x[..., :1], x[..., 1:]
+    return value + advantage - advantage.mean(-1, keepdim=True)
+
+
+class DuelingHead(nn.Module):
+    """The last layer's V(s) and A(s, .) (``learner.dueling``) as Q-values: :func:`dueling`."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return dueling(x)
+
+
+_FUNCTIONS = {nn.Tanh: torch.tanh, nn.ReLU: torch.relu, DuelingHead: dueling}
 
 
 class StackedMLP:
@@ -393,6 +407,8 @@ class DQN:
     n_step: int = param(1, "rewards summed before bootstrapping (n-step returns; 1: one-step TD)", ge=1, le=100)
     loss: str = param("huber", "TD error's loss", choices=tuple(LOSSES))
     double_dqn: bool = param(True, "the online network picks the next action, the target values it")
+    dueling: bool = param(False, "value and advantage streams: the last layer gives V(s) and A(s, a), "
+                                 "Q = V + A - mean A")
     target_update: int = param(0, "hard copies of the target network every N updates", ge=0,
                                note="0 = none")
     tau: float = param(0.01, "Polyak averaging rate of the target network", ge=0, lt=1,
@@ -447,13 +463,17 @@ class DQN:
     def _arch(self) -> dict:
         arch = {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
                 "activation": self.activation}
-        return arch | ({"obs_scale": dict(self.obs_scale)} if self.obs_scale else {})
+        return arch | ({"obs_scale": dict(self.obs_scale)} if self.obs_scale else {}) | (
+            {"dueling": True} if self.dueling else {})
 
     def _template(self, task) -> nn.Sequential:
         """One member's Q-network on the CPU (where each member's stream initialises it and
-        its states are saved): TorchRL's ``MLP``, after an :class:`ObsScale` if asked."""
-        net = MLP(in_features=self.n_obs, out_features=self.n_actions, num_cells=self.hidden,
+        its states are saved): TorchRL's ``MLP``, after an :class:`ObsScale` if asked, ending in
+        a :class:`DuelingHead` with ``dueling``."""
+        net = MLP(in_features=self.n_obs, out_features=self.n_actions + self.dueling, num_cells=self.hidden,
                   activation_class=ACTIVATIONS[self.activation])
+        if self.dueling:  # one more output, V(s), before the advantages
+            net = nn.Sequential(*net, DuelingHead())
         if self.obs_scale:
             names = list(task.observation_names)
             unknown = sorted(set(self.obs_scale) - set(names))

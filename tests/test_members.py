@@ -95,6 +95,9 @@ DQN_CASES = {
     # n-step returns (3): each member's queues, rows with their steps, gamma^k targets
     "dqn n-step": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                               "learner.n_step=3"]),
+    # dueling heads beside n-step returns
+    "dqn dueling": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
+                               "learner.dueling=true", "learner.n_step=2"]),
     # a fixed input factor before the first layer (conf/tuned/cube_dqn.yaml's kind)
     "dqn with obs_scale": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                                       "+learner.obs_scale={cart_pos: 0.5, pole_vel: 3.0}"]),
