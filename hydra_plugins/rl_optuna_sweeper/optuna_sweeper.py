@@ -8,10 +8,13 @@ Hydra's launcher (basic, joblib, submitit: Slurm) with the same budget (``budget
 env steps, training past "solved"), and tells the study the mean over the jobs of its
 objective, the task's own measure as the comparison's headline reads it and as summary.json
 names it (``greedy_<measure>``, or ``train_<measure>_last<window>`` for a task judged on
-training episodes; the study's metric name). Jobs report their rolling measure every
-``report_every`` episodes, and the median pruner stops hopeless trials. The study lives
-in ``storage`` (an SQLite file by default, any SQL database by URL), so sweeps started on
-several machines share it. The best trial ends as a tuned file:
+training episodes; the study's metric name). With the ``seeds`` launcher, trials asked
+together (``trials_per_batch``) train side by side wherever only member-wise settings
+differ. Jobs report their rolling measure every ``report_every`` env steps, and the
+``pruner`` (median, successive halving or Hyperband; settings in ``pruners``) stops
+hopeless trials. The study lives in ``storage`` (an SQLite file by default, any SQL
+database by URL, or a journal file), so sweeps started on several machines share it, and
+the next sweep of a study takes over the trials a stopped one left running. The best trial ends as a tuned file:
 ``tuned_<robot>_<learner>.yaml`` in the sweep folder, and with ``write_tuned=true``
 ``conf/tuned/<robot>_<learner>.yaml``, which the next plain run uses (for a task other
 than the robot's default: ``<robot>_<task>_<learner>``, applied on top of the robot's).
