@@ -42,7 +42,9 @@ TorchRL "auto-reset" env, whose ``next`` observations would be the reset ones).
 
 from __future__ import annotations
 
+import atexit
 import logging
+import weakref
 from collections.abc import Mapping, Sequence
 
 import mujoco
@@ -377,7 +379,14 @@ class RobotTaskEnv(EnvBase):
         self.check_camera(camera)
         self.check_frame_size(width, height)
         if self._renderer is None or (self._renderer.width, self._renderer.height) != (width, height):
+            if self._renderer is not None:
+                self._renderer.close()
             self._renderer = mujoco.Renderer(self.model, height=height, width=width)
+            _RENDERERS.add(self._renderer)
+            # After MuJoCo's own exit hook (it ends the EGL display, registered with the first
+            # GL context): the last registered runs first, so renderers close while they can.
+            atexit.unregister(_close_renderers)
+            atexit.register(_close_renderers)
             self._render_data = mujoco.MjData(self.model)
         self.physics.load_into(self._render_data, index)
         self._renderer.update_scene(self._render_data, camera=camera)
@@ -389,6 +398,19 @@ class RobotTaskEnv(EnvBase):
             self._renderer = None
         self.physics.close()
         super().close(raise_if_closed=raise_if_closed)
+
+
+# Renderers not closed by their env's close(): closed at exit before the GL display under
+# them ends (else an env left open prints two EGLError tracebacks at exit).
+_RENDERERS: weakref.WeakSet = weakref.WeakSet()
+
+
+def _close_renderers() -> None:
+    for renderer in list(_RENDERERS):
+        try:
+            renderer.close()
+        except Exception:  # noqa: BLE001 - at exit, a renderer that cannot close is left to the OS
+            pass
 
 
 class _Rows:

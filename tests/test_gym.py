@@ -373,3 +373,19 @@ def test_make_without_a_time_limit_is_refused():
     env.reset(seed=0)
     assert env.spec.max_episode_steps == 3
     env.close()
+
+
+def test_an_env_left_open_after_rendering_exits_without_gl_errors():
+    """The README's Gymnasium snippet without env.close(): the renderer is closed at exit
+    before the EGL display is ended, so nothing is printed at interpreter exit."""
+    import subprocess
+    import sys
+
+    code = ("import gymnasium as gym\nfrom adapters.gym_env import register_envs\nregister_envs()\n"
+            "env = gym.make('MujocoRL/CartPoleStayUp-v0', render_mode='rgb_array')\n"
+            "env.reset(seed=0)\nprint(env.render().shape)\n")
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                          env=env)
+    assert proc.returncode == 0 and proc.stdout.strip() == "(360, 480, 3)", proc.stderr[-2000:]
+    assert "Exception ignored" not in proc.stderr and "Error" not in proc.stderr, proc.stderr[-2000:]
