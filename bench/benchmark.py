@@ -472,6 +472,8 @@ def main(argv: list[str] | None = None) -> None:
     except BadInput as err:
         sys.exit(f"error: {err}")
     except KeyboardInterrupt:
+        if args.tune:
+            sys.exit("stopped; run the same command again: each study takes over the trials it left running")
         sys.exit(f"stopped; finished pairs are kept: run the same command with --out {args.out} to go on")
 
 

@@ -154,11 +154,11 @@ class TuningSweep:
                 print("  trial 0 is the current configuration (start_from_current)", flush=True)
             else:
                 print("  the current configuration lies outside the space: every trial is sampled", flush=True)
-        self._take_over(study, plan)
+        to_ask = self.n_trials + self._take_over(study, plan)  # trials asked again are not new ones
         results, done = [], 0
-        while done < self.n_trials and not (sweep_dir / ".stop").exists():
+        while done < to_ask and not (sweep_dir / ".stop").exists():
             batch = [study.ask({k: p.distribution for k, p in plan.params.items()})
-                     for _ in range(min(self.trials_per_batch, self.n_trials - done))]
+                     for _ in range(min(self.trials_per_batch, to_ask - done))]
             for trial in batch:
                 claim(self._storage, self._trial_id(study, trial.number), self.seeds)
             results.append(self._run_batch(study, batch, plan, first_job=done * len(self.seeds)))
@@ -183,14 +183,16 @@ class TuningSweep:
         study_id = self._storage.get_study_id_from_name(study.study_name)
         return self._storage.get_trial_id_from_study_id_trial_number(study_id, number)
 
-    def _take_over(self, study, plan: Plan) -> None:
+    def _take_over(self, study, plan: Plan) -> int:
         """Finishes the trials of this study that a stopped sweep left running
         (:func:`sweeps.tuning.abandoned`): a trial whose every job has a folder to continue
         from resumes there (each job from its checkpoint, as it would have run on) and is
-        told its value; any other is told failed and asked again with its values (the next
-        trial this sweep asks)."""
+        told its value; any other is told failed and asked again with its values (among the
+        first trials this sweep asks, besides its ``n_trials``). Returns how many are asked
+        again."""
         import optuna
 
+        again = 0
         running = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))
         for trial in [t for t in running if abandoned(t)]:
             seeds = trial.user_attrs.get("seeds", [])
@@ -208,8 +210,10 @@ class TuningSweep:
             else:
                 study.tell(trial.number, state=optuna.trial.TrialState.FAIL)
                 study.enqueue_trial(trial.params, user_attrs={"retry_of": trial.number})
+                again += 1
                 print(f"trial {trial.number} was left running by a sweep that stopped before all its jobs "
                       "could continue: told failed, and asked again as a new trial", flush=True)
+        return again
 
     def _open_study(self, plan: Plan):
         """The study (made, or loaded), its objective named ``plan.objective`` (Optuna's metric

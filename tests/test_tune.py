@@ -189,14 +189,15 @@ def test_a_killed_study_is_taken_over_by_the_next_sweep_and_ends_as_never_stoppe
 
 def test_a_trial_killed_before_its_jobs_could_continue_is_asked_again(tmp_path):
     """Killed after the first checkpoint of one seed (the other seed has none): the next sweep
-    tells the stopped trial failed and runs its values again as its new trial."""
+    tells the stopped trial failed, runs its values again, then its own new trial."""
     killed = tuning(tmp_path, "s", "first", kill="checkpoint:1")
     assert killed.returncode == -9, killed.stderr[-2000:]
     again = tuning(tmp_path, "s", "second")
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
     assert "trial 0 was left running by a sweep that stopped before all its jobs could continue" in again.stdout
     trials = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}").trials
-    assert [t.state for t in trials] == [optuna.trial.TrialState.FAIL, optuna.trial.TrialState.COMPLETE]
+    complete = optuna.trial.TrialState.COMPLETE  # the retry, then the sweep's own n_trials=1
+    assert [t.state for t in trials] == [optuna.trial.TrialState.FAIL, complete, complete]
     assert trials[1].params == trials[0].params and trials[1].user_attrs["retry_of"] == 0
 
 
