@@ -12,12 +12,9 @@ terminated one does not. The rows carry ``steps`` = k for the target's discount.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import torch
 
-if TYPE_CHECKING:
-    from learners.dqn import Transitions
+from learners.transitions import Transitions
 
 
 class NStep:
@@ -34,8 +31,6 @@ class NStep:
         """Adds one step of every copy (``batch``: a transition per copy; ``done``: its episode
         ended, terminated or truncated); the transitions that leave their queues, as rows
         with ``steps``, copy by copy, oldest first (None if none)."""
-        from learners.dqn import Transitions
-
         copies = torch.arange(len(self.count))
         self.obs[copies, self.count] = batch.observation
         self.action[copies, self.count] = batch.action.reshape(-1)
