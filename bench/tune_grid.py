@@ -11,8 +11,9 @@ trials its study still lacks: run the same command again after a stop and each s
 takes over the trials the stop left running and goes on to its count. A study that
 finishes writes the pair's ``conf/tuned/`` file (``write_tuned``; its header: the study,
 budget, trials, seeds and best value). Its first trial is the current configuration
-(the hand-picked tuned file where the space holds its values), so a hand pick is kept
-wherever no sampled trial beats it on the tuning seeds. Tasks the plan runs with extra
+(the hand-picked tuned file where the space holds its values; where it does not, the
+study scores it on the same seeds and budget), so a hand pick is kept wherever no
+sampled trial beats it on the tuning seeds. Tasks the plan runs with extra
 overrides (``cube_minus_y``) are variants of another task's config and are not tuned.
 """
 
@@ -27,24 +28,25 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDIES = Path("bench") / "studies"  # from ROOT (the URL in each tuned file's header names no machine)
 
 
-def study_counts(name: str, path: Path) -> tuple[int, int]:
+def study_counts(name: str, path: Path) -> tuple[int, int, bool]:
     """(trials the study holds that count: finished, pruned, failed but not asked again;
-    trials running) of study ``name`` in the journal file ``path`` ((0, 0) if none)."""
+    trials running; whether it kept the hand-picked file, which beat its best) of study
+    ``name`` in the journal file ``path`` ((0, 0, False) if none)."""
     import optuna
 
     if not (ROOT / path).is_file():
-        return 0, 0
+        return 0, 0, False
     from sweeps.tuning import open_storage
 
     try:
         study = optuna.load_study(study_name=name, storage=open_storage(f"journal://{ROOT / path}"))
     except KeyError:
-        return 0, 0
+        return 0, 0, False
     state = optuna.trial.TrialState
     retried = {t.user_attrs.get("retry_of") for t in study.trials}
     counted = [t for t in study.trials if t.state in (state.COMPLETE, state.PRUNED)
                or (t.state == state.FAIL and t.number not in retried)]
-    return len(counted), sum(t.state == state.RUNNING for t in study.trials)
+    return len(counted), sum(t.state == state.RUNNING for t in study.trials), bool(study.user_attrs.get("tuned_kept"))
 
 
 def written(spec: dict, learner: str, task: str) -> bool:
@@ -88,9 +90,10 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             continue
         for learner in learners or plan["learners"]:
             name = f"{task}_{learner}"
-            counted, running = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
+            counted, running, kept = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
             missing = int(tuning["trials"]) - counted - running
-            if missing <= 0 and not running and (written(spec, learner, task) or not tuning.get("write_tuned", True)):
+            if missing <= 0 and not running and (kept or written(spec, learner, task) or
+                                                 not tuning.get("write_tuned", True)):
                 print(f"{name}: study complete ({counted} trials)")
                 continue
             cmd = command(task, spec, learner, tuning, max(missing, 0))

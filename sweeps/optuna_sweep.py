@@ -163,8 +163,27 @@ class TuningSweep:
                 claim(self._storage, self._trial_id(study, trial.number), self.seeds)
             results.append(self._run_batch(study, batch, plan, first_job=done * len(self.seeds)))
             done += len(batch)
+        self._score_current(study, plan, first_job=done * len(self.seeds))
         self._finish(study, plan, sweep_dir)
         return results
+
+    def _score_current(self, study, plan: Plan, first_job: int) -> None:
+        """Where the current configuration lies outside the space (so no trial is it), its
+        value on the study's seeds and budget, once per study (``current_value``): the
+        tuned file replaces it only if the best trial beats it."""
+        if not self.start_from_current or plan.current is not None or "current_value" in study.user_attrs:
+            return
+        jobs = [[*plan.fixed, f"seed={seed}"] for seed in self.seeds]
+        returns = self.launcher.launch(jobs, initial_job_idx=first_job)
+        summaries = [summarize_run(_run_dir(r)) if _run_dir(r) else {"status": "failed"} for r in returns]
+        values = [s.get(plan.objective) for s in summaries]
+        if any(s.get("status") != "ok" for s in summaries) or any(v is None for v in values):
+            print("the current configuration could not be scored: its jobs did not all finish", flush=True)
+            return
+        value = statistics.fmean(float(v) for v in values)
+        study.set_user_attr("current_value", value)
+        print(f"current configuration (outside the space): {plan.objective} {value:.4g} "
+              f"(seeds {', '.join(f'{float(v):.4g}' for v in values)})", flush=True)
 
     def _run_batch(self, study, batch: list, plan: Plan, first_job: int) -> list:
         """Launches ``batch``'s trials, one job per seed each, and tells the study their values."""
@@ -282,6 +301,9 @@ class TuningSweep:
             return
         best = study.best_trial
         values = {k: p.value(best.params[k]) for k, p in params.items() if k in best.params}
+        current = study.user_attrs.get("current_value")
+        kept = current is not None and current >= best.value  # the hand pick is at least as good
+        study.set_user_attr("tuned_kept", kept)
         header = [
             f"Tuned by Optuna ({now_utc()}): study {self.study_name} in {shown_url(self.storage_url)}",
             f"best trial {best.number}: {plan.objective} {best.value:.4g} (mean over seeds {self.seeds}), of "
@@ -314,7 +336,10 @@ class TuningSweep:
         print(f"best trial {best.number}: {plan.objective} {best.value:.4g} " + " ".join(
             f"{k}={override_value(v)}" for k, v in values.items()))
         print(f"tuned file: {out}")
-        if self.write_tuned:
+        if kept:
+            print(f"the current configuration ({plan.objective} {current:.4g} on the same seeds and budget) is at "
+                  f"least as good as the best trial: {base_file.name} stays as it is")
+        elif self.write_tuned:
             print(replace_tuned(base_file, text, sweep_dir))
             print(f"the next `python train.py robot={robot}{f' task={plan.task}' if per_task else ''} "
                   f"learner={learner}` uses it")

@@ -187,6 +187,21 @@ def test_a_killed_study_is_taken_over_by_the_next_sweep_and_ends_as_never_stoppe
     assert study.trials[0].params == unstopped.trials[0].params
 
 
+def test_a_current_configuration_outside_the_space_is_scored_and_kept_unless_beaten(tmp_path):
+    """The cart-pole's tuned qlearn (bins per entry) lies outside qlearn's space: the study
+    scores it once on its seeds and budget, and its tuned file replaces it only if the best
+    trial beats it (the message says which)."""
+    proc = tuning(tmp_path, "s", "sweep")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "current configuration (outside the space): train_length_last100 " in proc.stdout
+    study = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}")
+    current, best = study.user_attrs["current_value"], study.best_value
+    assert study.user_attrs["tuned_kept"] == (current >= best)
+    assert ("stays as it is" in proc.stdout) == (current >= best)
+    again = tuning(tmp_path, "s", "again")  # scored once per study
+    assert again.returncode == 0 and "current configuration (outside" not in again.stdout
+
+
 def test_a_trial_killed_before_its_jobs_could_continue_is_asked_again(tmp_path):
     """Killed after the first checkpoint of one seed (the other seed has none): the next sweep
     tells the stopped trial failed, runs its values again, then its own new trial."""
@@ -274,6 +289,8 @@ def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_
     plan.tasks.cartpole.budget_steps = 400
     plan.tuning = {"trials": 2, "seeds": [0], "pruner": "successive_halving", "first_rung": 4}
     OmegaConf.save(plan, project_copy / "bench" / "benchmark.yaml")
+    # A hand pick inside qlearn's space: the study's trial 0, so the best trial is never worse
+    (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").write_text("# @package _global_\nnum_envs: 8\n")
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
 
     def grid() -> subprocess.CompletedProcess:
@@ -287,10 +304,10 @@ def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_
     study = optuna.load_study(study_name="bench-cartpole-qlearn", storage=open_storage(f"journal://{record}"))
     assert len(study.trials) == 2 and all(t.state.is_finished() for t in study.trials)
     tuned = (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").read_text()
-    assert "study bench-cartpole-qlearn in journal://bench/studies/cartpole_qlearn.log" in tuned
     again = grid()
     assert again.returncode == 0 and "cartpole_qlearn: study complete (2 trials)" in again.stdout, again.stdout
-    (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").write_text("# @package _global_\nnum_envs: 8\n")
+    assert "study bench-cartpole-qlearn in journal://bench/studies/cartpole_qlearn.log" in tuned
+    (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").write_text("# @package _global_\nnum_envs: 4\n")
     rewrite = grid()  # a finished study whose file is not its own: a sweep of no new trials writes it
     assert rewrite.returncode == 0 and "0 to ask" in rewrite.stdout, rewrite.stdout[-2000:] + rewrite.stderr[-2000:]
     rewritten = (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").read_text()
@@ -484,8 +501,8 @@ def start_sweep(url: str, study: str, sweep: Path) -> subprocess.Popen:
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     args = ["-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=qlearn", "num_envs=4", "eval_episodes=2",
             "hydra.sweeper.n_trials=2", "hydra.sweeper.seeds=[0]", "hydra.sweeper.budget_steps=200",
-            "hydra.sweeper.pruner=null", f"hydra.sweeper.storage={url}", f"hydra.sweeper.study={study}",
-            f"hydra.sweep.dir={sweep}"]
+            "hydra.sweeper.pruner=null", "hydra.sweeper.start_from_current=false", f"hydra.sweeper.storage={url}",
+            f"hydra.sweeper.study={study}", f"hydra.sweep.dir={sweep}"]
     return subprocess.Popen([sys.executable, "train.py", *args], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
 
