@@ -12,7 +12,7 @@ takes over the trials the stop left running and goes on to its count. A study th
 finishes writes the pair's ``conf/tuned/`` file (``write_tuned``; its header: the study,
 budget, trials, seeds and best value). Its first trial is the current configuration
 (the hand-picked tuned file where the space holds its values; where it does not, the
-study scores it on the same seeds and budget), so a hand pick is kept wherever no
+study values it on the same seeds and budget), so a hand pick is kept wherever no
 sampled trial beats it on the tuning seeds. Tasks the plan runs with extra
 overrides (``cube_minus_y``) are variants of another task's config and are not tuned.
 """

@@ -178,7 +178,7 @@ class TuningSweep:
         summaries = [summarize_run(_run_dir(r)) if _run_dir(r) else {"status": "failed"} for r in returns]
         values = [s.get(plan.objective) for s in summaries]
         if any(s.get("status") != "ok" for s in summaries) or any(v is None for v in values):
-            print("the current configuration could not be scored: its jobs did not all finish", flush=True)
+            print("the current configuration has no value: its jobs did not all finish", flush=True)
             return
         value = statistics.fmean(float(v) for v in values)
         study.set_user_attr("current_value", value)
