@@ -585,20 +585,25 @@ class DQN:
         """Each live member adds its block's transitions to its replay buffer (with
         ``n_step`` > 1, the n-step rows that leave its queues); the block size."""
         n = td.numel() // self.members
+        flat = td.reshape(-1)
         if self.n_step > 1:
-            self._store_n_step(td.reshape(-1), n, live)
+            self._store_n_step(flat, n, live)
             return n
         alike = all(v is self.settings[0] for v in self.settings)
         rows = self.rows_of(td) if alike else None
         for b in everyone(self, live):
-            block = rows[b * n:(b + 1) * n] if alike else self.rows_of(td.reshape(-1)[b * n:(b + 1) * n],
-                                                                        self.settings[b])
+            block = rows[b * n:(b + 1) * n] if alike else self.rows_of(flat[b * n:(b + 1) * n], self.settings[b])
             self.buffers[b].put(block)
         return n
 
-    def _store_n_step(self, flat: TensorDictBase, n: int, live: Sequence[int] | None) -> None:
+    def _queues(self, copies: int) -> None:
+        """Each member's n-step queues for ``copies`` copies (made at the first step or the
+        first loaded state, when the copies are known)."""
         if not self.nsteps:
-            self.nsteps = [NStep(self.n_step, n, self.n_obs, own.gamma) for own in self.settings]
+            self.nsteps = [NStep(self.n_step, copies, self.n_obs, own.gamma) for own in self.settings]
+
+    def _store_n_step(self, flat: TensorDictBase, n: int, live: Sequence[int] | None) -> None:
+        self._queues(n)
         done = flat.get(("next", "done")).reshape(-1)
         for b in everyone(self, live):
             block = slice(b * n, (b + 1) * n)
@@ -780,9 +785,7 @@ class DQN:
         self.buffers[b].load_state_dict(state["buffer"])
         if self.n_step > 1 and "n_step_queues" in state:
             queues = state["n_step_queues"]
-            if not self.nsteps:
-                copies = len(queues["count"])
-                self.nsteps = [NStep(self.n_step, copies, self.n_obs, own.gamma) for own in self.settings]
+            self._queues(len(queues["count"]))
             self.nsteps[b].load_state_dict(queues)
         if "generator" in state:  # a checkpoint of an earlier version: the run's torch stream
             self.generators[b].set_state(state["generator"])

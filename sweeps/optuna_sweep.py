@@ -142,11 +142,8 @@ class TuningSweep:
               f"{plan.objective} (mean over the seeds), pruning: {self.pruner or 'off'}, space: {plan.space_file}",
               flush=True)
         if not study.trials:  # the tuned file its trials run with: the study's final file builds on it
-            ran_with = self.config.hydra.runtime.choices.get(
-                TASK_TUNED if _per_task(plan.robot, plan.task, self.config.hydra.runtime.choices.get(TASK_TUNED))
-                else "tuned")
-            ran_file = conf_dir() / "tuned" / f"{ran_with}.yaml"
-            study.set_user_attr("tuned_file_text", ran_file.read_text() if ran_with and ran_file.is_file() else "")
+            ran_file = self._ran_with(plan)[1]
+            study.set_user_attr("tuned_file_text", ran_file.read_text() if ran_file else "")
         if self.start_from_current and not study.trials:
             if plan.current is not None:  # the study's first trial: what a plain run does now
                 # skip_if_exists: a sweep started beside this one on the same new study may have queued it
@@ -175,7 +172,7 @@ class TuningSweep:
             return
         jobs = [[*plan.fixed, f"seed={seed}"] for seed in self.seeds]
         returns = self.launcher.launch(jobs, initial_job_idx=first_job)
-        summaries = [summarize_run(_run_dir(r)) if _run_dir(r) else {"status": "failed"} for r in returns]
+        summaries = _summaries([_run_dir(r) for r in returns])
         values = [s.get(plan.objective) for s in summaries]
         if any(s.get("status") != "ok" for s in summaries) or any(v is None for v in values):
             print("the current configuration has no value: its jobs did not all finish", flush=True)
@@ -196,6 +193,15 @@ class TuningSweep:
         for i, (trial, vals) in enumerate(zip(batch, values)):
             self._tell(study, trial.number, plan, vals, [_run_dir(r) for r in returns[i * n:(i + 1) * n]])
         return returns
+
+    def _ran_with(self, plan: Plan) -> tuple[str | None, Path | None]:
+        """The tuned file the trials compose and the study's file replaces: its name (the
+        choice; None where it names none) and its path where it exists. A task's file goes on
+        top of the robot's, which stays as it is."""
+        choices = self.config.hydra.runtime.choices
+        ran_with = choices.get(TASK_TUNED if _per_task(plan.robot, plan.task, choices.get(TASK_TUNED)) else "tuned")
+        ran_file = conf_dir() / "tuned" / f"{ran_with}.yaml"
+        return ran_with, ran_file if ran_with and ran_file.is_file() else None
 
     def _trial_id(self, study, number: int) -> int:
         """The storage's id of trial ``number`` of ``study``."""
@@ -267,7 +273,7 @@ class TuningSweep:
         ``plan.objective`` (pruned if any job was pruned)."""
         import optuna
 
-        jobs = [summarize_run(d) if d else {"status": "failed", "error": "no run folder"} for d in run_dirs]
+        jobs = _summaries(run_dirs)
         failed = [j for j in jobs if j.get("status") != "ok"]
         pruned = [j for j in jobs if j.get("pruned_at") is not None]
         shown = " ".join(f"{k}={override_value(v)}" for k, v in values.items())
@@ -316,13 +322,10 @@ class TuningSweep:
         per_task = _per_task(robot, plan.task, choices.get(TASK_TUNED))
         name = f"{tuned_name(robot, learner, plan.task if per_task else None)}.yaml"
         base_file = conf_dir() / "tuned" / name
-        # The tuned file the trials composed that this one replaces ("optional": the choice may
-        # name no file); a task's file goes on top of the robot's, which stays as it is.
-        ran_with = choices.get(TASK_TUNED if per_task else "tuned")
-        ran_file = conf_dir() / "tuned" / f"{ran_with}.yaml"
+        ran_with, ran_file = self._ran_with(plan)
         # As it was when the study began (its trials ran with that), not as it may be now.
         ran_text = study.user_attrs.get("tuned_file_text")
-        if ran_text is None and ran_with and ran_file.is_file():
+        if ran_text is None and ran_file:
             ran_text = ran_file.read_text()
         base_values = OmegaConf.to_container(OmegaConf.create(ran_text)) if ran_text else None
         if per_task:
@@ -345,6 +348,11 @@ class TuningSweep:
                   f"learner={learner}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
+
+
+def _summaries(run_dirs: list) -> list[dict]:
+    """Each job folder's summary (a failed one for a job that made no folder)."""
+    return [summarize_run(d) if d else {"status": "failed", "error": "no run folder"} for d in run_dirs]
 
 
 def _check_builds(cfg: DictConfig) -> Success:

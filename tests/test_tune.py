@@ -168,17 +168,14 @@ def test_a_killed_study_is_taken_over_by_the_next_sweep_and_ends_as_never_stoppe
     in the study; the same command again resumes that trial's jobs from their checkpoints,
     tells the study the value an unstopped sweep finds, and goes on: no trial lost, none
     counted twice, none left running."""
-    def sweep(study: str, folder: str, kill: str | None = None) -> subprocess.CompletedProcess:
-        return tuning(tmp_path, study, folder, kill)
-
-    killed = sweep("s", "first", kill="checkpoint:4")
+    killed = tuning(tmp_path, "s", "first", kill="checkpoint:4")
     assert killed.returncode == -9, killed.stdout[-2000:] + killed.stderr[-2000:]
     study = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}")
     assert [t.state for t in study.trials] == [optuna.trial.TrialState.RUNNING]
-    again = sweep("s", "second")
+    again = tuning(tmp_path, "s", "second")
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
     assert "trial 0 was left running by a sweep that stopped: resuming its jobs" in again.stdout
-    plain = sweep("plain", "plain")
+    plain = tuning(tmp_path, "plain", "plain")
     assert plain.returncode == 0, plain.stderr[-2000:]
     study = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}")
     unstopped = optuna.load_study(study_name="plain", storage=f"sqlite:///{tmp_path / 's.db'}")
