@@ -7,7 +7,10 @@ epsilon-greedy policy whose epsilon follows one of :mod:`learners.schedules` per
 TD(0) loss (MSE or Huber, optional double DQN; :func:`td_terms`) against an optional target
 network kept by hard copies or Polyak averaging, gradients by autograd, Adam written over
 the member axis (:func:`adam_step`: each member its own step count and learning rate), and
-per member TorchRL's ``ReplayBuffer`` over one pre-allocated tensor (:class:`RowReplayBuffer`).
+per member TorchRL's ``ReplayBuffer`` over one pre-allocated tensor (:class:`RowReplayBuffer`),
+drawn uniformly or, with ``prioritized``, by TD error (:mod:`learners.priority`: the loss then
+weighted by importance). Switches of Rainbow's parts: ``n_step`` (:mod:`learners.nstep`),
+``dueling`` (:class:`DuelingHead`), ``prioritized``.
 
 A single run is one member. Every member's arithmetic is the same kernels whatever the
 number of members (a batched product computes each matrix alone, a reduction each row
@@ -56,6 +59,7 @@ from learners.base import Member, StateMismatch, check_state, everyone, member_s
 from params.private_api import with_entries
 from learners.device import DEVICE_NOTE, check_device, resolve_device
 from learners.nstep import NStep
+from learners.priority import Priorities, annealed_beta
 from learners.transitions import Transitions, pack, unpack
 from params import require
 from params.declare import REQUIRED, check_fields, param
@@ -124,6 +128,7 @@ class RowReplayBuffer(ReplayBuffer):
                  device: torch.device | str = "cpu") -> None:
         self._queue: list[torch.Tensor] = []
         self._queued = 0
+        self.priorities: Priorities | None = None  # prioritized replay: each written row gets one
         self._capacity = int(capacity)
         rows = torch.zeros(capacity, width, device=device)
         super().__init__(storage=TensorStorage(rows, device=device), sampler=RandomSampler(),
@@ -160,7 +165,9 @@ class RowReplayBuffer(ReplayBuffer):
         """Writes the queued rows (one ``extend``)."""
         queue, self._queue, self._queued = self._queue, [], 0
         if queue:
-            self.extend(queue[0] if len(queue) == 1 else torch.cat(queue))
+            index = self.extend(queue[0] if len(queue) == 1 else torch.cat(queue))
+            if self.priorities is not None:
+                self.priorities.added(index)
 
     def sample_rows(self, stored: int, generator: torch.Generator | None = None,
                     out: torch.Tensor | None = None) -> torch.Tensor:
@@ -168,6 +175,14 @@ class RowReplayBuffer(ReplayBuffer):
         index = torch.randint(0, stored, (self.batch_size,), generator=generator)
         rows = self.rows
         return torch.index_select(rows, 0, index.to(rows.device), out=out)
+
+    def sample_prioritized(self, stored: int, beta: float, generator: torch.Generator | None = None,
+                           out: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(rows, index, weight)``: a minibatch drawn by :attr:`priorities` from the first
+        ``stored`` rows, their indices and importance weights (``beta``)."""
+        rows = self.rows
+        index, weight = self.priorities.sample(stored, self.batch_size, beta, generator)
+        return torch.index_select(rows, 0, index.to(rows.device), out=out), index, weight
 
     def sample_transitions(self, stored: int, generator: torch.Generator | None = None) -> Transitions:
         """:meth:`sample_rows` as :class:`Transitions`."""
@@ -371,6 +386,13 @@ class DQN:
     double_dqn: bool = param(True, "the online network picks the next action, the target values it")
     dueling: bool = param(False, "value and advantage streams: the last layer gives V(s) and A(s, a), "
                                  "Q = V + A - mean A")
+    prioritized: bool = param(False, "prioritized replay: rows drawn in proportion to (|TD error| + "
+                                     "priority_eps)^priority_alpha, the loss weighted by importance")
+    priority_alpha: float = param(0.6, "prioritized replay's exponent (0: uniform)", ge=0, le=1)
+    priority_beta: float = param(0.4, "importance weights' exponent at the start, raised linearly to 1",
+                                 ge=0, le=1)
+    priority_beta_updates: int = param(100_000, "updates over which priority_beta rises to 1", ge=1)
+    priority_eps: float = param(1e-6, "added to each |TD error| so that no row is never drawn", gt=0)
     target_update: int = param(0, "hard copies of the target network every N updates", ge=0,
                                note="0 = none")
     tau: float = param(0.01, "Polyak averaging rate of the target network", ge=0, lt=1,
@@ -397,7 +419,8 @@ class DQN:
     # Settings members of one batch may differ in (a tuning study's trials side by side):
     # none changes a shape; all must have a target network or none.
     MEMBER_WISE = ("lr", "lr_decay", "gamma", "tau", "target_update", "epsilon", "updates", "learning_starts",
-                   "grad_clip", "done_episode_reward", "reward_scale")
+                   "grad_clip", "done_episode_reward", "reward_scale", "priority_alpha", "priority_beta",
+                   "priority_beta_updates", "priority_eps")
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -485,6 +508,9 @@ class DQN:
         self.trackers = [UpdateStats() for _ in range(m)]
         width = 2 * self.n_obs + 3 + (self.n_step > 1)  # n-step rows carry their steps
         self.buffers = [RowReplayBuffer(self.buffer_size, width, self.batch_size, self.device) for _ in range(m)]
+        if self.prioritized:
+            for buffer, v in zip(self.buffers, own):
+                buffer.priorities = Priorities(self.buffer_size, v.priority_alpha, v.priority_eps, self.device)
         self._minibatch = torch.empty(m, self.batch_size, width, device=self.device)
         self.nsteps: list[NStep] = []  # each member's queues, made at its first step (copies known then)
 
@@ -659,8 +685,17 @@ class DQN:
         """One update of each member of ``due``: its minibatch, its TD loss's gradients by
         autograd, its clipped norm, its Adam step and its target network's."""
         k = len(due)
+        drawn, weights = [], []  # prioritized replay: each member's rows and importance weights
         for j, b in enumerate(due):
-            self.buffers[b].sample_rows(stored[b], self.generators[b], out=self._minibatch[j])
+            if self.prioritized:
+                v = self.settings[b]
+                beta = annealed_beta(v.priority_beta, self.steps[b], v.priority_beta_updates)
+                _, index, weight = self.buffers[b].sample_prioritized(stored[b], beta, self.generators[b],
+                                                                      out=self._minibatch[j])
+                drawn.append(index)
+                weights.append(weight)
+            else:
+                self.buffers[b].sample_rows(stored[b], self.generators[b], out=self._minibatch[j])
         batch = unpack(self._minibatch[:k])
         if k == self.members:  # every member: its own tensors, in place
             index, params, target, grads, valued = None, self.params, self.target, self.grads, self._valued
@@ -676,7 +711,12 @@ class DQN:
         gamma = per_member([v.gamma for v in own], params.dtype, params.device)
         q, td_target = td_terms(lambda x: self.net.q(online, x), lambda x: self.net.q(valued, x), batch,
                                 gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma, self.double_dqn)
-        loss = _DISTANCES[self.loss_function](q, td_target, reduction="none").mean((1, 2))
+        loss = _DISTANCES[self.loss_function](q, td_target, reduction="none")
+        if self.prioritized:  # importance-weighted; the rows take their new TD errors
+            loss = loss * torch.stack(weights).to(loss.device).unsqueeze(-1)
+            for j, b in enumerate(due):
+                self.buffers[b].priorities.update(drawn[j], td_target[j] - q[j].detach())
+        loss = loss.mean((1, 2))
         loss.sum().backward()
         with torch.no_grad():
             norms = torch.linalg.vector_norm(grads, dim=1)
@@ -762,6 +802,7 @@ class DQN:
             "credit": self.credit[b], "buffer": self.buffers[b].state_dict(),
             "generator": self.generators[b].get_state(),
             **({"n_step_queues": self.nsteps[b].state_dict()} if self.nsteps else {}),
+            **({"priorities": self.buffers[b].priorities.state_dict()} if self.prioritized else {}),
         }
 
     @torch.no_grad()
@@ -783,6 +824,8 @@ class DQN:
         self.steps[b] = int(state["optimizer_steps"])
         self.credit[b] = float(state["credit"])
         self.buffers[b].load_state_dict(state["buffer"])
+        if self.prioritized:
+            self.buffers[b].priorities.load_state_dict(state["priorities"])
         if self.n_step > 1 and "n_step_queues" in state:
             queues = state["n_step_queues"]
             self._queues(len(queues["count"]))

@@ -98,6 +98,10 @@ DQN_CASES = {
     # dueling heads beside n-step returns
     "dqn dueling": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                                "learner.dueling=true", "learner.n_step=2"]),
+    # prioritized replay beside n-step returns: each member's priorities, draws and weights
+    "dqn prioritized": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
+                                   "learner.prioritized=true", "learner.n_step=2",
+                                   "learner.priority_beta_updates=50"]),
     # a fixed input factor before the first layer (conf/tuned/cube_dqn.yaml's kind)
     "dqn with obs_scale": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                                       "+learner.obs_scale={cart_pos: 0.5, pole_vel: 3.0}"]),
@@ -128,6 +132,11 @@ TRIAL_CASES = {
             [[], ["learner.lr=0.003", "learner.gamma=0.95", "learner.tau=0.05", "learner.lr_decay=0.001"],
              ["learner.updates=1.5", "learner.learning_starts=60", "learner.grad_clip=0", "learner.reward_scale=0.1",
               "learner.epsilon.steps=500", "learner.done_episode_reward=-5"]]),
+    # prioritized replay with each member's exponents and offsets
+    "dqn prioritized": ("dqn", 2, ["learner.batch_size=32", "learner.learning_starts=100", "learner.updates=3",
+                                   "learner.prioritized=true"],
+                        [[], ["learner.priority_alpha=0.3", "learner.priority_beta=1.0"],
+                         ["learner.priority_eps=0.01", "learner.priority_beta_updates=20"]]),
     # hard target copies every 20, 7 and 13 updates beside Polyak: all have a target network
     "mbalunovic": ("mbalunovic", 2, ["learner.batch_size=8"],
                    [["learner.target_update=20"], ["learner.target_update=7", "learner.gamma=0.9"],

@@ -79,19 +79,23 @@ def train(*args: str, kill: str | None = None) -> subprocess.CompletedProcess:
                           timeout=600, env=env)
 
 
-RUN = ("robot=cartpole", "learner=dqn", "learner.n_step=3", "max_env_steps=3000", "max_episodes=0",
+RUN = ("robot=cartpole", "learner=dqn", "learner.n_step=3", "learner.prioritized=true", "max_env_steps=3000", "max_episodes=0",
        "eval_episodes=2", "checkpoint_every=20", "quiet=true", "seed=5")
 
 
 def test_an_n_step_run_killed_resumes_to_its_uninterrupted_end(tmp_path):
-    """The queues are part of the training state: killed after its second checkpoint and
-    resumed, the run ends with the metrics and network of one never stopped."""
+    """The queues (and, with prioritized replay, the priorities) are part of the training
+    state: killed after its fourth checkpoint and resumed, the run ends with the metrics and
+    network of one never stopped."""
     whole = train(*RUN, f"hydra.run.dir={tmp_path / 'whole'}")
     assert whole.returncode == 0, whole.stderr[-2000:]
-    killed = train(*RUN, f"hydra.run.dir={tmp_path / 'run'}", kill="second_checkpoint")
+    killed = train(*RUN, f"hydra.run.dir={tmp_path / 'run'}", kill="checkpoint:4")
     assert killed.returncode == -9
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)
+    assert state["learner"]["optimizer_steps"] > 0
     assert state["learner"]["n_step_queues"]["count"].shape == (16,)  # the queues of the tuned 16 copies, saved
+    priorities = state["learner"]["priorities"]["values"]
+    assert priorities.dtype == torch.float64 and len(set(priorities[priorities > 0].tolist())) > 1  # TD errors'
     done = train(f"resume={tmp_path / 'run'}")
     assert done.returncode == 0, done.stderr[-2000:]
     assert (tmp_path / "run" / "metrics.csv").read_bytes() == (tmp_path / "whole" / "metrics.csv").read_bytes()

@@ -216,6 +216,13 @@ CASES = [
     (["learner=dqn", "learner.learning_starts=100000"], "learner.learning_starts", "100000"),
     (["learner=dqn", "learner.grad_clip=-1"], "learner.grad_clip", "-1"),
     (["learner=dqn", "learner.epsilon=0.5"], "learner.epsilon", "0.5"),
+    # Rainbow's parts
+    (["learner=dqn", "learner.n_step=0"], "learner.n_step", "0"),
+    (["learner=dqn", "learner.dueling=maybe"], "learner.dueling", "'maybe'"),
+    (["learner=dqn", "learner.priority_alpha=1.5"], "learner.priority_alpha", "1.5"),
+    (["learner=dqn", "learner.priority_beta=-0.1"], "learner.priority_beta", "-0.1"),
+    (["learner=dqn", "learner.priority_eps=0"], "learner.priority_eps", "0"),
+    (["learner=dqn", "learner.priority_beta_updates=0"], "learner.priority_beta_updates", "0"),
 ]
 
 
