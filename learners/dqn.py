@@ -53,7 +53,7 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
-from torchrl.modules import MLP, QValueActor
+from torchrl.modules import MLP, NoisyLinear, QValueActor
 
 from learners.base import Member, StateMismatch, check_state, everyone, member_settings, per_member, single
 from params.private_api import with_entries
@@ -229,56 +229,95 @@ class StackedMLP:
 
     ``q(params, x)``: each member's network on its ``x`` (``[k, n, n_obs]`` with ``params``
     ``[k, P]``): every linear layer one ``baddbmm``, each member's matrix product computed
-    alone whatever ``k``."""
+    alone whatever ``k``.
+
+    A TorchRL ``NoisyLinear`` of the template (``learner.noisy``; Fortunato et al. 2018) holds
+    its mean and standard deviation weights (``weight_mu``, ``weight_sigma``, ``bias_mu``,
+    ``bias_sigma``, its parameters' order); ``q`` uses the mean weights unless given factorised
+    noise (:meth:`noise`): ``w = mu_w + sigma_w * f(e_out) f(e_in)^T``, ``b = mu_b + sigma_b * f(e_out)``,
+    ``f(x) = sign(x) sqrt|x|``, as ``NoisyLinear.reset_noise`` draws it."""
 
     def __init__(self, template: nn.Sequential, device: torch.device | str = "cpu") -> None:
         self.template = template  # on the CPU
         self.scale: torch.Tensor | None = None
-        self.plan: list = []  # (offset, out, in) of a linear layer, or an activation function
+        self.plan: list = []  # (offset, out, in, noisy) of a linear layer, or an activation function
+        self.noisy_sizes: list[tuple[int, int]] = []  # (in, out) of each noisy layer
         offset = 0
         for layer in template:
             if isinstance(layer, ObsScale):
                 self.scale = layer.scale.to(device)
             elif isinstance(layer, nn.Linear):
-                out, inp = layer.weight.shape
-                self.plan.append((offset, out, inp))
-                offset += out * inp + out
+                out, inp = layer.out_features, layer.in_features
+                noisy = isinstance(layer, NoisyLinear)
+                self.plan.append((offset, out, inp, noisy))
+                offset += (out * inp + out) * (2 if noisy else 1)
+                if noisy:
+                    self.noisy_sizes.append((inp, out))
             else:
                 self.plan.append(_FUNCTIONS[type(layer)])
         self.size = offset
 
     def layers(self, params: torch.Tensor, grads: torch.Tensor | None = None) -> list:
-        """Each linear layer's ``(weight [k, out, in], bias [k, out])`` as views of ``params``
-        (``[k, P]``). With ``grads`` (``[k, P]``) they are autograd leaves whose gradients
-        are views of ``grads``: a backward adds every layer's gradient into that one tensor
-        (zero it first), where clipping and Adam take them all at once."""
+        """Each linear layer's ``(weight [k, out, in], bias [k, 1, out])`` (a noisy layer's
+        ``(weight_mu, weight_sigma, bias_mu, bias_sigma)``) as views of ``params`` (``[k, P]``).
+        With ``grads`` (``[k, P]``) they are autograd leaves whose gradients are views of
+        ``grads``: a backward adds every layer's gradient into that one tensor (zero it first),
+        where clipping and Adam take them all at once."""
         k, found = len(params), []
         for layer in self.plan:
             if callable(layer):
                 continue
-            offset, out, inp = layer
-            weight = params[:, offset:offset + out * inp].view(k, out, inp)
-            bias = params[:, offset + out * inp:offset + out * inp + out]
-            if grads is not None:
-                weight.requires_grad_(True)
-                bias.requires_grad_(True)
-                weight.grad = grads[:, offset:offset + out * inp].view(k, out, inp)
-                bias.grad = grads[:, offset + out * inp:offset + out * inp + out]
-            found.append((weight, bias.unsqueeze(1)))
+            offset, out, inp, noisy = layer
+            shapes = [(out, inp), (out, inp), (out,), (out,)] if noisy else [(out, inp), (out,)]
+            views = []
+            for shape in shapes:
+                size = math.prod(shape)
+                view = params[:, offset:offset + size].view(k, *shape)
+                if grads is not None:
+                    view.requires_grad_(True)
+                    view.grad = grads[:, offset:offset + size].view(k, *shape)
+                views.append(view if len(shape) == 2 else view.unsqueeze(1))
+                offset += size
+            found.append(tuple(views))
         return found
 
-    def q(self, params: torch.Tensor | list, x: torch.Tensor) -> torch.Tensor:
+    def noise(self, generators: Sequence[torch.Generator | None], device: torch.device | str) -> list:
+        """Factorised noise of each noisy layer for ``k`` members, ``(f(e_in) [k, in],
+        f(e_out) [k, out])``, member ``j``'s drawn from ``generators[j]`` (None: zero noise,
+        the mean weights)."""
+        total = sum(inp + out for inp, out in self.noisy_sizes)
+        drawn = torch.zeros(len(generators), total)
+        for j, generator in enumerate(generators):
+            if generator is not None:
+                torch.randn(total, generator=generator, out=drawn[j])
+        drawn = drawn.sign().mul_(drawn.abs().sqrt_()).to(device)
+        found, offset = [], 0
+        for inp, out in self.noisy_sizes:
+            found.append((drawn[:, offset:offset + inp], drawn[:, offset + inp:offset + inp + out]))
+            offset += inp + out
+        return found
+
+    def q(self, params: torch.Tensor | list, x: torch.Tensor, noise: list | None = None) -> torch.Tensor:
         """Each member's Q-values of its ``x`` (``[k, n, n_obs]``); ``params``: ``[k, P]`` or
-        its :meth:`layers`."""
+        its :meth:`layers`; ``noise``: the noisy layers' (:meth:`noise`; None: mean weights)."""
         layers = iter(self.layers(params) if isinstance(params, torch.Tensor) else params)
+        noises = iter(noise or ())
         if self.scale is not None:
             x = x * self.scale
         for layer in self.plan:
             if callable(layer):
                 x = layer(x)
+                continue
+            parts = next(layers)
+            if len(parts) == 2:
+                weight, bias = parts
+            elif noise is None:
+                weight, bias = parts[0], parts[2]
             else:
-                weight, bias = next(layers)
-                x = torch.baddbmm(bias, x, weight.transpose(1, 2))
+                (weight_mu, weight_sigma, bias_mu, bias_sigma), (e_in, e_out) = parts, next(noises)
+                weight = weight_mu + weight_sigma * (e_out.unsqueeze(2) * e_in.unsqueeze(1))
+                bias = bias_mu + bias_sigma * e_out.unsqueeze(1)
+            x = torch.baddbmm(bias, x, weight.transpose(1, 2))
         return x
 
     def vector(self) -> torch.Tensor:
@@ -386,6 +425,10 @@ class DQN:
     double_dqn: bool = param(True, "the online network picks the next action, the target values it")
     dueling: bool = param(False, "value and advantage streams: the last layer gives V(s) and A(s, a), "
                                  "Q = V + A - mean A")
+    noisy: bool = param(False, "noisy layers (factorised Gaussian) explore instead of epsilon, which is "
+                               "then not used; greedy evaluations use the mean weights")
+    noisy_sigma: float = param(0.5, "noisy layers' initial noise scale, sigma_0 (TorchRL NoisyLinear's std_init)",
+                               gt=0, le=10)
     prioritized: bool = param(False, "prioritized replay: rows drawn in proportion to (|TD error| + "
                                      "priority_eps)^priority_alpha, the loss weighted by importance")
     priority_alpha: float = param(0.6, "prioritized replay's exponent (0: uniform)", ge=0, le=1)
@@ -449,14 +492,19 @@ class DQN:
         arch = {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
                 "activation": self.activation}
         return arch | ({"obs_scale": dict(self.obs_scale)} if self.obs_scale else {}) | (
-            {"dueling": True} if self.dueling else {})
+            {"dueling": True} if self.dueling else {}) | ({"noisy": True} if self.noisy else {})
 
     def _template(self, task) -> nn.Sequential:
         """One member's Q-network on the CPU (where each member's stream initialises it and
         its states are saved): TorchRL's ``MLP``, after an :class:`ObsScale` if asked, ending in
-        a :class:`DuelingHead` with ``dueling``."""
+        a :class:`DuelingHead` with ``dueling``; its layers TorchRL's ``NoisyLinear`` with ``noisy``
+        (their noise buffers zero: the saved model acts by its mean weights)."""
+        noisy = {"layer_class": NoisyLinear, "layer_kwargs": {"std_init": self.noisy_sigma}} if self.noisy else {}
         net = MLP(in_features=self.n_obs, out_features=self.n_actions + self.dueling, num_cells=self.hidden,
-                  activation_class=ACTIVATIONS[self.activation])
+                  activation_class=ACTIVATIONS[self.activation], **noisy)
+        for layer in (m for m in net if isinstance(m, NoisyLinear)):  # noise is drawn per member, not kept
+            layer.weight_epsilon.zero_()
+            layer.bias_epsilon.zero_()
         if self.dueling:  # one more output, V(s), before the advantages
             net = nn.Sequential(*net, DuelingHead())
         if self.obs_scale:
@@ -535,7 +583,8 @@ class DQN:
         return own.lr * (1.0 / (1.0 + own.lr_decay * steps)) if own.lr_decay else own.lr
 
     def stats(self, b: int) -> dict[str, float]:
-        return {"alpha": self.lr_of(b), "gamma": self.settings[b].gamma, "epsilon": float(self.schedules[b].value)}
+        epsilon = 0.0 if self.noisy else float(self.schedules[b].value)
+        return {"alpha": self.lr_of(b), "gamma": self.settings[b].gamma, "epsilon": epsilon}
 
     def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
         """``train/*`` of member ``b``: ``loss``, ``q_mean`` (of the taken actions),
@@ -574,10 +623,11 @@ class DQN:
         members = range(self.members) if members is None else list(members)
         k = len(members)
         observation = td.get("observation")
+        noise = self.net.noise(generators, self.device) if self.noisy and not greedy else None
         with torch.no_grad():
-            q = self.net.q(params, observation.reshape(k, -1, self.n_obs).to(self.device))
+            q = self.net.q(params, observation.reshape(k, -1, self.n_obs).to(self.device), noise)
         action = q.argmax(-1).cpu()
-        if not greedy:
+        if not greedy and not self.noisy:
             n = action.shape[1]
             uniform = torch.ones(k, n)
             random_action = torch.zeros(k, n, dtype=torch.int64)
@@ -709,7 +759,13 @@ class DQN:
         online = self.net.layers(params, grads)
         own = [self.settings[b] for b in due]
         gamma = per_member([v.gamma for v in own], params.dtype, params.device)
-        q, td_target = td_terms(lambda x: self.net.q(online, x), lambda x: self.net.q(valued, x), batch,
+        noise = target_noise = None
+        if self.noisy:  # fresh noise for each update: the online network's, then the target's
+            streams = [self.generators[b] for b in due]
+            noise = self.net.noise(streams, self.device)
+            target_noise = self.net.noise(streams, self.device) if self.has_target else noise
+        q, td_target = td_terms(lambda x: self.net.q(online, x, noise), lambda x: self.net.q(valued, x, target_noise),
+                                batch,
                                 gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma, self.double_dqn)
         loss = _DISTANCES[self.loss_function](q, td_target, reduction="none")
         if self.prioritized:  # importance-weighted; the rows take their new TD errors

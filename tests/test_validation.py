@@ -219,6 +219,8 @@ CASES = [
     # Rainbow's parts
     (["learner=dqn", "learner.n_step=0"], "learner.n_step", "0"),
     (["learner=dqn", "learner.dueling=maybe"], "learner.dueling", "'maybe'"),
+    (["learner=dqn", "learner.noisy_sigma=0"], "learner.noisy_sigma", "0"),
+    (["learner=qlearn", "+learner.noisy=true"], "not a parameter of learners.qlearn.QLearn", "learner.noisy=True"),
     (["learner=dqn", "learner.priority_alpha=1.5"], "learner.priority_alpha", "1.5"),
     (["learner=dqn", "learner.priority_beta=-0.1"], "learner.priority_beta", "-0.1"),
     (["learner=dqn", "learner.priority_eps=0"], "learner.priority_eps", "0"),
