@@ -53,11 +53,12 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
-from torchrl.modules import MLP, NoisyLinear, QValueActor
+from torchrl.modules import MLP, DistributionalQValueActor, NoisyLinear, QValueActor
 
 from learners.base import Member, StateMismatch, check_state, everyone, member_settings, per_member, single
 from params.private_api import with_entries
 from learners.device import DEVICE_NOTE, check_device, resolve_device
+from learners.distributional import c51_terms, expected, support
 from learners.nstep import NStep
 from learners.priority import Priorities, annealed_beta
 from learners.transitions import Transitions, pack, unpack
@@ -205,21 +206,29 @@ class ObsScale(nn.Module):
         return x * self.scale
 
 
-def dueling(x: torch.Tensor) -> torch.Tensor:
+def dueling(x: torch.Tensor, atoms: int = 1) -> torch.Tensor:
     """Q from a value and advantages (Wang et al. 2016, the mean-advantage form): ``x``'s
-    first entry is V(s), the rest A(s, a); Q = V + A - mean_a A."""
+    first entry is V(s), the rest A(s, a); Q = V + A - mean_a A. With ``atoms`` > 1 (C51's
+    logits, ``[atoms, 1 + actions]`` flat), each atom's alike."""
+    if atoms > 1:
+        return dueling(x.unflatten(-1, (atoms, -1))).flatten(-2)
     value, advantage = x[..., :1], x[..., 1:]
     return value + advantage - advantage.mean(-1, keepdim=True)
 
 
 class DuelingHead(nn.Module):
-    """The last layer's V(s) and A(s, .) (``learner.dueling``) as Q-values: :func:`dueling`."""
+    """The last layer's V(s) and A(s, .) (``learner.dueling``) as Q-values (or, per atom, as
+    C51's logits): :func:`dueling`."""
+
+    def __init__(self, atoms: int = 1) -> None:
+        super().__init__()
+        self.atoms = atoms
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return dueling(x)
+        return dueling(x, self.atoms)
 
 
-_FUNCTIONS = {nn.Tanh: torch.tanh, nn.ReLU: torch.relu, DuelingHead: dueling}
+_FUNCTIONS = {nn.Tanh: torch.tanh, nn.ReLU: torch.relu}
 
 
 class StackedMLP:
@@ -253,7 +262,9 @@ class StackedMLP:
                 offset += (out * inp + out) * (2 if noisy else 1)
                 if noisy:
                     self.noisy_sizes.append((inp, out))
-            else:
+            elif isinstance(layer, DuelingHead):
+                self.plan.append(layer.forward)
+            elif not isinstance(layer, nn.Unflatten):  # (C51's [atoms, actions] for the saved model: q is flat)
                 self.plan.append(_FUNCTIONS[type(layer)])
         self.size = offset
 
@@ -425,6 +436,11 @@ class DQN:
     double_dqn: bool = param(True, "the online network picks the next action, the target values it")
     dueling: bool = param(False, "value and advantage streams: the last layer gives V(s) and A(s, a), "
                                  "Q = V + A - mean A")
+    distributional: bool = param(False, "C51: per action a distribution over atoms returns in [v_min, v_max], "
+                                        "its mean the action's value, a cross-entropy loss to the projected target")
+    atoms: int = param(51, "C51's number of returns (atoms)", ge=2, le=1001)
+    v_min: float = param(-10.0, "C51's lowest return (of rewards after reward_scale)")
+    v_max: float = param(10.0, "C51's highest return (above v_min)")
     noisy: bool = param(False, "noisy layers (factorised Gaussian) explore instead of epsilon, which is "
                                "then not used; greedy evaluations use the mean weights")
     noisy_sigma: float = param(0.5, "noisy layers' initial noise scale, sigma_0 (TorchRL NoisyLinear's std_init)",
@@ -474,6 +490,7 @@ class DQN:
                 (self.target_update, self.tau))
         require(not self.double_dqn or self.target_update or self.tau,
                 "learner.double_dqn needs a target network (target_update or tau)", self.double_dqn)
+        require(self.v_min < self.v_max, f"learner.v_max must be above learner.v_min ({self.v_min})", self.v_max)
         require(self.batch_size <= self.buffer_size, "learner.batch_size must be in [1, buffer_size]",
                 (self.batch_size, self.buffer_size))
         require(self.learning_starts <= self.buffer_size,
@@ -492,7 +509,9 @@ class DQN:
         arch = {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
                 "activation": self.activation}
         return arch | ({"obs_scale": dict(self.obs_scale)} if self.obs_scale else {}) | (
-            {"dueling": True} if self.dueling else {}) | ({"noisy": True} if self.noisy else {})
+            {"dueling": True} if self.dueling else {}) | ({"noisy": True} if self.noisy else {}) | (
+            {"distributional": {"atoms": self.atoms, "v_min": self.v_min, "v_max": self.v_max}}
+            if self.distributional else {})
 
     def _template(self, task) -> nn.Sequential:
         """One member's Q-network on the CPU (where each member's stream initialises it and
@@ -500,13 +519,16 @@ class DQN:
         a :class:`DuelingHead` with ``dueling``; its layers TorchRL's ``NoisyLinear`` with ``noisy``
         (their noise buffers zero: the saved model acts by its mean weights)."""
         noisy = {"layer_class": NoisyLinear, "layer_kwargs": {"std_init": self.noisy_sigma}} if self.noisy else {}
-        net = MLP(in_features=self.n_obs, out_features=self.n_actions + self.dueling, num_cells=self.hidden,
+        atoms = self.atoms if self.distributional else 1
+        net = MLP(in_features=self.n_obs, out_features=(self.n_actions + self.dueling) * atoms, num_cells=self.hidden,
                   activation_class=ACTIVATIONS[self.activation], **noisy)
         for layer in (m for m in net if isinstance(m, NoisyLinear)):  # noise is drawn per member, not kept
             layer.weight_epsilon.zero_()
             layer.bias_epsilon.zero_()
         if self.dueling:  # one more output, V(s), before the advantages
-            net = nn.Sequential(*net, DuelingHead())
+            net = nn.Sequential(*net, DuelingHead(atoms))
+        if self.distributional:  # TorchRL's DistributionalQValueActor reads [atoms, actions]
+            net = nn.Sequential(*net, nn.Unflatten(-1, (atoms, self.n_actions)))
         if self.obs_scale:
             names = list(task.observation_names)
             unknown = sorted(set(self.obs_scale) - set(names))
@@ -534,8 +556,12 @@ class DQN:
         with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
             template = self._template(task)
         self.net = StackedMLP(template, self.device)
-        self.actor = QValueActor(template, in_keys=["observation"],  # model.pt's layout
-                                 spec=Categorical(self.n_actions, dtype=torch.int64))
+        spec = Categorical(self.n_actions, dtype=torch.int64)
+        self.z = support(self.atoms, self.v_min, self.v_max).to(self.device) if self.distributional else None
+        if self.distributional:  # model.pt's layout
+            self.actor = DistributionalQValueActor(template, support=self.z.cpu(), in_keys=["observation"], spec=spec)
+        else:
+            self.actor = QValueActor(template, in_keys=["observation"], spec=spec)
         self.params = torch.empty(m, self.net.size, device=self.device)
         for b, generator in enumerate(self.generators):
             self.params[b] = self._initial(generator)
@@ -626,6 +652,8 @@ class DQN:
         noise = self.net.noise(generators, self.device) if self.noisy and not greedy else None
         with torch.no_grad():
             q = self.net.q(params, observation.reshape(k, -1, self.n_obs).to(self.device), noise)
+            if self.distributional:
+                q = expected(q, self.z)
         action = q.argmax(-1).cpu()
         if not greedy and not self.noisy:
             n = action.shape[1]
@@ -764,14 +792,21 @@ class DQN:
             streams = [self.generators[b] for b in due]
             noise = self.net.noise(streams, self.device)
             target_noise = self.net.noise(streams, self.device) if self.has_target else noise
-        q, td_target = td_terms(lambda x: self.net.q(online, x, noise), lambda x: self.net.q(valued, x, target_noise),
-                                batch,
-                                gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma, self.double_dqn)
-        loss = _DISTANCES[self.loss_function](q, td_target, reduction="none")
-        if self.prioritized:  # importance-weighted; the rows take their new TD errors
+        gamma = gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma
+        terms = c51_terms if self.distributional else td_terms
+        found = terms(lambda x: self.net.q(online, x, noise), lambda x: self.net.q(valued, x, target_noise), batch,
+                      gamma, self.double_dqn, *((self.z,) if self.distributional else ()))
+        if self.distributional:  # each row's cross-entropy; its priority too (TorchRL's)
+            loss, q, td_target, _ = found
+            errors = loss.detach()
+        else:
+            q, td_target = found
+            loss = _DISTANCES[self.loss_function](q, td_target, reduction="none")
+            errors = td_target - q.detach() if self.prioritized else None
+        if self.prioritized:  # importance-weighted; the rows take their new errors
             loss = loss * torch.stack(weights).to(loss.device).unsqueeze(-1)
             for j, b in enumerate(due):
-                self.buffers[b].priorities.update(drawn[j], td_target[j] - q[j].detach())
+                self.buffers[b].priorities.update(drawn[j], errors[j])
         loss = loss.mean((1, 2))
         loss.sum().backward()
         with torch.no_grad():

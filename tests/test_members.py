@@ -102,10 +102,11 @@ DQN_CASES = {
     "dqn prioritized": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                                    "learner.prioritized=true", "learner.n_step=2",
                                    "learner.priority_beta_updates=50"]),
-    # every switch of Rainbow's parts at once: noisy dueling layers, n-step rows, prioritized draws
+    # every switch of Rainbow's parts at once: noisy dueling C51 layers, n-step rows, prioritized draws
     "dqn every switch": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                                     "learner.noisy=true", "learner.dueling=true", "learner.n_step=3",
-                                    "learner.prioritized=true"]),
+                                    "learner.prioritized=true", "learner.distributional=true",
+                                    "learner.atoms=21", "learner.v_max=50"]),
     # a fixed input factor before the first layer (conf/tuned/cube_dqn.yaml's kind)
     "dqn with obs_scale": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                                       "+learner.obs_scale={cart_pos: 0.5, pole_vel: 3.0}"]),

@@ -219,6 +219,8 @@ CASES = [
     # Rainbow's parts
     (["learner=dqn", "learner.n_step=0"], "learner.n_step", "0"),
     (["learner=dqn", "learner.dueling=maybe"], "learner.dueling", "'maybe'"),
+    (["learner=dqn", "learner.atoms=1"], "learner.atoms", "1"),
+    (["learner=dqn", "learner.v_min=10", "learner.v_max=10"], "learner.v_max must be above learner.v_min", "10"),
     (["learner=dqn", "learner.noisy_sigma=0"], "learner.noisy_sigma", "0"),
     (["learner=qlearn", "+learner.noisy=true"], "not a parameter of learners.qlearn.QLearn", "learner.noisy=True"),
     (["learner=dqn", "learner.priority_alpha=1.5"], "learner.priority_alpha", "1.5"),
