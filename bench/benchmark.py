@@ -64,7 +64,8 @@ class Job:
     setting: str
     budget: int
     seeds: tuple[int, ...]
-    overrides: tuple[str, ...] = ()  # the plan's (published settings) and the command line's
+    overrides: tuple[str, ...] = ()  # the plan's (published settings, a variant's) and the command line's
+    base: str | None = None  # a plan variant's learner config (``learner`` then names the variant)
 
     @property
     def folder(self) -> str:
@@ -113,7 +114,8 @@ def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
     if unknown:
         raise BadInput(f"unknown task {unknown[0]!r}; the benchmark's tasks: {', '.join(plan['tasks'])}")
     learners = args.learners or plan["learners"]
-    known = catalog.names("learner")
+    variants = plan.get("variants", {})
+    known = [*catalog.names("learner"), *variants]
     bad = [name for name in learners if name not in known]
     if bad:
         raise BadInput(f"unknown learner {bad[0]!r}; learners: {', '.join(known)}")
@@ -133,19 +135,21 @@ def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
     for task in tasks:
         spec = plan["tasks"][task]
         for learner in learners:
+            variant = variants.get(learner, {})
             for setting in settings:
-                extra = [*spec.get("overrides", []),
+                extra = [*spec.get("overrides", []), *variant.get("overrides", []),
+                         *variant.get("task_overrides", {}).get(task, []),
                          *(plan.get("published_overrides", []) if setting == "published" else []),
                          *args.overrides]
                 jobs.append(Job(task, spec["robot"], spec["task"], learner, setting,
                                 args.budget or int(spec["budget_steps"]), tuple(range(first, first + n)),
-                                tuple(extra)))
+                                tuple(extra), variant.get("learner")))
     return jobs
 
 
 def overrides(job: Job) -> list[str]:
     """The Hydra overrides of one job (its seeds aside)."""
-    picks = [f"robot={job.robot}", f"task={job.task_name}", f"learner={job.learner}",
+    picks = [f"robot={job.robot}", f"task={job.task_name}", f"learner={job.base or job.learner}",
              f"max_env_steps={job.budget}", "max_episodes=0"]
     return [*picks, *(["~tuned"] if job.setting == "published" else []), *job.overrides]
 
@@ -155,7 +159,7 @@ def tuned_files(job: Job) -> list[str]:
     may be missing)."""
     from tasks import catalog
 
-    return catalog.tuned_layers(job.robot, job.task_name, job.learner)
+    return catalog.tuned_layers(job.robot, job.task_name, job.base or job.learner)
 
 
 def has_tuned_file(job: Job) -> bool:

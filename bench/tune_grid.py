@@ -14,7 +14,9 @@ budget, trials, seeds and best value). Its first trial is the current configurat
 (the hand-picked tuned file where the space holds its values; where it does not, the
 study values it on the same seeds and budget), so a hand pick is kept wherever no
 sampled trial beats it on the tuning seeds. Tasks the plan runs with extra
-overrides (``cube_minus_y``) are variants of another task's config and are not tuned.
+overrides (``cube_minus_y``) are variants of another task's config and are not tuned, nor
+are the plan's learner ``variants`` (the dqn with one switch on: the dqn's tuned file and
+the switch).
 """
 
 from __future__ import annotations
@@ -90,6 +92,11 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             continue
         for learner in learners or plan["learners"]:
             name = f"{task}_{learner}"
+            variant = plan.get("variants", {}).get(learner)
+            if variant:
+                print(f"{name}: a variant of {variant['learner']} (overrides {variant['overrides']}): runs "
+                      f"{variant['learner']}'s tuned file with them, not tuned")
+                continue
             counted, running, kept = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
             missing = int(tuning["trials"]) - counted - running
             if missing <= 0 and not running and (kept or written(spec, learner, task) or

@@ -15,9 +15,14 @@ dqn: one update of ``learners.dqn`` (one member) on cart-pole's network (4x64x64
 128, tuned settings) and its parts, each timed in chunks of 100 calls alternating with the
 others.
 
+``--switches``: instead, one update of the plain dqn against the dqn with each of Rainbow's
+parts on (``learner.n_step=3``, ``prioritized``, ``dueling``, ``noisy``, ``distributional``
+on 51 atoms) and with all of them (``learner=rainbow``), in alternating chunks of 100.
+
 The last lines are machine-readable::
 
     DQN_UPDATE batch=128 us=<median per update>
+    DQN_SWITCH name=<plain|n_step|...|rainbow> us=<median per update> ratio=<to plain>   (--switches)
     QLEARN_RATE batch=64 ours=<t/s> dict=<t/s> ratio=<x>
     QLEARN_RATE batch=4096 ours=<t/s> dict=<t/s> ratio=<x>
 """
@@ -135,9 +140,10 @@ def qlearn_rates(batch: int, seconds: float, rounds: int) -> dict[str, float]:
 
 
 # -- dqn ----------------------------------------------------------------------
-def dqn_learner(stored: int = 20_000):
-    """The tuned cart-pole DQN (one member), its buffer holding ``stored`` random transitions."""
-    cfg = compose(robot="cartpole", learner="dqn")
+def dqn_learner(stored: int = 20_000, learner: str = "dqn", overrides: tuple[str, ...] = ()):
+    """The tuned cart-pole DQN (one member; ``learner`` and ``overrides``: another of the
+    family), its buffer holding ``stored`` random transitions."""
+    cfg = compose(robot="cartpole", learner=learner, overrides=list(overrides))
     learner = instantiate(cfg.learner, _convert_="all")
     learner.build(StayUp(CartPole()), torch.Generator().manual_seed(0))
     gen = torch.Generator().manual_seed(0)
@@ -146,9 +152,32 @@ def dqn_learner(stored: int = 20_000):
     n = learner.n_obs
     rows[:, 2 * n] = torch.randint(0, learner.n_actions, (stored,), generator=gen)
     rows[:, 2 * n + 2] = (torch.rand(stored, generator=gen) < 0.05).float()
+    if rows.shape[1] > 2 * n + 3:  # n-step rows: the rewards each sums
+        rows[:, 2 * n + 3] = torch.randint(1, learner.n_step + 1, (stored,), generator=gen).float()
     for chunk in rows.split(16):
-        buffer.extend(chunk)
+        buffer.put(chunk)  # as a run stores them (prioritized replay gives each its priority)
+    buffer.flush()
     return learner
+
+
+SWITCHES = {"plain": ("dqn", ()), "n_step": ("dqn", ("learner.n_step=3",)),
+            "prioritized": ("dqn", ("learner.prioritized=true",)), "dueling": ("dqn", ("learner.dueling=true",)),
+            "noisy": ("dqn", ("learner.noisy=true",)),
+            "distributional": ("dqn", ("learner.distributional=true", "learner.v_min=0", "learner.v_max=100")),
+            "rainbow": ("rainbow", ())}
+
+
+def switch_times(rounds: int) -> dict[str, float]:
+    """Median microseconds per update of the dqn with each of :data:`SWITCHES`, interleaved."""
+    def timer(learner) -> Callable[[], float]:
+        def run() -> float:
+            start = time.perf_counter()
+            learner.optimize(100)
+            return (time.perf_counter() - start) / 100 * 1e6
+        return run
+
+    return interleaved({name: timer(dqn_learner(learner=base, overrides=extra))
+                        for name, (base, extra) in SWITCHES.items()}, rounds)
 
 
 def dqn_parts(learner) -> dict[str, Callable[[], object]]:
@@ -199,8 +228,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=0.5, help="length of one timed chunk")
     parser.add_argument("--rounds", type=int, default=5, help="chunks per contestant")
+    parser.add_argument("--switches", action="store_true", help="the dqn's update with each of Rainbow's parts")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.switches:
+        times = switch_times(max(args.rounds, 5) * 3)
+        print("dqn, cart-pole network 4x64x64x2, batch 128: one update (median us), each part on alone:")
+        for name, us in times.items():
+            print(f"  {name:16s} {us:8.1f}  {us / times['plain']:.2f}x")
+        for name, us in times.items():
+            print(f"DQN_SWITCH name={name} us={us:.1f} ratio={us / times['plain']:.2f}")
+        return
     times = dqn_times(max(args.rounds, 5) * 3)
     print("dqn, cart-pole network 4x64x64x2, batch 128 (median us per call):")
     for name, us in times.items():

@@ -249,7 +249,7 @@ class StackedMLP:
     def __init__(self, template: nn.Sequential, device: torch.device | str = "cpu") -> None:
         self.template = template  # on the CPU
         self.scale: torch.Tensor | None = None
-        self.plan: list = []  # (offset, out, in, noisy) of a linear layer, or an activation function
+        self.plan: list = []  # a linear layer's parameters ((start, end, shape), ...), or a function
         self.noisy_sizes: list[tuple[int, int]] = []  # (in, out) of each noisy layer
         offset = 0
         for layer in template:
@@ -258,8 +258,12 @@ class StackedMLP:
             elif isinstance(layer, nn.Linear):
                 out, inp = layer.out_features, layer.in_features
                 noisy = isinstance(layer, NoisyLinear)
-                self.plan.append((offset, out, inp, noisy))
-                offset += (out * inp + out) * (2 if noisy else 1)
+                shapes = [(out, inp), (out, inp), (out,), (out,)] if noisy else [(out, inp), (out,)]
+                slots = []  # (start, end, shape) of each parameter of the layer
+                for shape in shapes:
+                    slots.append((offset, offset + math.prod(shape), shape))
+                    offset += math.prod(shape)
+                self.plan.append(tuple(slots))
                 if noisy:
                     self.noisy_sizes.append((inp, out))
             elif isinstance(layer, DuelingHead):
@@ -278,17 +282,13 @@ class StackedMLP:
         for layer in self.plan:
             if callable(layer):
                 continue
-            offset, out, inp, noisy = layer
-            shapes = [(out, inp), (out, inp), (out,), (out,)] if noisy else [(out, inp), (out,)]
             views = []
-            for shape in shapes:
-                size = math.prod(shape)
-                view = params[:, offset:offset + size].view(k, *shape)
+            for start, end, shape in layer:
+                view = params[:, start:end].view(k, *shape)
                 if grads is not None:
                     view.requires_grad_(True)
-                    view.grad = grads[:, offset:offset + size].view(k, *shape)
+                    view.grad = grads[:, start:end].view(k, *shape)
                 views.append(view if len(shape) == 2 else view.unsqueeze(1))
-                offset += size
             found.append(tuple(views))
         return found
 

@@ -65,7 +65,8 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
 
 @pytest.mark.parametrize("argv, says", [
     (["--tasks", "moon"], "unknown task 'moon'; the benchmark's tasks: cartpole, cube, cube_minus_y, maze, wall"),
-    (["--learners", "sarsa"], "unknown learner 'sarsa'; learners: dqn, mbalunovic, n1try, qlearn, ruippeixotog"),
+    (["--learners", "sarsa"], "unknown learner 'sarsa'; learners: dqn, mbalunovic, n1try, qlearn, rainbow, "
+                              "ruippeixotog, dqn_nstep"),
     (["--seeds", "0"], "--seeds must be at least 1, got 0"),
     (["--budget", "-3"], "--budget must be a positive number of env steps, got -3"),
     (["--settings", "best"], "unknown setting 'best'; settings: published, tuned"),
@@ -152,6 +153,7 @@ def test_a_tuned_budget_is_its_benchmark_tasks_budget():
     checked = 0
     for (robot, task), budget in budgets.items():
         for learner in plan["learners"]:
+            learner = plan["variants"].get(learner, {}).get("learner", learner)  # a variant: its config's
             steps = catalog.compose(robot, task, learner).max_env_steps
             if steps:
                 assert steps == budget, f"{robot}/{task}/{learner}: max_env_steps {steps}, benchmark {budget}"
