@@ -1,9 +1,10 @@
-"""The README's generated tables: parameters, made from the declarations
-(:mod:`params.declare`), what there is to pick (:mod:`tasks.catalog`), and the names of the
-numbers a run reports (:mod:`runs.summary`).
+"""The documentation's generated tables: parameters, made from the declarations
+(:mod:`params.declare`; ``docs/reference/parameters.md``), what there is to pick
+(:mod:`tasks.catalog`; ``docs/getting-started.md``), and the names of the numbers a run
+reports (:mod:`runs.summary`; ``docs/solved.md``).
 
     python -m readme_tables            # prints the tables
-    python -m readme_tables --write    # rewrites them in README.md between their markers
+    python -m readme_tables --write    # rewrites them in their pages between their markers
 
 One parameter table per class a config in ``conf/robot``, ``conf/task`` or
 ``conf/learner`` names (and the exploration schedules the learners use), so a
@@ -146,28 +147,37 @@ def _learners(tuned: list[tuple[str, str]]) -> str:
                   ("learner", "class", "what", "tuned for robots"), rows)
 
 
-def rewrite(readme: Path) -> bool:
-    """Puts each of :func:`blocks` between its markers in ``readme``; whether it changed."""
-    text = new = readme.read_text()
+ROOT = Path(__file__).resolve().parent
+PAGES = {BEGIN: ROOT / "docs" / "reference" / "parameters.md", DISCOVERY_BEGIN: ROOT / "docs" / "getting-started.md",
+         NAMES_BEGIN: ROOT / "docs" / "solved.md"}  # where each block lives
+
+
+def rewrite(page: Path, only: tuple[str, ...] | None = None) -> bool:
+    """Puts each of :func:`blocks` (``only``: those that begin with these markers) between
+    its markers in ``page``; whether it changed."""
+    text = new = page.read_text()
     for (begin, end), body in blocks().items():
+        if only is not None and begin not in only:
+            continue
         head, sep, rest = new.partition(begin)
         _, sep2, tail = rest.partition(end)
         if not (sep and sep2):
-            raise SystemExit(f"{readme} has no {begin} ... {end} block")
+            raise SystemExit(f"{page} has no {begin} ... {end} block")
         new = f"{head}{begin}\n\n{body}\n{end}{tail}"
-    readme.write_text(new)
+    page.write_text(new)
     return new != text
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--write", action="store_true", help="rewrite the tables in README.md")
-    parser.add_argument("--readme", type=Path, default=Path("README.md"))
+    parser.add_argument("--write", action="store_true", help="rewrite the tables in their pages")
     args = parser.parse_args(argv)
     if not args.write:
         sys.stdout.write("\n".join(blocks().values()))
         return
-    print(f"{args.readme}: {'updated' if rewrite(args.readme) else 'already up to date'}")
+    for begin, page in PAGES.items():
+        changed = rewrite(page, (begin,))
+        print(f"{page.relative_to(ROOT)}: {'updated' if changed else 'already up to date'}")
 
 
 if __name__ == "__main__":

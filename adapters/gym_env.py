@@ -5,7 +5,7 @@ per robot in ``conf/robot/`` (with the task that robot's config picks), in the
 ``MujocoRL`` namespace, each with the string entry point ``adapters.gym_env:MujocoRLEnv``:
 
 ``MujocoRL/<Robot><Task>-v0``, such as ``MujocoRL/CartPoleStayUp-v0`` (cartpole /
-stay_up); the README's "What there is" lists them. ``register_envs(config_dirs=[...])``
+stay_up); docs/getting-started.md "What there is" lists them. ``register_envs(config_dirs=[...])``
 adds the robots of a user's config folders.
 
 ::

@@ -1,6 +1,6 @@
-"""Every learner on every task, on fresh seeds under one env-step budget: the README's table.
+"""Every learner on every task, on fresh seeds under one env-step budget: docs/benchmark.md's table.
 
-    python -m bench.benchmark                      # the plan in bench/benchmark.yaml; rewrites README
+    python -m bench.benchmark                      # the plan in bench/benchmark.yaml; rewrites docs/benchmark.md
     python -m bench.benchmark --quick              # cart-pole x qlearn, dqn; 3 seeds; minutes
     python -m bench.benchmark --tasks cube --learners dqn --seeds 5 [-- extra overrides]
     python -m bench.benchmark --read benchmark/<folder>   # tabulate a finished (or partial) run again
@@ -15,7 +15,7 @@ finished policy does: the final greedy evaluation's measure meets the task's thr
 (the training verdict alone can be met by a policy that no longer is). Results go to a
 folder (``benchmark/<time>/`` unless ``--out``): ``seeds.csv`` (one row per seed),
 ``benchmark.csv`` and ``benchmark.md`` (one row per pair), and the sweeps' job folders.
-Without ``--quick`` the README's Benchmark section is rewritten from the table
+Without ``--quick`` docs/benchmark.md (between its markers) is rewritten from the table
 (``--readme`` names another file, ``--no-readme`` leaves it alone).
 """
 
@@ -93,8 +93,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--first-seed", type=int, help="the first seed (default: the plan's)")
     parser.add_argument("--budget", type=int, help="env steps per seed, every task (default: each task's)")
     parser.add_argument("--out", type=Path, help="the results folder (default: benchmark/<time>)")
-    parser.add_argument("--readme", type=Path, help="the README whose Benchmark section to rewrite")
-    parser.add_argument("--no-readme", action="store_true", help="leave the README alone")
+    parser.add_argument("--readme", type=Path, help="the page whose benchmark block to rewrite (default: docs/benchmark.md)")
+    parser.add_argument("--no-readme", action="store_true", help="leave docs/benchmark.md alone")
     parser.add_argument("--solo", action="store_true",
                         help="also time each pair's first seed alone (what one process saved)")
     parser.add_argument("--read", type=Path, help="tabulate this results folder again; run nothing")
@@ -423,7 +423,7 @@ def run(args: argparse.Namespace) -> Path:
     body = markdown(pairs, describe(jobs, commands), specs_of(jobs, all_seeds))
     (out / "benchmark.md").write_text(body)
     quick = any("--quick" in c.split() for c in commands)
-    readme = args.readme or (None if quick else ROOT / "README.md")
+    readme = args.readme or (None if quick else ROOT / "docs" / "benchmark.md")
     if readme is not None and not args.no_readme:
         rewrite_readme(readme, body)
     print(body)

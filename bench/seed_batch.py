@@ -28,7 +28,7 @@ Peak memory of the batches 591-626 MB (one seed 471-479 MB). The targets (qlearn
 3x) are not met: per seed the batch still pays its physics (80 or 160 copies cost ~5x 8
 or 16 on this machine), its greedy evaluations (every 100 episodes, 20 episodes each: a
 third of the dqn batch's time) and its checkpoints, and a per-episode DQN's update rounds
-(2.3 seeds a round at 16 copies). README "Seeds in one process" has the profile.
+(2.3 seeds a round at 16 copies). docs/comparing.md "Seeds in one process" has the profile.
 
 Then, with the physics floor (``physics_floor_s``: the batch's copy-steps, training and
 greedy evaluations, priced at this machine's rollout cost a copy-step at the batch's

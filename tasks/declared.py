@@ -44,7 +44,7 @@ class DeclaredTask(Task):
 
     robot: MjcfRobot
     observations: dict = param(REQUIRED, "observed quantities, name: {source: model name, axis, "
-                                         "index, apply} (README 'Add your own robot')")
+                                         "index, apply} (docs/own-robot.md)")
     actions: dict = param(REQUIRED, "the discrete action set: {actuators: [..], commands: [[..]]} "
                                     "or {values: {actuator: [..]}} (every combination)")
     rewards: dict = param(REQUIRED, "reward terms, name: {alive | action_cost | term | a quantity, "

@@ -376,7 +376,7 @@ def test_make_without_a_time_limit_is_refused():
 
 
 def test_an_env_left_open_after_rendering_exits_without_gl_errors():
-    """The README's Gymnasium snippet without env.close(): the renderer is closed at exit
+    """The Gymnasium snippet of docs/gymnasium.md without env.close(): the renderer is closed at exit
     before the EGL display is ended, so nothing is printed at interpreter exit."""
     import subprocess
     import sys

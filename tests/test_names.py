@@ -159,12 +159,12 @@ def test_the_study_is_named_for_its_objective_and_refuses_another(tmp_path):
 
 
 # -- no bare "score" where a user reads ---------------------------------------------------------
-USER_FACING = ["README.md", "train.py", "compare.py", "runs/**/*.py", "sweeps/**/*.py", "hydra_plugins/**/*.py",
+USER_FACING = ["README.md", "docs/**/*.md", "train.py", "compare.py", "runs/**/*.py", "sweeps/**/*.py", "hydra_plugins/**/*.py",
                "conf/hydra/**/*.yaml", "conf/config.yaml"]
 # (file, text on the line): where "score" names something else, and why.
 ALLOWED = [
     ("runs/summary.py", "``score``) read the same"),  # the old summary.json key, mapped on read
-    ("README.md", "also one written before these names (`score`,"),  # the same
+    ("docs/solved.md", "also one written before these names (`score`,"),  # the same
 ]
 SCORE = re.compile(r"\bscor(e|es|ed|ing)\b", re.I)
 
@@ -181,16 +181,17 @@ def test_no_user_facing_file_says_score():
     assert not found, "\n".join(found)
 
 
-def test_the_readme_names_what_the_code_logs():
-    """The README's loggers table lists the run/* scalars by their patterns, and its verdict
+def test_the_docs_name_what_the_code_logs():
+    """The docs' loggers table lists the run/* scalars by their patterns, and their verdict
     example's VERDICT line has the code's field names."""
-    readme = (ROOT / "README.md").read_text()
-    row = next(line for line in readme.splitlines() if line.startswith("| `run/*`"))
+    row = next(line for line in (ROOT / "docs" / "loggers.md").read_text().splitlines()
+               if line.startswith("| `run/*`"))
     for name in ("train_return_mean", "train_return_last100", "train_<measure>_best_rolling<window>",
                  "train_<measure>_last<window>", "train_<measure>_best100_mean", "greedy_<measure>",
                  "greedy_return"):
         assert f"`{name}`" in row, name
-    example = next(line for line in readme.splitlines() if line.strip().startswith("VERDICT "))
+    example = next(line for line in (ROOT / "docs" / "solved.md").read_text().splitlines()
+                   if line.strip().startswith("VERDICT "))
     fields = [field.split("=", 1)[0] for field in example.split()[1:]]
     k = measure_keys("length", 100)
     assert fields == ["solved", "episodes", "solved_at", "measure", "judge", k.judged, "threshold",

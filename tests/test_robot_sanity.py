@@ -1,5 +1,5 @@
 """Physics sanity of every robot in conf/robot/, on its default task: the template
-a new robot gets for free (README, "Add your own robot").
+a new robot gets for free (docs/own-robot.md).
 
 A robot's own physical facts (a pole falls without control, a spun-up wheel tips
 the cube, a base stops at a wall) go in its own test file, as in

@@ -244,7 +244,7 @@ def test_the_default_run_is_solved_and_says_so_in_few_lines(tmp_path):
     assert (tmp_path / "train.log").read_text().splitlines() == proc.stdout.splitlines()
 
 
-# Both signs on ten fresh seeds each: python -m bench.benchmark --tasks cube cube_minus_y (README Benchmark).
+# Both signs on ten fresh seeds each: python -m bench.benchmark --tasks cube cube_minus_y (docs/benchmark.md).
 @pytest.mark.slow
 @pytest.mark.parametrize("weight, sign", [(1000, 1), (-1000, -1)])
 def test_the_tuned_cube_walks_a_metre_the_rewarded_way(tmp_path, weight, sign):
