@@ -23,10 +23,12 @@ in the lowest layer, ``params``, so that every package may use it.)
 
 from __future__ import annotations
 
-from typing import Any
+from functools import cache
+from typing import TYPE_CHECKING, Any
 
-import torch
-from tensordict import TensorDict, TensorDictBase
+if TYPE_CHECKING:  # tensordict (and torch) load at the first tensordict made: compare.py needs neither
+    import torch
+    from tensordict import TensorDictBase
 
 # TorchRL's names (checked by tests/test_private_api.py).
 REPLAY_BUFFER_STORAGE = "_storage"
@@ -38,7 +40,14 @@ def new_tensordict(entries: dict[str, Any], batch_size: torch.Size | tuple[int, 
                    device: torch.device | None = None) -> TensorDictBase:
     """A tensordict of ``entries`` (each already of ``batch_size`` and on ``device``),
     made without TensorDict's checks."""
-    return TensorDict._new_unsafe(entries, batch_size=batch_size, device=device)
+    return _tensordict()._new_unsafe(entries, batch_size=batch_size, device=device)
+
+
+@cache
+def _tensordict() -> type:
+    from tensordict import TensorDict
+
+    return TensorDict
 
 
 def with_entries(td: TensorDictBase, **entries: torch.Tensor) -> TensorDictBase:

@@ -24,7 +24,6 @@ an env step (one ``timestep`` old, see :mod:`robots.physics`).
 from __future__ import annotations
 
 import difflib
-from importlib import resources
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +33,7 @@ from dm_control import mjcf
 
 from params import ConfigError, require
 from params.declare import REQUIRED, check_fields, param
+from robots.folders import MODEL_FOLDERS
 from robots.base import Robot
 from robots.binding import JointHandle, actuator_id, sensor_slice
 from robots.physics import BatchedPhysics
@@ -61,10 +61,6 @@ def missing_name(kind: str, name: str, names: list[str], where: str) -> ConfigEr
                        f"its {plural}: {', '.join(names) or 'none'}")
 
 
-#: Config folders a relative ``model`` path is looked up in, after the working folder; the
-#: shipped ``conf/`` first (``tasks.catalog`` adds a user's config folders). A run's config
-#: holds the absolute path (``tasks.catalog.locate_model``): this serves other compositions.
-MODEL_FOLDERS: list[Path] = [Path(str(resources.files("conf")))]
 
 
 def find_model(path: str) -> Path:

@@ -17,15 +17,17 @@ import math
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Callable, Iterator, Mapping, Sequence
+from typing import IO, TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from params import dotted
 from runs.metrics_files import Episode, rolling_field
-from tasks.base import Success
 from tasks.catalog import GROUPS, TASK_TUNED, TUNED_PICKS, compose
+
+if TYPE_CHECKING:
+    from tasks.base import Success
 
 SUMMARY_LINES = 20  # summary lines per run when log_every is 0
 

@@ -27,7 +27,7 @@ import importlib.util
 import os
 from collections import defaultdict
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -35,7 +35,9 @@ from runs.metrics_files import Episode
 from runs.metrics_files import rolling_field
 from runs.summary import measure_keys
 from params import ConfigError
-from tasks.base import Success
+
+if TYPE_CHECKING:
+    from tasks.base import Success
 
 # logger kind -> the package it needs (None: nothing beyond the base install)
 NEEDS = {"csv": None, "tensorboard": "tensorboard", "wandb": "wandb", "mlflow": "mlflow"}

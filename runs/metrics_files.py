@@ -17,8 +17,11 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from tasks.base import Success
+if TYPE_CHECKING:
+    from tasks.base import Success
+
 
 
 @dataclass

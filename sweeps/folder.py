@@ -15,7 +15,6 @@ from pathlib import Path
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
-from params.private_api import basic_sweeper
 from runs.summary import summarize_run
 from tasks.catalog import GROUPS
 
@@ -54,6 +53,8 @@ def planned_jobs(sweep_dir: Path) -> Plan:
                                    "sweeper: jobs that never started cannot be listed")
         params = [f"{k}={v}" for k, v in (sweeper.get("params") or {}).items()]
         overrides = OverridesParser.create().parse_overrides([*params, *cfg.hydra.overrides.task])
+        from params.private_api import basic_sweeper  # (it imports torch: only here)
+
         jobs = [job for batch in basic_sweeper().split_arguments(overrides, None) for job in batch]
         defaults = {k: cfg.hydra.runtime.choices.get(k) for k in PICKS}
     except Exception as err:

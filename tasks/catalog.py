@@ -25,17 +25,18 @@ from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 from hydra import compose as hydra_compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
-from robots.mjcf_robot import MODEL_FOLDERS
-from tasks import factory
-from tasks.base import Task
-from tasks.env import RobotTaskEnv
+from robots.folders import MODEL_FOLDERS
+
+if TYPE_CHECKING:  # building a task imports MuJoCo and torch: only the functions that build do
+    from tasks.base import Task
+    from tasks.env import RobotTaskEnv
 
 # The config groups a run picks by name (``robot=cube``); everything else is a value.
 GROUPS = ("robot", "task", "learner")
@@ -234,6 +235,8 @@ def make_env(robot: str, task: str | None = None, overrides: Sequence[str] = (),
              num_envs: int = 1, seed: int = 0) -> RobotTaskEnv:
     """The env of ``robot`` (and ``task``, else the robot's default) with Hydra ``overrides``
     such as ``"task.pos_step=0.5"``."""
+    from tasks import factory
+
     return factory.build_env(compose(robot, task, overrides=overrides), num_envs, seed)
 
 
@@ -254,6 +257,8 @@ def summary(path: Path) -> str:
 def built(robot: str, task: str) -> Task | None:
     """``task`` built with ``robot`` (no tuned file), or ``None`` where it does not fit."""
     try:
+        from tasks import factory
+
         return factory.build_task(compose(robot, task, overrides=["~tuned"]))
     except ConfigError:
         return None

@@ -400,3 +400,22 @@ def test_a_real_two_learner_three_seed_sweep_ends_with_its_comparison(tmp_path, 
     assert all(float(r["ci_low"]) <= float(r["iqm"]) <= float(r["ci_high"]) for r in rows)
     _, out = table(sweep, capsys)
     assert (sweep / "comparison.csv").read_text() == first and "did not finish" not in out
+
+
+def test_comparing_a_finished_sweep_loads_neither_torch_nor_mujoco(tmp_path):
+    """compare.py only reads CSV and JSON: its answer comes without importing torch,
+    tensordict, TorchRL or MuJoCo (about 1.3 s of CPU here instead of 3.7 s;
+    bench/answers.py measures it)."""
+    sweep = tmp_path / "sweep"
+    write_multirun(sweep, ["seed=0,1"])
+    for seed in (0, 1):
+        write_job(sweep, seed, [f"seed={seed}"])
+    code = ("import runpy, sys; sys.argv = ['compare.py', sys.argv[1]]\n"
+            "try:\n    runpy.run_path('compare.py', run_name='__main__')\nexcept SystemExit as e:\n"
+            "    assert not e.code, e.code\n"
+            "loaded = sorted({'torch', 'tensordict', 'torchrl', 'mujoco', 'dm_control'} & set(sys.modules))\n"
+            "assert not loaded, loaded\n"
+            "assert (__import__('pathlib').Path(sys.argv[1]) / 'comparison.csv').is_file()")
+    proc = subprocess.run([sys.executable, "-c", code, str(sweep)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
