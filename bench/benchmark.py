@@ -94,6 +94,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--budget", type=int, help="env steps per seed, every task (default: each task's)")
     parser.add_argument("--out", type=Path, help="the results folder (default: benchmark/<time>)")
     parser.add_argument("--readme", type=Path, help="the page whose benchmark block to rewrite (default: docs/benchmark.md)")
+    parser.add_argument("--block", help="write the page's <!-- benchmark:BLOCK:begin --> block instead of its main "
+                                        "table (a part of the plan run on its own, e.g. rainbow)")
     parser.add_argument("--no-readme", action="store_true", help="leave docs/benchmark.md alone")
     parser.add_argument("--solo", action="store_true",
                         help="also time each pair's first seed alone (what one process saved)")
@@ -325,7 +327,7 @@ COLUMNS = ("*success*: seeds whose final greedy evaluation met the task's thresh
            "time, its seeds trained together in one process.")
 
 
-def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str]) -> str:
+def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str], figures: dict[str, str] | None = None) -> str:
     """The Benchmark section's body: how it was made, the columns' meaning, then one table per
     task (each at most ~120 characters wide; its notes below it; every number in the CSVs)."""
     lines = [plan_text, "", COLUMNS, ""]
@@ -335,6 +337,9 @@ def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str]) -> str:
                   "| learner | setting | success | greedy_" + (mine[0]["measure"] or "measure")
                   + " IQM [95% CI] | steps to success | s to success | s, all seeds |",
                   "|---|---|---|---|---|---|---|"]
+        if figures and task in figures:  # before the table: the figure, then its numbers
+            lines[-2:-2] = [f"![{task}: each learner's greedy measure against env steps, and at the end]"
+                            f"({figures[task]})", ""]
         notes = []
         for p in mine:
             success = f"{p['success']}/{p['seeds']}" if p["seeds"] else "-"
@@ -348,14 +353,20 @@ def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str]) -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
-def rewrite_readme(readme: Path, body: str) -> None:
+def markers(block: str | None) -> tuple[str, str]:
+    """The page's markers of the main table, or of a named ``block`` (``--block``)."""
+    return (BEGIN, END) if not block else (f"<!-- benchmark:{block}:begin -->", f"<!-- benchmark:{block}:end -->")
+
+
+def rewrite_readme(readme: Path, body: str, block: str | None = None) -> None:
     """Replaces what lies between the benchmark markers of ``readme`` with ``body``."""
     text = readme.read_text()
-    if BEGIN not in text or END not in text:
-        raise BadInput(f"{readme} has no {BEGIN} ... {END} markers to put the table between")
-    head, rest = text.split(BEGIN, 1)
-    _, tail = rest.split(END, 1)
-    readme.write_text(f"{head}{BEGIN}\n{body}{END}{tail}")
+    begin, end = markers(block)
+    if begin not in text or end not in text:
+        raise BadInput(f"{readme} has no {begin} ... {end} markers to put the table between")
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    readme.write_text(f"{head}{begin}\n{body}{end}{tail}")
 
 
 def describe(jobs: list[Job], commands: list[str]) -> str:
@@ -432,15 +443,27 @@ def run(args: argparse.Namespace) -> Path:
                 run_job(job, out, bar, args.solo)
         commands.append(command)
     pairs, all_seeds = tabulate(jobs, runnable, out)
-    body = markdown(pairs, describe(jobs, commands), specs_of(jobs, all_seeds))
+    readme = args.readme or (None if quick_run(commands) else ROOT / "docs" / "benchmark.md")
+    figures = {}
+    if readme is not None and not args.no_readme:  # the page's figures, beside it
+        from bench.benchmark_figures import draw
+
+        for task in dict.fromkeys(p["task"] for p in pairs):
+            name = f"{args.block or 'benchmark'}-{task}.png"
+            if draw(task, pairs, all_seeds, readme.parent / "assets" / "benchmark" / name):
+                figures[task] = f"assets/benchmark/{name}"
+    body = markdown(pairs, describe(jobs, commands), specs_of(jobs, all_seeds), figures)
     (out / "benchmark.md").write_text(body)
-    quick = any("--quick" in c.split() for c in commands)
-    readme = args.readme or (None if quick else ROOT / "docs" / "benchmark.md")
     if readme is not None and not args.no_readme:
-        rewrite_readme(readme, body)
+        rewrite_readme(readme, body, args.block)
     print(body)
     print(f"results in {out}")
     return out
+
+
+def quick_run(commands: list[str]) -> bool:
+    """Whether the results came from ``--quick`` (they leave the page alone)."""
+    return any("--quick" in c.split() for c in commands)
 
 
 def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict], list[dict]]:

@@ -52,6 +52,9 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
     assert "**cartpole** (cartpole/stay_up, success: greedy length >= 250" in table
     assert "| qlearn | tuned (cartpole_qlearn) | " in table and "| dqn | tuned (cartpole_dqn) | " in table
     assert "greedy_length IQM [95% CI]" in table
+    # the page's figure beside it: sample efficiency and the final IQM of each pair
+    assert "](assets/benchmark/benchmark-cartpole.png)" in table
+    assert (tmp_path / "assets" / "benchmark" / "benchmark-cartpole.png").stat().st_size > 10_000
     # --solo: what training the seeds in one process saved, against the first seed alone
     assert (table.count("2 seeds in one process: ") == 2 and "one seed alone" in table) == solo
     assert Path(str(out / "cartpole" / "dqn_tuned") + "_solo", "summary.json").is_file() == solo

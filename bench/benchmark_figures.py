@@ -1,0 +1,57 @@
+"""The benchmark page's figures: per task, each learner x setting's final greedy measure (IQM
+over seeds with its 95% bootstrap interval) and its sample efficiency (the greedy evaluations
+against env steps: IQM across seeds with its interval band, :func:`sweeps.comparison_plot.greedy_points`),
+the task's threshold dashed. Drawn from the seeds' run folders (``evals.csv``); a pair whose
+folders are gone is left out of the curves.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sweeps.comparison_plot import _evaluations, greedy_points
+
+
+def draw(task: str, pairs: list[dict], seeds: list[dict], path: Path) -> Path | None:
+    """Writes ``path`` (a PNG) for ``task``'s rows; None when no row has a greedy measure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [p for p in pairs if p["task"] == task and p["greedy_iqm"] is not None]
+    if not rows:
+        return None
+    rows.sort(key=lambda p: p["greedy_iqm"])
+    threshold = next((s["threshold"] for s in seeds if s["task"] == task and s["threshold"] is not None), None)
+    measure = rows[0]["measure"] or "measure"
+    fig, (curves, bars) = plt.subplots(1, 2, figsize=(13, 0.35 * len(rows) + 3.5), width_ratios=(1.6, 1))
+    for i, p in enumerate(reversed(rows)):
+        label = f"{p['learner']} ({p['setting']})"
+        mine = [s for s in seeds if s["task"] == task and s["learner"] == p["learner"] and s["setting"] == p["setting"]
+                and s["status"] == "ok"]
+        x, centre, low, high = greedy_points([_evaluations({"run_dir": s["run_dir"], "measure": measure}, "env_steps")
+                                              for s in mine])
+        if len(x):
+            line, = curves.plot(x, centre, label=label, color=f"C{i % 10}", lw=1.5)
+            curves.fill_between(x, low, high, color=line.get_color(), alpha=0.15)
+    for y, p in enumerate(rows):
+        low, high = p["ci_low"], p["ci_high"]
+        centre = p["greedy_iqm"]
+        err = [[centre - low], [high - centre]] if low is not None and high is not None else None
+        bars.errorbar([centre], [y], xerr=err, fmt="o", color=f"C{(len(rows) - 1 - y) % 10}", capsize=3)
+    bars.set_yticks(range(len(rows)), [f"{p['learner']} ({p['setting']}) {p['success']}/{p['seeds']}"
+                                       for p in rows], fontsize=8)
+    for axis in (curves, bars):
+        if threshold is not None:
+            (axis.axhline if axis is curves else axis.axvline)(threshold, ls="--", color="0.4", lw=1)
+        axis.grid(alpha=0.3)
+    curves.set(xlabel="env steps (all copies)", ylabel=f"greedy {measure} (IQM over seeds, 95% CI)",
+               title=f"{task}: sample efficiency")
+    curves.legend(fontsize=7, loc="best")
+    bars.set(xlabel=f"final greedy {measure}: IQM, 95% CI", title="at the end (success: seeds over the threshold)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
