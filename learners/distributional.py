@@ -28,8 +28,11 @@ def support(atoms: int, v_min: float, v_max: float) -> torch.Tensor:
 
 
 def log_probabilities(logits: torch.Tensor, atoms: int) -> torch.Tensor:
-    """``[..., atoms, actions]`` log-probabilities of flat logits ``[..., atoms * actions]``."""
-    return logits.unflatten(-1, (atoms, -1)).log_softmax(-2)
+    """``[..., atoms, actions]`` log-probabilities of flat logits ``[..., atoms * actions]``
+    (computed over a contiguous last axis: on the CPU about 3x faster than over the strided
+    atoms axis, ``bench/update_rate.py --switches``)."""
+    by_action = logits.unflatten(-1, (atoms, -1)).transpose(-1, -2).contiguous()
+    return by_action.log_softmax(-1).transpose(-1, -2)
 
 
 def expected(logits: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
@@ -48,8 +51,8 @@ def project(next_probability: torch.Tensor, reward: torch.Tensor, discount: torc
     shifted = (reward + (1 - terminated.to(reward.dtype)) * discount * z).clamp(v_min, v_max)
     b = (shifted - v_min) / delta
     low, up = b.floor().long(), b.ceil().long()
-    low[(up > 0) & (low == up)] -= 1
-    up[(low < atoms - 1) & (low == up)] += 1
+    low = torch.where((up > 0) & (low == up), low - 1, low)
+    up = torch.where((low < atoms - 1) & (low == up), up + 1, up)
     m = torch.zeros_like(next_probability)
     m.scatter_add_(-1, low, next_probability * (up.to(b.dtype) - b))
     m.scatter_add_(-1, up, next_probability * (b - low.to(b.dtype)))

@@ -311,25 +311,35 @@ class StackedMLP:
     def q(self, params: torch.Tensor | list, x: torch.Tensor, noise: list | None = None) -> torch.Tensor:
         """Each member's Q-values of its ``x`` (``[k, n, n_obs]``); ``params``: ``[k, P]`` or
         its :meth:`layers`; ``noise``: the noisy layers' (:meth:`noise`; None: mean weights)."""
-        layers = iter(self.layers(params) if isinstance(params, torch.Tensor) else params)
-        noises = iter(noise or ())
+        layers = self.layers(params) if isinstance(params, torch.Tensor) else params
+        if self.noisy_sizes:
+            layers = self.with_noise(layers, noise)
+        layers = iter(layers)
         if self.scale is not None:
             x = x * self.scale
         for layer in self.plan:
             if callable(layer):
                 x = layer(x)
                 continue
-            parts = next(layers)
-            if len(parts) == 2:
-                weight, bias = parts
-            elif noise is None:
-                weight, bias = parts[0], parts[2]
-            else:
-                (weight_mu, weight_sigma, bias_mu, bias_sigma), (e_in, e_out) = parts, next(noises)
-                weight = weight_mu + weight_sigma * (e_out.unsqueeze(2) * e_in.unsqueeze(1))
-                bias = bias_mu + bias_sigma * e_out.unsqueeze(1)
+            weight, bias = next(layers)
             x = torch.baddbmm(bias, x, weight.transpose(1, 2))
         return x
+
+    def with_noise(self, layers: list, noise: list | None) -> list:
+        """:meth:`layers` with each noisy layer's ``(weight, bias)`` for ``noise`` (None: its
+        mean weights); a network evaluated twice with one noise (an update's online network)
+        makes them once."""
+        noises, found = iter(noise or ()), []
+        for parts in layers:
+            if len(parts) == 2:
+                found.append(parts)
+            elif noise is None:
+                found.append((parts[0], parts[2]))
+            else:
+                (weight_mu, weight_sigma, bias_mu, bias_sigma), (e_in, e_out) = parts, next(noises)
+                found.append((weight_mu + weight_sigma * (e_out.unsqueeze(2) * e_in.unsqueeze(1)),
+                              bias_mu + bias_sigma * e_out.unsqueeze(1)))
+        return found
 
     def vector(self) -> torch.Tensor:
         """The template's parameters as one ``[P]`` vector."""
@@ -792,9 +802,10 @@ class DQN:
             streams = [self.generators[b] for b in due]
             noise = self.net.noise(streams, self.device)
             target_noise = self.net.noise(streams, self.device) if self.has_target else noise
+            online, valued = self.net.with_noise(online, noise), self.net.with_noise(valued, target_noise)
         gamma = gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma
         terms = c51_terms if self.distributional else td_terms
-        found = terms(lambda x: self.net.q(online, x, noise), lambda x: self.net.q(valued, x, target_noise), batch,
+        found = terms(lambda x: self.net.q(online, x), lambda x: self.net.q(valued, x), batch,
                       gamma, self.double_dqn, *((self.z,) if self.distributional else ()))
         if self.distributional:  # each row's cross-entropy; its priority too (TorchRL's)
             loss, q, td_target, _ = found
