@@ -79,14 +79,16 @@ def train(*args: str, kill: str | None = None) -> subprocess.CompletedProcess:
                           timeout=600, env=env)
 
 
-RUN = ("robot=cartpole", "learner=dqn", "learner.n_step=3", "learner.prioritized=true", "max_env_steps=3000", "max_episodes=0",
+RUN = ("robot=cartpole", "learner=dqn", "learner.n_step=3", "learner.prioritized=true", "learner.noisy=true",
+       "learner.distributional=true", "learner.v_max=100", "max_env_steps=3000", "max_episodes=0",
        "eval_episodes=2", "checkpoint_every=20", "quiet=true", "seed=5")
 
 
 def test_an_n_step_run_killed_resumes_to_its_uninterrupted_end(tmp_path):
-    """The queues (and, with prioritized replay, the priorities) are part of the training
-    state: killed after its fourth checkpoint and resumed, the run ends with the metrics and
-    network of one never stopped."""
+    """The queues (and, with prioritized replay, the priorities; noisy layers draw from the
+    member's saved stream) are part of the training state: killed after its fourth
+    checkpoint and resumed, a run with every switch on ends with the metrics and network
+    of one never stopped."""
     whole = train(*RUN, f"hydra.run.dir={tmp_path / 'whole'}")
     assert whole.returncode == 0, whole.stderr[-2000:]
     killed = train(*RUN, f"hydra.run.dir={tmp_path / 'run'}", kill="checkpoint:4")
