@@ -10,6 +10,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
+from omegaconf import OmegaConf
 from torchrl.envs.utils import check_env_specs
 
 from runs.evaluate import evaluate
@@ -23,6 +24,8 @@ from params import ConfigError
 from tasks.env import RobotTaskEnv
 from tasks.maze import FORWARD, LEFT, RIGHT, MazeTask
 from tasks.maze_arena import Maze
+
+ROOT = Path(__file__).resolve().parents[1]
 from tasks.factory import build_env, build_task
 from train import _one_line
 
@@ -361,7 +364,8 @@ def test_maze_needs_a_turtlebot():
 def test_config_picks_the_maze_and_the_tuned_learner():
     cfg = compose_cfg("robot=turtlebot", "learner=qlearn")
     assert cfg.task._target_ == "tasks.maze.MazeTask"
-    assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (1.0, 0.7, 0.9)
+    tuned = OmegaConf.load(ROOT / "conf" / "tuned" / "turtlebot_qlearn.yaml").learner  # the maze study's
+    assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (tuned.alpha, tuned.gamma, tuned.epsilon)
     assert (cfg.max_episodes, cfg.task.max_episode_steps) == (500, 500)
     task = build_task(cfg)
     assert (task.n_actions, task.n_observations, task.min_range) == (3, 6, 0.5)
