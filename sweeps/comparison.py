@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import csv
 import math
+import textwrap
 from collections import Counter, defaultdict
 from pathlib import Path
 
@@ -39,6 +40,10 @@ IQM = "IQM [95% CI]"
 HEAD = ("robot/task", "learner", "swept", "measure", "headline", IQM, "mean +- std", "seeds", "finished",
         "solved", "failed", "interrupted", "never_started", "episodes_to_solve", "steps_to_solve")
 TAIL = ("wall_s",)
+# What the console shows (a terminal's width; the files hold every column).
+CONSOLE = ("robot/task", "learner", "swept", "headline", IQM, "seeds", "finished", "solved", "steps_to_solve",
+           "wall_s")
+WIDTH = 110
 NUMBERS = ("iqm", "ci_low", "ci_high")  # the headline as numbers, in comparison.csv only
 LEGEND = (f"headline: the number each seed is ranked by (greedy_<measure>: the final greedy evaluation's "
           f"mean; train_<measure>_last<window>: the mean of the last <window> training episodes); {IQM}: "
@@ -158,15 +163,17 @@ def write_outputs(sweep_dir: Path, rows: list[dict], lines: list[str], x: str = 
 
 
 def table_text(rows: list[dict]) -> str:
-    """The rows as aligned columns under a header line (a table per :func:`blocks`), then
-    the headline's legend."""
+    """The rows' :data:`CONSOLE` columns aligned under a header line (a table per
+    :func:`blocks`; every column is in comparison.csv and comparison.md), then the
+    headline's legend, wrapped to :data:`WIDTH`."""
     out = []
     for block in blocks(rows):
-        names = columns(block)
+        names = CONSOLE
         shown = [dict(zip(names, names)), *block]
-        widths = {c: max(len(str(r[c])) for r in shown) for c in names}
-        out += ["  ".join(str(r[c]).ljust(widths[c]) for c in names).rstrip() for r in shown]
-    return "\n".join([*out, LEGEND])
+        widths = {c: max(len(str(r.get(c, ""))) for r in shown) for c in names}
+        out += ["  ".join(str(r.get(c, "")).ljust(widths[c]) for c in names).rstrip() for r in shown]
+    legend = textwrap.fill(f"{LEGEND}; every column: comparison.csv and comparison.md", WIDTH)
+    return "\n".join([*out, legend])
 
 
 def report(sweep_dir: Path, stopped: str | None = None, x: str = "env_steps") -> list[dict]:

@@ -390,7 +390,7 @@ def test_a_real_two_learner_three_seed_sweep_ends_with_its_comparison(tmp_path, 
                           cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     tail = proc.stdout.rsplit("VERDICT", 1)[1].splitlines()[2:]
-    assert tail[0].split()[:6] == ["robot/task", "learner", "swept", "measure", "headline", "IQM"]
+    assert tail[0].split()[:5] == ["robot/task", "learner", "swept", "headline", "IQM"]
     assert [line.split()[:2] for line in tail[1:3]] == [["cartpole/stay_up", "n1try"], ["cartpole/stay_up", "qlearn"]]
     assert all("train_length_last100" in line and "] " in line for line in tail[1:3])
     assert tail[-1] == f"wrote {sweep / 'comparison.csv'}, comparison.md and comparison.png"
