@@ -152,13 +152,11 @@ PAGES = {BEGIN: ROOT / "docs" / "reference" / "parameters.md", DISCOVERY_BEGIN: 
          NAMES_BEGIN: ROOT / "docs" / "solved.md"}  # where each block lives
 
 
-def rewrite(page: Path, only: tuple[str, ...] | None = None) -> bool:
-    """Puts each of :func:`blocks` (``only``: those that begin with these markers) between
-    its markers in ``page``; whether it changed."""
+def rewrite(page: Path, bodies: dict[tuple[str, str], str] | None = None) -> bool:
+    """Puts each of ``bodies`` (``(begin, end)`` markers -> text; default :func:`blocks`)
+    between its markers in ``page``; whether it changed."""
     text = new = page.read_text()
-    for (begin, end), body in blocks().items():
-        if only is not None and begin not in only:
-            continue
+    for (begin, end), body in (blocks() if bodies is None else bodies).items():
         head, sep, rest = new.partition(begin)
         _, sep2, tail = rest.partition(end)
         if not (sep and sep2):
@@ -175,8 +173,9 @@ def main(argv: list[str] | None = None) -> None:
     if not args.write:
         sys.stdout.write("\n".join(blocks().values()))
         return
+    found = blocks()  # made once: the discovery tables build every robot's tasks
     for begin, page in PAGES.items():
-        changed = rewrite(page, (begin,))
+        changed = rewrite(page, {markers: body for markers, body in found.items() if markers[0] == begin})
         print(f"{page.relative_to(ROOT)}: {'updated' if changed else 'already up to date'}")
 
 

@@ -444,19 +444,19 @@ def run(args: argparse.Namespace) -> Path:
                 run_job(job, out, bar, args.solo)
         commands.append(command)
     pairs, all_seeds = tabulate(jobs, runnable, out)
-    readme = args.readme or (None if quick_run(commands) else ROOT / "docs" / "benchmark.md")
+    page = None if args.no_readme else args.readme or (None if quick_run(commands) else ROOT / "docs" / "benchmark.md")
     figures = {}
-    if readme is not None and not args.no_readme:  # the page's figures, beside it
+    if page is not None:  # the page's figures, beside it
         from bench.benchmark_figures import draw
 
         for task in dict.fromkeys(p["task"] for p in pairs):
             name = f"{args.block or 'benchmark'}-{task}.png"
-            if draw(task, pairs, all_seeds, readme.parent / "assets" / "benchmark" / name):
+            if draw(task, pairs, all_seeds, page.parent / "assets" / "benchmark" / name):
                 figures[task] = f"assets/benchmark/{name}"
     body = markdown(pairs, describe(jobs, commands), specs_of(jobs, all_seeds), figures)
     (out / "benchmark.md").write_text(body)
-    if readme is not None and not args.no_readme:
-        rewrite_readme(readme, body, args.block)
+    if page is not None:
+        rewrite_readme(page, body, args.block)
     print(body)
     print(f"results in {out}")
     return out

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sweeps.comparison_plot import _evaluations, greedy_points
+from sweeps.comparison_plot import greedy_points, run_evaluations
 
 
 def draw(task: str, pairs: list[dict], seeds: list[dict], path: Path) -> Path | None:
@@ -30,7 +30,7 @@ def draw(task: str, pairs: list[dict], seeds: list[dict], path: Path) -> Path | 
         label = f"{p['learner']} ({p['setting']})"
         mine = [s for s in seeds if s["task"] == task and s["learner"] == p["learner"] and s["setting"] == p["setting"]
                 and s["status"] == "ok"]
-        x, centre, low, high = greedy_points([_evaluations({"run_dir": s["run_dir"], "measure": measure}, "env_steps")
+        x, centre, low, high = greedy_points([run_evaluations({"run_dir": s["run_dir"], "measure": measure}, "env_steps")
                                               for s in mine])
         if len(x):
             line, = curves.plot(x, centre, label=label, color=f"C{i % 10}", lw=1.5)

@@ -69,11 +69,10 @@ def c51_terms(net: Logits, target_net: Logits, batch: Transitions, gamma: torch.
     taken = batch.action.unsqueeze(-2).expand(*batch.action.shape[:-1], atoms, 1)
     log_p_taken = log_p.gather(-1, taken).squeeze(-1)
     with torch.no_grad():
-        next_log_p = log_probabilities(target_net(batch.next_observation), atoms)
-        chooser = net(batch.next_observation) if double_dqn else None
-        means = expected(chooser, z) if double_dqn else (next_log_p.exp() * z.unsqueeze(-1)).sum(-2)
+        next_p = log_probabilities(target_net(batch.next_observation), atoms).exp()
+        means = expected(net(batch.next_observation), z) if double_dqn else (next_p * z.unsqueeze(-1)).sum(-2)
         best = means.argmax(-1, keepdim=True).unsqueeze(-2).expand(*means.shape[:-1], atoms, 1)
-        next_probability = next_log_p.exp().gather(-1, best).squeeze(-1)
+        next_probability = next_p.gather(-1, best).squeeze(-1)
         discount = gamma if batch.steps is None else gamma ** batch.steps
         m = project(next_probability, batch.reward, discount, batch.terminated, z)
         q = (log_p_taken.detach().exp() * z).sum(-1, keepdim=True)

@@ -10,7 +10,8 @@ the member axis (:func:`adam_step`: each member its own step count and learning 
 per member TorchRL's ``ReplayBuffer`` over one pre-allocated tensor (:class:`RowReplayBuffer`),
 drawn uniformly or, with ``prioritized``, by TD error (:mod:`learners.priority`: the loss then
 weighted by importance). Switches of Rainbow's parts: ``n_step`` (:mod:`learners.nstep`),
-``dueling`` (:class:`DuelingHead`), ``prioritized``.
+``dueling`` (:class:`DuelingHead`), ``prioritized``, ``noisy`` (TorchRL's ``NoisyLinear`` in
+:class:`StackedMLP`) and ``distributional`` (:mod:`learners.distributional`).
 
 A single run is one member. Every member's arithmetic is the same kernels whatever the
 number of members (a batched product computes each matrix alone, a reduction each row
@@ -797,7 +798,6 @@ class DQN:
         online = self.net.layers(params, grads)
         own = [self.settings[b] for b in due]
         gamma = per_member([v.gamma for v in own], params.dtype, params.device)
-        noise = target_noise = None
         if self.noisy:  # fresh noise for each update: the online network's, then the target's
             streams = [self.generators[b] for b in due]
             noise = self.net.noise(streams, self.device)

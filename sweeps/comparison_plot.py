@@ -61,7 +61,7 @@ def _curve(run: dict, x: str) -> tuple[np.ndarray, np.ndarray] | None:
     return (xs, ys) if len(xs) == len(ys) and len(ys) else None
 
 
-def _evaluations(run: dict, x: str) -> list[tuple[float, float]]:
+def run_evaluations(run: dict, x: str) -> list[tuple[float, float]]:
     """A finished run's greedy evaluations (evals.csv) as ``(x, measure)`` points; wall
     seconds are those at the end of the training episode before each evaluation."""
     run_dir = Path(run["run_dir"])
@@ -174,7 +174,7 @@ def _learning(ax, rows: list[dict], x: str) -> tuple[set[float], list]:
                 handles.append((line, label(row, len(curves))))
         if not shown:  # a faded row's evaluations are not drawn (its curve says enough)
             continue
-        ex, centre, low, high = greedy_points([_evaluations(run, x) for run in finished])
+        ex, centre, low, high = greedy_points([run_evaluations(run, x) for run in finished])
         if len(ex):
             ax.plot(ex, centre, "o--", ms=5, lw=1, color=style["color"], gid=f"greedy:{label(row)}", zorder=4)
             has_ci = ~np.isnan(low)
