@@ -252,6 +252,7 @@ def job_record(job: Job, out: Path) -> dict:
 def seed_rows(job: Job, sweep: Path) -> list[dict]:
     """One row per job folder of the sweep: its verdict, greedy measure and costs."""
     from bench.sweep import job_summaries
+    from runs.summary import succeeded
 
     rows = []
     for s in job_summaries(sweep) if sweep.is_dir() else []:
@@ -260,7 +261,7 @@ def seed_rows(job: Job, sweep: Path) -> list[dict]:
         rows.append({
             "task": job.task, "robot/task": f"{job.robot}/{job.task_name}", "learner": job.learner,
             "setting": job.setting, "seed": s.get("seed"), "status": s["status"],
-            "success": bool(ok and greedy is not None and greedy >= threshold),
+            "success": succeeded(s),
             "verdict": bool(ok and s.get("solved")), "measure": s.get("measure"),
             "threshold": threshold, "greedy": greedy, "env_steps": s.get("env_steps"),
             "wall_s": s.get("wall_s"), "steps_to_solve": s.get("steps_to_solve"),

@@ -70,12 +70,15 @@ class Progress(Protocol):
     so far and the rolling measure every ``every`` env steps (0: no more; env steps, as a
     trial's budget is: trials of long and short episodes are compared at equal cost); True
     stops the run, as does ``pruned`` at any step (the trial stopped by another of its runs'
-    reports)."""
+    reports). ``solved`` is told once, when the run stops solved: the env steps and the
+    value it holds from then on (its rolling measure, at least the threshold)."""
 
     every: int
     pruned: bool
 
     def __call__(self, env_steps: int, rolling: float) -> bool: ...
+
+    def solved(self, env_steps: int, value: float) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -243,6 +246,7 @@ class Run:
         self._save, self.greedy_eval = hooks.checkpoint, hooks.greedy_eval
         self.train_stats, self.progress = hooks.train_stats, hooks.progress
         self._next_progress = 0
+        self._told = False  # the progress hook was told the run stopped solved
         self.pruned_at: int | None = None  # the episode a tuning study stopped the run at
         self._train_logged: int | None = None  # env steps at the last train/* point
         self._train_due = False  # an episode finished since
@@ -319,6 +323,9 @@ class Run:
         if (self.eval_every and self.greedy_eval is not None and not self.done
                 and self.n_episodes - last_eval >= self.eval_every):
             self.evaluate_greedy()
+        if self.progress is not None and self.solved_at is not None and self.stop_when_solved and not self._told:
+            self._told = True
+            self.progress.solved(self.env_steps, max(self.rolling(), self.success.threshold))
         due = self.checkpoint_every and self.n_episodes - self._last_checkpoint >= self.checkpoint_every
         if due and not self.done:  # the session saves the end
             self.checkpoint(td)

@@ -333,6 +333,39 @@ def _finished(run_dir: Path, summary: dict) -> dict:
     return out
 
 
+def final_measure(summary: dict) -> float | None:
+    """The number a finished run's policy is judged by at its end: the final greedy
+    evaluation's measure, or without one the headline (the last training window's)."""
+    greedy = summary.get("greedy")
+    return greedy if greedy is not None else summary.get("headline_value")
+
+
+def succeeded(summary: dict) -> bool:
+    """Whether a finished run's policy meets the task's threshold at its end
+    (:func:`final_measure`): the benchmark's success."""
+    value = final_measure(summary)
+    return summary.get("status") == "ok" and value is not None and value >= summary["threshold"]
+
+
+SUCCESS_AND_SPEED = "success_and_speed"
+
+
+def success_and_speed(summary: dict, budget_steps: int) -> float | None:
+    """One number that orders runs as the benchmark does, success first and then env steps
+    to success: :func:`final_measure` over the threshold, capped at 1 (1 for a success),
+    plus, for a success the verdict judged solved during training, the fraction of
+    ``budget_steps`` left when it was. In [1, 2] for a success, below 1 otherwise (a
+    threshold of 0 or less: 1 or 0 before the bonus). None for a run that did not finish."""
+    value, threshold = final_measure(summary), summary.get("threshold")
+    if summary.get("status") != "ok" or value is None or threshold is None:
+        return None
+    part = min(value / threshold, 1.0) if threshold > 0 else float(value >= threshold)
+    steps = summary.get("steps_to_solve")
+    if succeeded(summary) and summary.get("solved") and steps is not None:
+        part += max(1.0 - steps / budget_steps, 0.0)
+    return part
+
+
 def _renamed(summary: dict, keys: MeasureKeys) -> dict:
     """``summary`` with an old folder's keys (``greedy``, ``best_rolling``, ...) under their
     new names (:meth:`MeasureKeys.legacy`); a new folder's keys win."""

@@ -3,10 +3,14 @@ the mean over the seeds of its objective (``hydra/sweeper=optuna``; Hydra's plug
 the thin shell :class:`hydra_plugins.rl_optuna_sweeper.optuna_sweeper.OptunaSweeper`, which
 imports this module only when a tuning sweep starts).
 
-The objective is named as summary.json names it (:meth:`runs.summary.MeasureKeys.headline`):
-``greedy_<measure>``, the final greedy evaluation's mean measure, for a greedily judged
-task, ``train_<measure>_last<window>``, the mean of the last ``window`` training episodes,
-otherwise; it is the study's metric name and the name its console lines print."""
+Trials train on a plain run's (and the benchmark's) terms: each seed stops when its verdict
+says solved, or at the study's budget of env steps, with the config's own greedy
+evaluations. A job is valued by :func:`runs.summary.success_and_speed` (the study's metric
+name, ``success_and_speed``), which orders runs as the benchmark does: the task's measure
+at the end over its threshold, capped at 1 (1: a success), plus the fraction of the budget
+left when a success was judged solved. A study that ranked trials by the final measure
+after training past "solved" picked settings whose policies had drifted off a good one by
+the budget's end, and valued a hand pick that solves quickly as a failure."""
 
 from __future__ import annotations
 
@@ -22,7 +26,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from params import ConfigError
 from tasks.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name
 from runs.settings import check_run_config
-from runs.summary import measure_keys, summarize_run
+from runs.summary import SUCCESS_AND_SPEED, final_measure, success_and_speed, summarize_run
 from sweeps.resume import continuable, resume_runs
 from sweeps.tuning import (Plan, abandoned, check_space, check_sweeper_settings, claim, current_trial, job_folders_of,
                            load_space, make_pruner, now_utc, open_storage, override_value, replace_tuned, shown_url,
@@ -99,15 +103,14 @@ class TuningSweep:
                 if not str(o).startswith(("hydra.sweep.dir=", "hydra.mode="))]
 
     def _budget(self) -> list[str]:
-        return [f"max_env_steps={self.budget_steps}", "max_episodes=0", "stop_when_solved=false"]
+        return [f"max_env_steps={self.budget_steps}", "max_episodes=0", "stop_when_solved=true"]
 
     def _trial_defaults(self, fixed: list[str]) -> list[str]:
-        """What trial jobs get unless the command line says otherwise: ``eval_every=0`` (a
-        greedily judged trial is valued by its final greedy evaluation; evaluations during training would only
-        cost time, the pruner reads training episodes) and ``quiet=true`` (banner and verdict
-        per job; the sweeper prints one line per trial)."""
+        """What trial jobs get unless the command line says otherwise: ``quiet=true`` (banner
+        and verdict per job; the sweeper prints one line per trial). Greedy evaluations are
+        the config's own, as a plain run's: they may solve it."""
         given = {a.split("=", 1)[0] for a in fixed}
-        return [f"{k}={v}" for k, v in (("eval_every", 0), ("quiet", "true")) if k not in given]
+        return [f"{k}={v}" for k, v in (("quiet", "true"),) if k not in given]
 
     def _plan(self, arguments: list[str]) -> Plan:
         """What every trial shares, checked before the first one: one line for bad input."""
@@ -124,7 +127,7 @@ class TuningSweep:
         success = _check_builds(base)
         check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
         return Plan(robot, task, learner, given, fixed, space_file, params, success.measure,
-                    _objective(base, success), current_trial(params, base))
+                    SUCCESS_AND_SPEED, current_trial(params, base))
 
     # -- the study ----------------------------------------------------------------
     def sweep(self, arguments: list[str]) -> Any:
@@ -173,7 +176,7 @@ class TuningSweep:
         jobs = [[*plan.fixed, f"seed={seed}"] for seed in self.seeds]
         returns = self.launcher.launch(jobs, initial_job_idx=first_job)
         summaries = _summaries([_run_dir(r) for r in returns])
-        values = [s.get(plan.objective) for s in summaries]
+        values = [success_and_speed(s, self.budget_steps) for s in summaries]
         if any(s.get("status") != "ok" for s in summaries) or any(v is None for v in values):
             print("the current configuration has no value: its jobs did not all finish", flush=True)
             return
@@ -282,7 +285,7 @@ class TuningSweep:
             print(f"trial {number} failed: {failed[0].get('error') or failed[0].get('status')} ({shown})",
                   flush=True)
             return
-        objective = [j.get(plan.objective) for j in jobs]
+        objective = [success_and_speed(j, self.budget_steps) for j in jobs]
         if pruned:
             study.tell(number, state=optuna.trial.TrialState.PRUNED)
             print(f"trial {number} pruned at episode {pruned[0]['pruned_at']} ({shown})", flush=True)
@@ -290,7 +293,7 @@ class TuningSweep:
         value = statistics.fmean(float(v) for v in objective if v is not None) if any(
             v is not None for v in objective) else float("nan")
         study.tell(number, value)
-        per_seed = ", ".join(f"{v:.4g}" if v is not None else "-" for v in objective)
+        per_seed = ", ".join(_seed_text(v, j) for v, j in zip(objective, jobs))
         print(f"trial {number}: {plan.objective} {value:.4g} (seeds {per_seed}) {shown}", flush=True)
 
     def _finish(self, study, plan: Plan, sweep_dir: Path) -> None:
@@ -314,7 +317,7 @@ class TuningSweep:
             f"Tuned by Optuna ({now_utc()}): study {self.study_name} in {shown_url(self.storage_url)}",
             f"best trial {best.number}: {plan.objective} {best.value:.4g} (mean over seeds {self.seeds}), of "
             f"{len(states)} trials ({complete} complete, {pruned} pruned, {failed} failed)",
-            f"budget per trial and seed: {self.budget_steps} env steps, training past 'solved'; "
+            f"budget per trial and seed: {self.budget_steps} env steps, stopping when solved; "
             f"pruner: {self.pruner or 'none'}; search space: {plan.space_file.name}",
             f"command: python train.py -m {' '.join(map(shown_url, self._hydra_overrides() + plan.given))}",
         ]
@@ -398,9 +401,11 @@ def _run_dir(ret) -> Path | None:
         return None
 
 
-def _objective(cfg: DictConfig, success: Success) -> str:
-    """The name of the number a trial's job is valued by (its summary.json name): the final
-    greedy evaluation's measure for a greedily judged task whose jobs evaluate at the end,
-    else the mean of the last ``window`` training episodes."""
-    evaluates = bool(cfg.learner.get("run_episodes", 0) or cfg.get("eval_episodes", 0))
-    return measure_keys(success.measure, success.window).headline(success.judge, evaluates)
+def _seed_text(value: float | None, job: dict) -> str:
+    """One seed's part of a trial's console line: its value, its measure at the end, and
+    the env steps it was solved at."""
+    if value is None:
+        return "-"
+    measure, steps = final_measure(job), job.get("steps_to_solve")
+    return (f"{value:.4g} ({job.get('measure')} {measure:.4g}"
+            + (f", solved at {steps} env steps)" if job.get("solved") and steps is not None else ")"))

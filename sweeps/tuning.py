@@ -491,10 +491,34 @@ class TrialLink:
                 self._storage.set_trial_intermediate_value(self._trial_id, step, value)
             return
         self._storage.set_trial_user_attr(self._trial_id, f"step{step}_seed{self.seed}", value)
-        values = {**frozen.user_attrs, f"step{step}_seed{self.seed}": value}
-        reported = [values.get(f"step{step}_seed{s}") for s in seeds]
-        if all(v is not None for v in reported) and step not in frozen.intermediate_values:
-            self._storage.set_trial_intermediate_value(self._trial_id, step, sum(reported) / len(reported))
+        self._complete_steps(frozen, {f"step{step}_seed{self.seed}": value}, [step])
+
+    def solved(self, step: int, value: float) -> None:
+        """This seed stopped solved at ``step`` env steps with ``value``: it counts with that
+        value at every later step the trial's other seeds report (a solved seed must not
+        leave its trial without intermediate values, nor out of the pruner's later rungs)."""
+        try:
+            frozen = self._storage.get_trial(self._trial_id)
+            if not frozen.user_attrs.get("seeds") or not math.isfinite(value):
+                return
+            self._storage.set_trial_user_attr(self._trial_id, f"solved_seed{self.seed}", [int(step), float(value)])
+            later = sorted({int(k[4:].split("_")[0]) for k in frozen.user_attrs
+                            if re.fullmatch(r"step\d+_seed\d+", k) and int(k[4:].split("_")[0]) > step})
+            self._complete_steps(frozen, {f"solved_seed{self.seed}": [int(step), float(value)]}, later)
+        except Exception as err:  # noqa: BLE001 - as __call__: the run's result does not depend on it
+            print(f"warning: trial {self.number}: cannot reach the study ({type(err).__name__})")
+
+    def _complete_steps(self, frozen: Any, new: dict, steps: list[int]) -> None:
+        """The trial's intermediate value at each of ``steps`` where every seed's is now in
+        (``new``: attributes just written): a seed solved before a step counts its solved value."""
+        values = {**frozen.user_attrs, **new}
+        for step in steps:
+            reported = []
+            for s in frozen.user_attrs["seeds"]:
+                held = values.get(f"solved_seed{s}")
+                reported.append(values.get(f"step{step}_seed{s}", held[1] if held and held[0] < step else None))
+            if all(v is not None for v in reported) and step not in frozen.intermediate_values:
+                self._storage.set_trial_intermediate_value(self._trial_id, step, sum(reported) / len(reported))
 
 
 def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header: list[str]) -> str:

@@ -190,7 +190,7 @@ def test_a_current_configuration_outside_the_space_is_scored_and_kept_unless_bea
     trial beats it (the message says which)."""
     proc = tuning(tmp_path, "s", "sweep")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    assert "current configuration (outside the space): train_length_last100 " in proc.stdout
+    assert "current configuration (outside the space): success_and_speed " in proc.stdout
     study = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}")
     current, best = study.user_attrs["current_value"], study.best_value
     assert study.user_attrs["tuned_kept"] == (current >= best)
@@ -233,6 +233,38 @@ def test_every_seed_reports_and_the_mean_is_the_trials_value_and_a_prune_stops_i
     assert links[0](10, 1.0) is True  # both in: mean 2.0, below the median 100
     assert study.trials[poor.number].intermediate_values == {10: 2.0}
     assert links[1].pruned and study.trials[poor.number].user_attrs["run_dir_seed1"] == str(tmp_path / "j1")
+
+
+def test_a_seed_that_stopped_solved_counts_its_value_at_the_later_steps_of_its_trial(tmp_path):
+    """A solved seed stops reporting: the steps its sibling reports after that still get the
+    trial's intermediate value, the solved seed counting with the value it stopped at."""
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    study = optuna.create_study(study_name="s", storage=url, direction="maximize")
+    trial = study.ask()
+    trial.set_user_attr("seeds", [0, 1])
+    links = [TrialLink(url, "s", trial.number, lead=seed == 0, pruner=None, every=10,
+                       run_dir=tmp_path / f"j{seed}", seed=seed) for seed in (0, 1)]
+    links[0](10, 4.0), links[1](10, 2.0)
+    links[1](20, 3.0)  # reported before seed 0 says it stopped solved at 15: completed then
+    links[0].solved(15, 250.0)
+    links[1](30, 5.0)
+    assert study.trials[trial.number].intermediate_values == {10: 3.0, 20: 126.5, 30: 127.5}
+
+
+@pytest.mark.parametrize("summary, value", [
+    ({"greedy": 300.0, "solved": True, "steps_to_solve": 2500}, 1.75),   # success, solved at a quarter
+    ({"greedy": 300.0, "solved": False, "steps_to_solve": None}, 1.0),  # success the verdict never saw
+    ({"greedy": 125.0, "solved": True, "steps_to_solve": 2500}, 0.5),   # solved, but not at the end
+    ({"greedy": None, "headline_value": 50.0, "solved": False, "steps_to_solve": None}, 0.2),  # no greedy
+    ({"greedy": -25.0, "solved": False, "steps_to_solve": None}, -0.1),
+])
+def test_success_and_speed_orders_runs_as_the_benchmark(summary, value):
+    from runs.summary import success_and_speed, succeeded
+
+    summary = {"status": "ok", "threshold": 250.0, **summary}
+    assert success_and_speed(summary, 10_000) == pytest.approx(value)
+    assert succeeded(summary) == (value >= 1)
+    assert success_and_speed({**summary, "status": "failed"}, 10_000) is None
 
 
 def test_the_tuned_file_keeps_the_previous_ones_other_settings():
@@ -329,11 +361,12 @@ def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(projec
     assert len(trials) == 2
     assert all(t.intermediate_values for t in trials)  # reported from inside the jobs
     assert len({t.user_attrs["worker"] for t in trials}) == 2  # two processes, one study
-    # The objective by its summary.json name: the study's metric, the console's lines.
-    assert study.metric_names == ["train_length_last100"]
-    assert "objective: train_length_last100 (mean over the seeds)" in proc.stdout
-    assert len(re.findall(r"^trial \d+: train_length_last100 \S+ \(seeds ", proc.stdout, re.M)) == 2
-    assert re.search(r"^best trial \d+: train_length_last100 ", proc.stdout, re.M)
+    # The objective by its name: the study's metric, the console's lines (each seed's value
+    # with its measure at the end).
+    assert study.metric_names == ["success_and_speed"]
+    assert "objective: success_and_speed (mean over the seeds)" in proc.stdout
+    assert len(re.findall(r"^trial \d+: success_and_speed \S+ \(seeds \S+ \(length ", proc.stdout, re.M)) == 2
+    assert re.search(r"^best trial \d+: success_and_speed ", proc.stdout, re.M)
     tuned = project_copy / "conf" / "tuned" / "cartpole_n1try.yaml"
     assert tuned.read_text().startswith("# @package _global_\n# Tuned by Optuna")
     best = OmegaConf.create(tuned.read_text())

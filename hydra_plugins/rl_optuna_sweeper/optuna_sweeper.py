@@ -5,10 +5,9 @@
 Each trial samples the learner's search space (``conf/search/<learner>.yaml``, or
 ``<robot>_<learner>.yaml`` where a robot has its own), runs one job per seed through
 Hydra's launcher (basic, joblib, submitit: Slurm) with the same budget (``budget_steps``
-env steps, training past "solved"), and tells the study the mean over the jobs of its
-objective, the task's own measure as the comparison's headline reads it and as summary.json
-names it (``greedy_<measure>``, or ``train_<measure>_last<window>`` for a task judged on
-training episodes; the study's metric name). With the ``seeds`` launcher, trials asked
+env steps, each seed stopping when solved, as a plain run), and tells the study the mean
+over the jobs of its objective, ``success_and_speed`` (:func:`runs.summary.success_and_speed`:
+success first, then env steps to success, as the benchmark ranks; the study's metric name). With the ``seeds`` launcher, trials asked
 together (``trials_per_batch``) train side by side wherever only member-wise settings
 differ. Jobs report their rolling measure every ``report_every`` env steps, and the
 ``pruner`` (median, successive halving or Hyperband; settings in ``pruners``) stops
