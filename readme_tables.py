@@ -4,7 +4,8 @@
 reports (:mod:`runs.summary`; ``docs/solved.md``).
 
     python -m readme_tables            # prints the tables
-    python -m readme_tables --write    # rewrites them in their pages between their markers
+    python -m readme_tables --write    # rewrites them in their pages between their markers,
+                                       # and params/declared.json (the declarations as data)
 
 One parameter table per class a config in ``conf/robot``, ``conf/task`` or
 ``conf/learner`` names (and the exploration schedules the learners use), so a
@@ -15,13 +16,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 from pathlib import Path
 
 from hydra.utils import get_object
 from omegaconf import OmegaConf
 
-from params.declare import specs, table
+from params.declare import DECLARED, declaration_record, specs, table
 from tasks import catalog
 from adapters.gym_env import env_id
 from runs.summary import MeasureKeys
@@ -68,6 +70,17 @@ def tables() -> str:
         parts.append(f"#### {where}: `{target}` ({', '.join(f'`conf/{f}`' for f in files)})\n\n"
                      f"{doc}\n\n{table(cls)}\n")
     return "\n".join(parts)
+
+
+def declarations() -> str:
+    """``params/declared.json``: every declared class's parameters, read back without
+    importing the class (:func:`params.declare.declared`)."""
+    out = {}
+    for target in classes():
+        cls = get_object(target)
+        if dataclasses.is_dataclass(cls) and specs(cls):
+            out[target] = declaration_record(cls)
+    return json.dumps(out, indent=1, sort_keys=True) + "\n"
 
 
 def blocks() -> dict[tuple[str, str], str]:
@@ -177,6 +190,10 @@ def main(argv: list[str] | None = None) -> None:
     for begin, page in PAGES.items():
         changed = rewrite(page, {markers: body for markers, body in found.items() if markers[0] == begin})
         print(f"{page.relative_to(ROOT)}: {'updated' if changed else 'already up to date'}")
+    text = declarations()
+    changed = not DECLARED.is_file() or DECLARED.read_text() != text
+    DECLARED.write_text(text)
+    print(f"{DECLARED.relative_to(ROOT)}: {'updated' if changed else 'already up to date'}")
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ import sys
 import traceback
 from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
@@ -35,24 +36,31 @@ from hydra.errors import InstantiationException
 from hydra.types import RunMode
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+# Only what checks a command is imported here (Hydra, the configs, their declared
+# parameters): torch, TorchRL and MuJoCo come in when a job has passed every check, so a
+# refused value or --help answers in well under a second (bench/answers.py measures it).
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
-from params import ConfigError, did_you_mean
-from runs.console import tuned_changes
+from params import CheckpointError, ConfigError, did_you_mean
+from runs.console import tee_console, tuned_changes
 from tasks.catalog import (GROUPS, compose, locate_model, names, run_choices, unreadable_conf_file, use_config_dirs,
                           with_tuned_layers)
-from runs.checkpoint import CheckpointError
-from runs.console import tee_console
 from runs.folder import (MadeFolders, check_new_run, check_output_folder, eval_config, is_run_folder,
                          resumed_config, run_folder_of, taken, with_run_choices, write_hydra_record)
-from runs.lifecycle import Job, batchable
-from runs.training_state import read_run_json
-from runs.lifecycle import execute
 from runs.settings import check_no_empty_mappings, check_run_config, moved, moved_to
-from sweeps.resume import is_sweep_folder, resume_sweep
-from sweeps.seed_batch import COLLECT
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
                           sibling_should_exit, stop_sweep, sweep_dir, sweep_stopped)
 from sweeps.tuning import trial_link
+
+if TYPE_CHECKING:
+    from runs.lifecycle import Job
+
+
+def is_sweep_folder(path) -> bool:
+    """:func:`sweeps.resume.is_sweep_folder`, imported only when a path is given."""
+    from sweeps.resume import is_sweep_folder as is_sweep
+
+    return is_sweep(path)
+
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
 # a wrong path gets a fresh folder and the one-line error from ``resumed_config``.
@@ -93,7 +101,7 @@ def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
         pass
 
 
-def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -> dict:
+def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -> dict | Job:
     """Dispatches one job: resume, evaluate or train (every key checked before anything
     is written); returns the run's summary, or, for a job of a seed batch
     (``hydra.job.env_set`` names it), its checked :class:`runs.lifecycle.Job`, which the seeds
@@ -113,9 +121,13 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
         if not isinstance(cfg.resume, str):
             raise ConfigError(f"resume must be the path of a run folder; got {cfg.resume!r}")
         if is_sweep_folder(cfg.resume):  # every unfinished job of the sweep, seeds together
+            from sweeps.resume import resume_sweep
+
             summaries = resume_sweep(cfg, overrides)
             record()  # once it resumed something: a refused resume writes nothing there
             return next((s for s in summaries if s.get("interrupted")), {})
+        from runs.training_state import read_run_json
+
         cfg, run_dir = resumed_config(cfg, overrides)
         choices = read_run_json(run_dir)
     elif cfg.mode == "eval" and run_folder_of(cfg.get("checkpoint")) is not None:
@@ -123,6 +135,9 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     check_run_config(cfg)
     check_no_empty_mappings(cfg, overrides)
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
+    from runs.lifecycle import Job, batchable, execute  # torch, TorchRL, MuJoCo: every check passed
+    from sweeps.seed_batch import COLLECT
+
     run_dir.mkdir(parents=True, exist_ok=True)
     job = Job(cfg, run_dir, choices, overrides, changes)
     if in_sweep and not resume and batchable(cfg) and hydra_cfg.job.env_set.get(COLLECT):
@@ -156,7 +171,7 @@ def main(cfg: DictConfig) -> Job | None:
         return  # the sweep was stopped before this job began: it never starts
     try:
         summary = _job(cfg, run_dir, overrides, in_sweep)
-        if isinstance(summary, Job):
+        if not isinstance(summary, dict):  # a runs.lifecycle.Job
             return summary  # Hydra's JobReturn carries it to the seeds launcher
     except REFUSALS as err:
         return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)

@@ -6,7 +6,8 @@ Each command runs ``--rounds`` times as its own process (the rounds interleaved)
 time is the child's user + system time (``resource.getrusage``), which a busy machine
 stretches less than the wall time:
 
-- ``error``: ``train.py learner.gama=0.9`` to its one ``error:`` line;
+- ``error``: ``train.py learner.gama=0.9`` (a misspelt setting) to its one ``error:`` line;
+- ``value``: ``train.py learner=dqn learner.lr=-1`` (a value out of range) to its line;
 - ``help``: ``train.py --help``;
 - ``compare``: ``compare.py`` on a finished two-job sweep (made first, not timed), its
   table and files written;
@@ -55,6 +56,7 @@ def main() -> None:
                     "quiet=true", f"hydra.sweep.dir={sweep}"], cwd=ROOT, capture_output=True, check=True)
     commands = {
         "error": ["train.py", "learner.gama=0.9"],
+        "value": ["train.py", "learner=dqn", "learner.lr=-1"],
         "help": ["train.py", "--help"],
         "compare": ["compare.py", str(sweep)],
     }

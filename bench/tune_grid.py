@@ -97,10 +97,9 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                 print(f"{name}: a variant of {variant['learner']} (overrides {variant['overrides']}): runs "
                       f"{variant['learner']}'s tuned file with them, not tuned")
                 continue
-            counted, running, kept = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
+            counted, running, _ = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
             missing = int(tuning["trials"]) - counted - running
-            if missing <= 0 and not running and (kept or written(spec, learner, task) or
-                                                 not tuning.get("write_tuned", True)):
+            if missing <= 0 and not running and (written(spec, learner, task) or not tuning.get("write_tuned", True)):
                 print(f"{name}: study complete ({counted} trials)")
                 continue
             cmd = command(task, spec, learner, tuning, max(missing, 0))

@@ -37,6 +37,11 @@ class ConfigError(ValueError):
     """A parameter value a robot, task or learner cannot honour."""
 
 
+class CheckpointError(ValueError):
+    """A checkpoint that is missing, unreadable, damaged, or does not fit the run (here, not
+    in :mod:`runs.checkpoint`, so a command refuses one without importing torch)."""
+
+
 def require(condition: bool, what: str, got: Any) -> None:
     """Raises :class:`ConfigError` ``"<what>; got <got>"`` unless ``condition``."""
     if not condition:

@@ -13,18 +13,28 @@ before anything is built (:func:`check_values`, used by
 ``runs.settings``), the one-line error message, and the README's
 parameter tables (:func:`table`). Checks that relate two parameters, or a
 parameter and the robot, stay in the owner's ``__post_init__``.
+
+The declarations of the project's own classes are also kept in ``params/declared.json``
+(written by ``python -m readme_tables --write`` with the docs' tables, from the classes
+themselves; a test keeps it current): :func:`declared` reads a class's there, without
+importing it (its module imports torch or MuJoCo: seconds), so a refused value answers at
+once. An entry whose source files changed since is not used: the class is imported.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
+import hashlib
+import inspect
+import json
 import math
 import types
 import typing
 from collections.abc import Mapping as AbcMapping, Sequence as AbcSequence
 from dataclasses import dataclass
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 from params import ConfigError, did_you_mean
@@ -180,24 +190,26 @@ def check_fields(obj: Any, prefix: str) -> None:
         setattr(obj, spec.name, spec.check(getattr(obj, spec.name), prefix))
 
 
-def check_values(cls: type, values: typing.Mapping[str, Any], prefix: str,
-                 nested: typing.Callable[[dict, str], None] | None = None) -> None:
+def check_values(cls: type | str, values: typing.Mapping[str, Any], prefix: str,
+                 nested: typing.Callable[[dict, str], None] | None = None,
+                 declared_specs: tuple[Spec, ...] | None = None) -> None:
     """Checks config ``values`` for ``cls`` before it is built: names, types, ranges.
 
+    ``cls`` may be the class's dotted path with its ``declared_specs`` (:func:`declared`).
     A value that is itself a config node (a dict with ``_target_``) goes to
     ``nested(node, key)``.
     """
-    declared = {s.name: s for s in specs(cls)}
+    path = cls if isinstance(cls, str) else f"{cls.__module__}.{cls.__name__}"
+    declared = {s.name: s for s in (specs(cls) if declared_specs is None else declared_specs)}
     for key, value in values.items():
         if key not in declared:
             hint = did_you_mean(key, tuple(declared), key_of(prefix, ""))
-            raise ConfigError(f"{key_of(prefix, key)} is not a parameter of {cls.__module__}."
-                              f"{cls.__name__}; {hint}allowed: {', '.join(declared)}; "
-                              f"got {key_of(prefix, key)}={value!r}")
+            raise ConfigError(f"{key_of(prefix, key)} is not a parameter of {path}; {hint}allowed: "
+                              f"{', '.join(declared)}; got {key_of(prefix, key)}={value!r}")
     for name, spec in declared.items():
         if name not in values:
             if spec.required:
-                raise ConfigError(f"{key_of(prefix, name)} is missing; {cls.__name__} needs it")
+                raise ConfigError(f"{key_of(prefix, name)} is missing; {path.rpartition('.')[2]} needs it")
             continue
         value = values[name]
         if isinstance(value, dict) and "_target_" in value and nested is not None:
@@ -313,3 +325,83 @@ def _plural(hint: Any) -> str:
     if origin in (list, tuple, AbcSequence) and args:
         return f"lists of {_plural(args[0])}"
     return f"values that are {describe(hint)}"
+
+
+# -- declarations read without importing their owners ---------------------------
+DECLARED = Path(__file__).with_name("declared.json")
+ROOT = DECLARED.parents[1]
+_HINT_NAMES = {"Any": Any, "Mapping": typing.Mapping, "Sequence": typing.Sequence, "None": None,
+               **{t.__name__: t for t in (bool, int, float, str, dict, list, tuple, object)}}
+_DECLARED: dict | None = None
+
+
+def hint_text(hint: Any) -> str:
+    """A declared type as the text :func:`declared` reads back (``"Mapping[str, float] | None"``)."""
+    members = _union_args(hint)
+    if members is not None:
+        return " | ".join(hint_text(m) for m in members)
+    if hint is Any:
+        return "Any"
+    if hint is type(None) or hint is None:
+        return "None"
+    args = typing.get_args(hint)
+    if args:
+        name = getattr(hint, "_name", None) or typing.get_origin(hint).__name__
+        return f"{name}[{', '.join(hint_text(a) for a in args)}]"
+    if isinstance(hint, type) and _HINT_NAMES.get(hint.__name__) is hint:
+        return hint.__name__
+    raise TypeError(f"a declared type params.declared.json cannot hold: {hint!r}")
+
+
+def _sources(cls: type) -> dict[str, str]:
+    """The project's files that declare ``cls``'s fields (its module and its bases'), by
+    path from the project's root, with each one's SHA-1."""
+    out = {}
+    for klass in cls.__mro__:
+        try:
+            path = Path(inspect.getsourcefile(klass) or "").resolve()
+        except TypeError:  # a builtin
+            continue
+        if path.is_file() and ROOT in path.parents and dataclasses.is_dataclass(klass):
+            out[str(path.relative_to(ROOT))] = hashlib.sha1(path.read_bytes()).hexdigest()
+    return dict(sorted(out.items()))
+
+
+def declaration_record(cls: type) -> dict:
+    """``cls``'s declarations as ``params/declared.json`` keeps them."""
+    return {"sources": _sources(cls), "params": [
+        {"name": s.name, "hint": hint_text(s.hint), "default": None if s.required else s.default,
+         "required": s.required, "doc": s.doc, "note": s.note, "has_check": s.extra is not None,
+         "range": {k: v for k, v in dataclasses.asdict(s.range).items() if v is not None}}
+        for s in specs(cls)]}
+
+
+def declared(path: str) -> tuple[Spec, ...] | None:
+    """The declared parameters of the class named ``path``, from ``params/declared.json``
+    without importing it; None where it is not there, or where a file it was read from has
+    changed since (then the class itself is the one to ask). A parameter's own ``check`` (a
+    device that must exist) is left to the class, which runs it when built."""
+    global _DECLARED
+    if _DECLARED is None:
+        try:
+            _DECLARED = json.loads(DECLARED.read_text())
+        except (OSError, ValueError):
+            _DECLARED = {}
+    record = _DECLARED.get(path)
+    if not isinstance(record, dict):
+        return None
+    for source, digest in record.get("sources", {}).items():
+        try:
+            if hashlib.sha1((ROOT / source).read_bytes()).hexdigest() != digest:
+                return None
+        except OSError:
+            return None
+    out = []
+    for p in record["params"]:
+        rng = dict(p["range"])
+        if "choices" in rng:
+            rng["choices"] = tuple(rng["choices"])
+        default = REQUIRED if p["required"] else p["default"]
+        out.append(Spec(p["name"], eval(p["hint"], {"__builtins__": {}}, _HINT_NAMES), default,  # noqa: S307
+                        p["doc"], Range(**rng), p["note"]))
+    return tuple(out)

@@ -23,12 +23,9 @@ import numpy as np
 import torch
 
 from learners.base import Learner, StateMismatch
+from params import CheckpointError  # noqa: F401 - its home for the readers of checkpoints
 
 CHECKSUM = "checksum"  # the payload entry that holds content_checksum(everything else)
-
-
-class CheckpointError(ValueError):
-    """A checkpoint that is missing, unreadable, damaged, or does not fit the run."""
 
 
 def _feed(h, obj) -> None:

@@ -19,9 +19,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from params import ConfigError
 from tasks.catalog import GROUPS
-from runs.checkpoint import CheckpointError
+from params import CheckpointError
 from runs.settings import upgraded
-from runs.training_state import check_checkpoint, check_targets, load_run_config, new_run_identity, read_run_json
 
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
 RESUME_OVERRIDES = ("resume", "quiet", "verbose", "log_every", "torch_threads", "video", "video_steps",
@@ -85,6 +84,8 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
         raise CheckpointError(f"resume={run_dir}: it is finished (its summary.json says so), so there is "
                               f"nothing to continue; allowed: a stopped or killed run (evaluate this one with "
                               f"mode=eval checkpoint={run_dir})")
+    from runs.training_state import check_checkpoint, check_targets, load_run_config, read_run_json
+
     read_run_json(run_dir)  # a damaged run.json is refused now, not when model.pt is written
     saved = load_run_config(run_dir)
     for key in RESUME_OVERRIDES[1:]:
@@ -120,6 +121,8 @@ def eval_config(cfg: DictConfig, overrides: list[str]) -> DictConfig:
     the run's own config.yaml; the run settings (``eval_episodes``, ``seed``, ``video``, ...)
     and every override of this command (a task parameter for a robustness test) on top."""
     folder = run_folder_of(cfg.checkpoint)
+    from runs.training_state import check_targets, load_run_config
+
     saved = upgraded(load_run_config(folder))
     check_targets(saved)  # config.yaml is data: it may build only the project's own classes
     evaluated = cfg.copy()
@@ -142,6 +145,8 @@ def with_run_choices(args: list[str]) -> list[str]:
     folder = run_folder_of(given.get("checkpoint")) if given.get("mode") == "eval" else None
     if folder is None:
         return args
+    from runs.training_state import read_run_json
+
     saved = read_run_json(folder)
     clash = [f"{k}={given[k]}" for k in PICKS if k in given and given[k] != saved.get(k)]
     if clash:
@@ -237,6 +242,8 @@ def run_lock(run_dir: Path) -> Iterator[None]:
 def start_run(cfg: DictConfig, run_dir: Path, choices: Mapping[str, str | None],
               overrides: list[str]) -> None:
     """A new run's folder: refused if it already holds a run; then config.yaml and run.json."""
+    from runs.training_state import new_run_identity
+
     check_new_run(run_dir)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
     (run_dir / "run.json").write_text(json.dumps(

@@ -33,7 +33,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from params import ConfigError, did_you_mean, locate
-from params.declare import check_values, describe, mismatch, param, specs
+from params.declare import check_values, declared, describe, mismatch, param, specs
 
 MODES = ("train", "eval")
 # Keys of older configs and where each setting lives now: the training budget is the run's,
@@ -208,6 +208,11 @@ def check_params(node: dict, prefix: str, skip: tuple[str, ...] = ()) -> None:
     target = node.get("_target_")
     if not isinstance(target, str) or not target:
         raise ConfigError(f"{prefix}._target_ must name a class to build; got {target!r}")
+    params = {k: v for k, v in node.items() if not k.startswith("_") and k not in skip}
+    known = declared(target)  # the project's classes: checked without importing them
+    if known:
+        check_values(target, params, prefix, nested=check_params, declared_specs=known)
+        return
     try:
         obj = locate(target)
     except Exception as err:  # noqa: BLE001 - any import failure is the same config mistake

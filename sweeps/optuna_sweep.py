@@ -28,9 +28,9 @@ from tasks.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name
 from runs.settings import check_run_config
 from runs.summary import SUCCESS_AND_SPEED, final_measure, success_and_speed, summarize_run
 from sweeps.resume import continuable, resume_runs
-from sweeps.tuning import (Plan, abandoned, check_space, check_sweeper_settings, claim, current_trial, job_folders_of,
-                           load_space, make_pruner, now_utc, open_storage, override_value, replace_tuned, shown_url,
-                           tuned_text)
+from sweeps.tuning import (KEPT, Plan, abandoned, check_space, check_sweeper_settings, claim, current_trial,
+                           job_folders_of, kept_text, load_space, make_pruner, now_utc, open_storage, override_value,
+                           replace_tuned, shown_url, tuned_text)
 from tasks.base import Success
 from tasks.factory import build_task
 
@@ -311,8 +311,8 @@ class TuningSweep:
         best = study.best_trial
         values = {k: p.value(best.params[k]) for k, p in params.items() if k in best.params}
         current = study.user_attrs.get("current_value")
-        kept = current is not None and current >= best.value  # the hand pick is at least as good
-        study.set_user_attr("tuned_kept", kept)
+        own = plan.current is not None and best.params == plan.current  # the best trial is the file's settings
+        kept = own or (current is not None and current >= best.value)  # the hand pick is at least as good
         header = [
             f"Tuned by Optuna ({now_utc()}): study {self.study_name} in {shown_url(self.storage_url)}",
             f"best trial {best.number}: {plan.objective} {best.value:.4g} (mean over seeds {self.seeds}), of "
@@ -342,9 +342,20 @@ class TuningSweep:
         print(f"best trial {best.number}: {plan.objective} {best.value:.4g} " + " ".join(
             f"{k}={override_value(v)}" for k, v in values.items()))
         print(f"tuned file: {out}")
+        # As the study began with it (its trials ran with that), not as it may be now.
+        began = ran_text if ran_file is not None and ran_file.resolve() == base_file.resolve() else None
+        kept = kept and bool(began or base_file.is_file())  # without a file, the best trial's values are written
+        study.set_user_attr("tuned_kept", kept)
         if kept:
-            print(f"the current configuration ({plan.objective} {current:.4g} on the same seeds and budget) is at "
-                  f"least as good as the best trial: {base_file.name} stays as it is")
+            why = (f"the best trial is the current configuration (trial {best.number})" if own else
+                   f"the current configuration ({plan.objective} {current:.4g} on the same seeds and budget) is at "
+                   "least as good as the best trial")
+            print(f"{why}: {base_file.name} stays as it is")
+            if self.write_tuned:
+                mine = [f"{KEPT} ({now_utc()}): study {self.study_name} in {shown_url(self.storage_url)}: {why}",
+                        *header[1:4]]
+                base_file.write_text(kept_text(began or base_file.read_text(), mine))
+                print(f"{base_file}: the study's header added, its settings and notes as the study began with them")
         elif self.write_tuned:
             print(replace_tuned(base_file, text, sweep_dir))
             print(f"the next `python train.py robot={robot}{f' task={plan.task}' if per_task else ''} "

@@ -532,6 +532,23 @@ def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header
     return "\n".join(lines) + "\n" + OmegaConf.to_yaml(conf)
 
 
+KEPT = "Kept by Optuna"  # the first header line of a file a study kept
+
+
+def kept_text(text: str, header: list[str]) -> str:
+    """A tuned file a study kept (its own settings, or at least as good as the best trial):
+    ``text`` as it is, its notes included, with ``header`` (the study's, first line
+    :data:`KEPT`) after ``# @package _global_`` in place of an earlier study's."""
+    lines = text.splitlines()
+    head = lines[:1] if lines and lines[0].startswith("# @package") else []
+    rest = lines[len(head):]
+    if rest and rest[0].startswith(f"# {KEPT}"):  # an earlier study's header: replaced
+        end = next((i for i, line in enumerate(rest) if line.startswith("# end of the study's header")), 0)
+        rest = rest[end + 1:]
+    ours = [f"# {line}".rstrip() for line in header] + ["# end of the study's header; the file's own notes follow"]
+    return "\n".join([*head, *ours, *rest]) + "\n"
+
+
 def replace_tuned(path: Path, text: str, keep_in: Path) -> str:
     """Writes the tuned file ``text`` to ``path`` (``hydra.sweeper.write_tuned=true``), the
     previous file first copied to ``keep_in/previous_<name>``; returns one line saying what

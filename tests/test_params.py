@@ -107,6 +107,57 @@ def test_readme_names_table_is_current():
     assert "| `train_<measure>_last<window>` | the mean `<measure>` of the last `<window>` training episodes |" in block
 
 
+def test_the_declarations_file_is_current_and_reads_back_as_the_classes():
+    """params/declared.json: what the classes declare, read back to the same checks."""
+    import params.declare as declare
+
+    assert declare.DECLARED.read_text() == doc.declarations(), \
+        "params/declared.json is stale: python -m readme_tables --write"
+    for target in doc.classes():
+        cls = get_object(target)
+        if not (dataclasses.is_dataclass(cls) and specs(cls)):
+            continue
+        read = declare.declared(target)
+        assert read is not None, target
+        for mine, theirs in zip(read, specs(cls), strict=True):
+            assert (mine.name, mine.doc, mine.range, mine.note, mine.required) == \
+                   (theirs.name, theirs.doc, theirs.range, theirs.note, theirs.required)
+            assert mine.allowed() == theirs.allowed(), (target, mine.name)
+            assert declare.hint_text(mine.hint) == declare.hint_text(theirs.hint)
+
+
+def test_a_declaration_whose_source_changed_is_not_used(tmp_path, monkeypatch):
+    """An entry read from a file that has changed since is ignored: the class is asked."""
+    import json
+
+    import params.declare as declare
+
+    record = json.loads(declare.DECLARED.read_text())
+    target = "learners.qlearn.QLearn"
+    assert declare.declared(target) is not None
+    source = next(iter(record[target]["sources"]))
+    record[target]["sources"][source] = "0" * 40
+    monkeypatch.setattr(declare, "_DECLARED", record)
+    assert declare.declared(target) is None
+    assert declare.declared("robots.nowhere.Robot") is None
+
+
+def test_a_refused_value_and_help_answer_without_torch_or_mujoco():
+    """train.py's checks come before its heavy imports (bench/answers.py times them)."""
+    import subprocess
+    import sys
+
+    probe = ("import runpy, sys\nsys.argv = ['train.py', *sys.argv[1:]]\ntry:\n"
+             "    runpy.run_path('train.py', run_name='__main__')\nexcept SystemExit:\n    pass\n"
+             "print('HEAVY', sorted(m for m in ('torch', 'mujoco', 'torchrl', 'tensordict', 'dm_control') "
+             "if m in sys.modules))")
+    for args in (["learner=dqn", "learner.lr=-1"], ["robot=cube", "learner.alpha=2"], ["num_envs=0"], ["--help"]):
+        proc = subprocess.run([sys.executable, "-c", probe, *args], cwd=ROOT, capture_output=True, text=True)
+        assert "HEAVY []" in proc.stdout, (args, proc.stdout[-500:], proc.stderr[-500:])
+        if args != ["--help"]:
+            assert proc.stderr.strip().startswith("error: ") and len(proc.stderr.strip().splitlines()) == 1
+
+
 def test_write_fills_every_block_and_says_when_nothing_changed(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text(f"a\n{doc.BEGIN}\nstale text\n{doc.END}\nb\n{doc.DISCOVERY_BEGIN}\n{doc.DISCOVERY_END}\n"

@@ -267,6 +267,18 @@ def test_success_and_speed_orders_runs_as_the_benchmark(summary, value):
     assert success_and_speed({**summary, "status": "failed"}, 10_000) is None
 
 
+def test_a_kept_file_keeps_its_notes_and_settings_under_the_studys_header():
+    from sweeps.tuning import kept_text
+
+    hand = "# @package _global_\n# why: measured\nlearner:\n  alpha: 0.2\n"
+    once = kept_text(hand, ["Kept by Optuna (t1): study s", "best trial 0: 1.9"])
+    assert once.splitlines()[:3] == ["# @package _global_", "# Kept by Optuna (t1): study s", "# best trial 0: 1.9"]
+    assert once.endswith("# why: measured\nlearner:\n  alpha: 0.2\n")
+    again = kept_text(once, ["Kept by Optuna (t2): study s"])  # a later study's header replaces the earlier one
+    assert again.count("Kept by Optuna") == 1 and "(t2)" in again and again.endswith(hand.split("\n", 1)[1])
+    assert OmegaConf.create(again) == OmegaConf.create(hand)
+
+
 def test_the_tuned_file_keeps_the_previous_ones_other_settings():
     text = tuned_text({"learner.alpha": 0.3, "learner.number_splits": 7},
                       {"num_envs": 8, "learner": {"alpha": 0.1, "gamma": 0.99}}, ["study x", "best 1.2"])
