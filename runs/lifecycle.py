@@ -441,13 +441,22 @@ def write_success(session: Session) -> None:
     (session.run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(session.success), indent=1))
 
 
+def _tags(run_dir: Path) -> dict:
+    """The run's robot, task, learner and seed (run.json's), for a logger that keeps tags."""
+    try:
+        saved = json.loads((run_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return {k: saved.get(k) for k in ("robot", "task", "learner", "seed")}
+
+
 def make_run(session: Session, resume: bool, progress: Progress | None,
              save: Callable[..., None] | None = None) -> Run:
     """Training's :class:`Run` with its logger and hooks (``save``: writes the training
     state, :func:`runs.training_state.save_training_state`'s arguments); a resumed run continues
     from its checkpoint (its metrics files cut back to it)."""
     cfg, learner, env = session.cfg, session.learner, session.env
-    logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name,
+    logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name, tags=_tags(session.run_dir),
                          **{k: v for k, v in cfg.logger.items() if k != "kind"})
     hooks = Hooks(checkpoint=partial(save or save_training_state, session.state_path, learner, env),
                   greedy_eval=partial(session.evaluator, int(cfg.eval_episodes)) if cfg.eval_episodes else None,

@@ -3,7 +3,12 @@
 The heavy backends are optional extras (``pip install -e '.[tensorboard]'``
 and so on); choosing one that is not installed is a one-line error.
 W&B runs offline by default (no network needed); MLflow writes a local SQLite
-store (``logs/mlflow.db``). Everything lands in the run folder under ``logs/``.
+store (``logs/mlflow.db``). Everything lands in the run folder under ``logs/``, but for a
+job of a sweep (its folder's parent holds Hydra's ``multirun.yaml``) MLflow writes one
+store for the sweep, ``<sweep>/mlflow.db``, one experiment named after the sweep folder
+with one MLflow run per job (named after its folder, tagged with robot, task, learner
+and seed), and W&B puts the sweep's runs in one group (the sweep folder's name), so
+either UI shows a sweep's runs side by side.
 
 What a training run sends, every scalar at the step of the run's env steps
 (all copies' transitions so far): ``episode/<name>`` per finished episode
@@ -45,9 +50,17 @@ NEEDS = {"csv": None, "tensorboard": "tensorboard", "wandb": "wandb", "mlflow": 
 RUN_COUNTS = ("env_steps", "episodes", "wall_s", "divergences", "solved")
 
 
+def sweep_of(run_dir: Path) -> Path | None:
+    """The sweep folder ``run_dir`` is a job of (Hydra's ``multirun.yaml`` beside it), or None."""
+    parent = Path(run_dir).resolve().parent
+    return parent if (parent / "multirun.yaml").is_file() else None
+
+
 def make_logger(kind: str | None, run_dir: Path, exp_name: str, offline: bool = True,
-                project: str = "mujoco-rl-toolkit") -> Any:
-    """A TorchRL ``Logger`` writing below ``run_dir/logs``, or ``None`` for ``none``."""
+                project: str = "mujoco-rl-toolkit", tags: Mapping[str, Any] | None = None) -> Any:
+    """A TorchRL ``Logger`` writing below ``run_dir/logs``, or ``None`` for ``none``; a
+    sweep's job logs into its sweep's MLflow experiment or W&B group (:func:`sweep_of`).
+    ``tags``: the run's robot, task, learner and seed, as MLflow tags."""
     if kind in (None, "", "none"):
         return None
     if kind not in NEEDS:
@@ -62,15 +75,21 @@ def make_logger(kind: str | None, run_dir: Path, exp_name: str, offline: bool = 
     log_dir = Path(run_dir) / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     kwargs: dict = {}
+    sweep = sweep_of(run_dir)
     if kind == "wandb":
         if offline:
             os.environ.setdefault("WANDB_MODE", "offline")
-        kwargs["wandb_kwargs"] = {"offline": offline, "project": project}
+        # reinit="create_new": the seeds of a batch are runs of one process, each its own
+        # (W&B's default finishes the process's run when the next one starts).
+        kwargs["wandb_kwargs"] = {"offline": offline, "project": project, "name": Path(run_dir).name,
+                                  "reinit": "create_new", **({"group": sweep.name} if sweep is not None else {})}
     if kind == "mlflow":
-        # MLflow 3 retired the plain directory store; a SQLite file is its local store.
-        from torchrl.record.loggers.mlflow import MLFlowLogger
+        from runs.mlflow_logger import JobLogger
 
-        return MLFlowLogger(exp_name=exp_name, tracking_uri=f"sqlite:///{log_dir / 'mlflow.db'}")
+        # MLflow 3 retired the plain directory store; a SQLite file is its local store.
+        store = (sweep / "mlflow.db") if sweep is not None else (log_dir / "mlflow.db")
+        return JobLogger(experiment=sweep.name if sweep is not None else exp_name, run_name=Path(run_dir).name,
+                         store=store, run_dir=Path(run_dir), tags=tags)
     logger = get_logger(kind, logger_name=str(log_dir), experiment_name=exp_name, **kwargs)
     if kind == "csv":  # each value is on disk the moment it is logged: keep only counts
         logger.experiment.scalars = defaultdict(_Count)

@@ -52,16 +52,13 @@ def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
     """The task's measure per episode, its rolling mean, the threshold and the greedy
     evaluations; the episode length (if it is not the measure) and return (if it is
     not the length) below."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # not pyplot: no GUI backend to load, nothing to close
 
     rows = _read(metrics_csv)
     evals = _read(evals_csv) if evals_csv is not None and Path(evals_csv).is_file() else []
     panels = _panels(rows, success)
-    fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.6), squeeze=False,
-                             sharex=True)
+    fig = Figure(figsize=(8, 2.6 * len(panels) + 0.6))
+    axes = fig.subplots(len(panels), 1, squeeze=False, sharex=True)
     for ax, (key, label) in zip(axes[:, 0], panels):
         if rows:
             ax.plot(_column(rows, "episode"), _column(rows, key), lw=0.6, alpha=0.5,
@@ -74,4 +71,3 @@ def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
                  fontsize=9)
     fig.tight_layout()
     fig.savefig(out_png, dpi=100)
-    plt.close(fig)

@@ -239,3 +239,57 @@ def test_mlflow_gets_the_config_as_params_and_the_train_metrics(tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
     steps = [m.step for m in client.get_metric_history(run_id, "episode/length")]
     assert steps == [int(r["env_steps"]) for r in rows]
+
+
+def _sweep_jobs(tmp_path: Path, n: int = 2) -> list[Path]:
+    """Job folders of a sweep folder (Hydra's multirun.yaml beside them)."""
+    sweep = tmp_path / "my_sweep"
+    sweep.mkdir()
+    (sweep / "multirun.yaml").write_text("{}\n")
+    jobs = [sweep / f"{i}_cartpole_dqn_seed{i}" for i in range(n)]
+    for job in jobs:
+        job.mkdir()
+    return jobs
+
+
+def test_a_sweeps_jobs_log_to_one_mlflow_experiment_from_one_process(tmp_path):
+    """The seeds of a batch are runs of one process: each its own MLflow run (TorchRL's
+    fluent-API logger refuses a second active run), all in the sweep's store and experiment,
+    and a resumed job goes on in its own MLflow run."""
+    mlflow = pytest.importorskip("mlflow")  # extra: pip install -e ".[mlflow]"
+    jobs = _sweep_jobs(tmp_path)
+    loggers = [make_logger("mlflow", job, exp_name=job.name, tags={"seed": i, "learner": "dqn"})
+               for i, job in enumerate(jobs)]
+    for step in (10, 20):
+        for i, logger in enumerate(loggers):
+            logger.log_metrics({"episode/length": float(step + i)}, step=step)
+    log_hparams(loggers[0], {"learner": {"lr": 0.001}})
+    for logger in loggers:
+        logger.close()
+    again = make_logger("mlflow", jobs[1], exp_name=jobs[1].name)  # resumed: the same MLflow run
+    again.log_metrics({"episode/length": 99.0}, step=30)
+    again.close()
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'my_sweep' / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("my_sweep")
+    runs = {r.info.run_name: r for r in client.search_runs([experiment.experiment_id])}
+    assert set(runs) == {job.name for job in jobs}
+    for i, job in enumerate(jobs):
+        history = [(m.step, m.value) for m in client.get_metric_history(runs[job.name].info.run_id, "episode/length")]
+        assert history == [(10, 10.0 + i), (20, 20.0 + i)] + ([(30, 99.0)] if i else [])
+        assert runs[job.name].data.tags["seed"] == str(i) and runs[job.name].info.status == "FINISHED"
+    assert runs[jobs[0].name].data.params == {"learner.lr": "0.001"}
+
+
+def test_a_sweeps_jobs_are_one_wandb_group_and_runs_of_one_process(tmp_path):
+    pytest.importorskip("wandb")  # extra: pip install -e ".[wandb]"
+    jobs = _sweep_jobs(tmp_path)
+    loggers = [make_logger("wandb", job, exp_name=job.name) for job in jobs]
+    for logger in loggers:  # both still live: W&B's default would have finished the first
+        logger.log_metrics({"episode/length": 5.0}, step=10)
+    assert [lg.experiment.group for lg in loggers] == ["my_sweep", "my_sweep"]
+    assert [lg.experiment.name for lg in loggers] == [job.name for job in jobs]
+    for logger in loggers:
+        logger.close()
+    single = make_logger("wandb", tmp_path / "one_run", exp_name="one_run")  # not a sweep's job: no group
+    assert not single.experiment.group
+    single.close()
