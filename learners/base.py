@@ -46,8 +46,20 @@ class StateMismatch(ValueError):
 
 def check_state(saved: Any, mine: Mapping, where: str, deep: Sequence[str] = ()) -> None:
     """Raises :class:`StateMismatch` naming the first way ``saved`` differs from this
-    learner's own state ``mine``: a key it lacks, or, under the keys ``deep``, a tensor of
-    another shape or dtype (or not a tensor). Nothing is loaded before it passes."""
+    learner's own state ``mine``. Nothing is loaded before it passes.
+
+    Args:
+        saved: the state read from a file.
+        mine: this learner's own state of the same kind (its ``model_state`` or ``training_state``).
+        where: the state's origin, named in the message (``checkpoint <where> does not fit this run``).
+        deep: top-level keys whose contents are compared down to each tensor's shape and dtype; under
+            the other keys, only their presence is checked.
+
+    Raises:
+        StateMismatch: if ``saved`` lacks a key of ``mine`` (below the top level: under the keys ``deep``
+            only), or there holds a tensor of another shape or dtype, or something else where ``mine`` has
+            a tensor or a mapping.
+    """
 
     def differ(what: str) -> StateMismatch:
         return StateMismatch(f"checkpoint {where} does not fit this run: {what}")
@@ -74,10 +86,23 @@ def check_state(saved: Any, mine: Mapping, where: str, deep: Sequence[str] = ())
 
 
 def member_settings(learner: Any, variants: Sequence[Any] | None, members: int) -> list[Any]:
-    """Each member's settings: ``variants`` (one learner of ``learner``'s class per member,
-    unbuilt) or ``learner`` itself for every member. One line naming the first setting
-    outside ``learner.MEMBER_WISE`` in which a variant differs (those change shapes or what
-    the learner builds: such members cannot share it)."""
+    """Each member's settings: its variant, or ``learner`` itself for every member.
+
+    Args:
+        learner: the learner being built.
+        variants: one learner of ``learner``'s class per member, unbuilt (a tuning trial's each);
+            None: every member takes ``learner``'s settings.
+        members: the number of members.
+
+    Returns:
+        ``members`` learners, item ``b`` member ``b``'s settings.
+
+    Raises:
+        ValueError: if ``variants`` does not hold ``members`` learners.
+        ConfigError: if a variant is of another class, or differs from ``learner`` in a setting outside
+            ``learner.MEMBER_WISE`` (those change shapes or what the learner builds: such members cannot
+            share it); the message names the first such setting.
+    """
     if variants is None:
         return [learner] * members
     variants = list(variants)
@@ -96,9 +121,17 @@ def member_settings(learner: Any, variants: Sequence[Any] | None, members: int) 
 
 
 def per_member(values: Sequence[float], dtype: torch.dtype, device: Any = "cpu") -> float | torch.Tensor:
-    """One value per member: the value itself where every member has the same (the
-    arithmetic of a learner alone), else a ``[members, 1]`` tensor to scale each member's
-    rows."""
+    """One value per member, in the form a learner's arithmetic takes.
+
+    Args:
+        values: each member's value, in member order.
+        dtype: the tensor's dtype, where one is made.
+        device: the tensor's device, where one is made.
+
+    Returns:
+        The value itself where every member has the same (the arithmetic of a learner alone),
+            else a ``[members, 1]`` tensor to scale each member's rows.
+    """
     first = values[0]
     if all(v == first for v in values):
         return first
@@ -113,41 +146,167 @@ class Learner(Protocol):
     MEMBER_WISE: tuple[str, ...]  # settings members of one batch may differ in
     members: int  # set by build
 
-    def build(self, task, generators: Sequence[torch.Generator], variants: Sequence[Any] | None = None) -> None: ...
+    def build(self, task, generators: Sequence[torch.Generator], variants: Sequence[Any] | None = None) -> None:
+        """Sizes the table or networks from ``task``, one member per generator.
 
-    def begin(self) -> None: ...
+        Args:
+            task (tasks.base.Task): the task every member learns; its actions and observation set the shapes.
+            generators: one random stream per member: its exploration, its minibatch draws.
+            variants: each member's own learner made from its config (a tuning trial's), unbuilt; they
+                may differ in ``MEMBER_WISE`` settings only (:func:`member_settings`). None: every
+                member takes this learner's settings.
 
-    def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase: ...
+        Raises:
+            ConfigError: if a variant differs in another setting, or the task does not fit the learner.
+        """
+
+    def begin(self) -> None:
+        """Before the first step of a training session (a fresh run or a resumed one)."""
+
+    def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
+        """Every member's actions on its block of rows, the members of ``live`` drawing from their streams.
+
+        Args:
+            td: the env's step input, ``observation`` among its entries, one row per env copy; with ``n``
+                copies per member, member ``b``'s block is rows ``b * n`` to ``(b + 1) * n``.
+            live: the members still training; the others act without drawing from their streams.
+                None: every member.
+
+        Returns:
+            A new tensordict of ``td``'s entries and ``action`` (and what else the learner writes).
+        """
 
     def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
-                    generators: Sequence[torch.Generator | None]) -> TensorDictBase: ...
+                    generators: Sequence[torch.Generator | None]) -> TensorDictBase:
+        """The actions of some members, each on its own block of ``td`` (a member's policy calls it).
 
-    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None: ...
+        Args:
+            td: one block of rows per member acting, in the order of ``members``, ``observation`` among
+                its entries.
+            members: the members that act (block ``j`` is ``members[j]``'s); None: every member, in order.
+            greedy: act greedily (no exploration) rather than epsilon-greedy.
+            generators: block ``j``'s random stream, one per block; None for a block that draws from none.
 
-    def end_episodes(self, ended: Mapping[int, int]) -> None: ...
+        Returns:
+            A new tensordict of ``td``'s entries and ``action`` (and what else the learner writes).
+        """
 
-    def stats(self, b: int) -> dict[str, float]: ...
+    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
+        """Each live member learns from its block of the step's transitions.
 
-    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]: ...
+        Args:
+            td: the step: what :meth:`act` returned, with the env's ``next`` (``observation``, ``reward``,
+                ``terminated``, ``done``) added; blocks as in :meth:`act`.
+            live: the members that learn; None: every member.
+        """
 
-    def model_state(self, b: int) -> dict: ...
+    def end_episodes(self, ended: Mapping[int, int]) -> None:
+        """After a step that finished episodes (epsilon schedules, per-episode updates).
 
-    def load_model_state(self, b: int, state: Mapping, where: str) -> None: ...
+        Args:
+            ended: member index mapped to how many of its episodes the step finished; members that
+                finished none are left out.
+        """
 
-    def training_state(self, b: int) -> dict: ...
+    def stats(self, b: int) -> dict[str, float]:
+        """Member ``b``'s numbers recorded with each episode it finishes.
 
-    def load_training_state(self, b: int, state: Mapping) -> None: ...
+        Args:
+            b: the member's index.
 
-    def member(self, b: int) -> Member: ...
+        Returns:
+            Name mapped to value (the learners here: ``alpha``, ``gamma`` and ``epsilon``, as they are now).
+        """
+
+    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
+        """Member ``b``'s ``train/*`` numbers (loss, epsilon, ...), which the logger writes at intervals.
+
+        Args:
+            b: the member's index.
+            reset: whether reading starts a new interval for the numbers that are means over one (False:
+                a read between the logger's, such as a progress bar's); a learner without means ignores it.
+
+        Returns:
+            Name mapped to value.
+        """
+
+    def model_state(self, b: int) -> dict:
+        """Member ``b``'s trained model, as ``model.pt`` holds it.
+
+        Args:
+            b: the member's index.
+
+        Returns:
+            Tensors and plain values by name, ``kind`` (the learner family) among them.
+        """
+
+    def load_model_state(self, b: int, state: Mapping, where: str) -> None:
+        """Loads a saved :meth:`model_state` into member ``b``, checking first that it fits.
+
+        Args:
+            b: the member's index.
+            state: a :meth:`model_state`, as read from a file.
+            where: the state's origin, named in a :class:`StateMismatch`.
+
+        Raises:
+            StateMismatch: if the state has another shape or format than this learner's (nothing is loaded).
+        """
+
+    def training_state(self, b: int) -> dict:
+        """Everything member ``b``'s next update depends on (for resuming a run).
+
+        Args:
+            b: the member's index.
+
+        Returns:
+            Tensors and plain values by name: the model and what else the learner keeps (such as its
+                optimiser state, replay buffer and random stream).
+        """
+
+    def load_training_state(self, b: int, state: Mapping) -> None:
+        """Restores member ``b`` from a saved :meth:`training_state`, checking first that it fits.
+
+        Args:
+            b: the member's index.
+            state: a :meth:`training_state`, as read from the training checkpoint.
+
+        Raises:
+            StateMismatch: if the state has another shape or format than this learner's.
+        """
+
+    def member(self, b: int) -> Member:
+        """Member ``b`` seen alone.
+
+        Args:
+            b: the member's index.
+
+        Returns:
+            Its view of this learner: its numbers, its policy, its saved states.
+        """
 
 
 def everyone(learner: Learner, live: Sequence[int] | None) -> list[int]:
-    """``live`` as a list, every member when None."""
+    """``live`` as a list, every member when None.
+
+    Args:
+        learner: the learner whose members these are (built).
+        live: member indices, or None.
+
+    Returns:
+        The member indices.
+    """
     return list(range(learner.members)) if live is None else list(live)
 
 
 def single(generator: torch.Generator | Sequence[torch.Generator] | None) -> list[torch.Generator]:
-    """``build``'s generators from one generator, a sequence of them or None (one fresh stream)."""
+    """``build``'s generators from what it was given.
+
+    Args:
+        generator: one generator, a sequence of them, or None (one fresh stream).
+
+    Returns:
+        The generators, one per member.
+    """
     if generator is None:
         return [torch.Generator()]
     if isinstance(generator, torch.Generator):
@@ -168,6 +327,14 @@ class MemberPolicy(TensorDictModuleBase):
         self._member = member
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """The member's actions on ``tensordict``'s rows.
+
+        Args:
+            tensordict: the rows the member acts on, ``observation`` among their entries.
+
+        Returns:
+            A new tensordict of ``tensordict``'s entries and the learner's ``out_keys``.
+        """
         member = self._member
         greedy = member.greedy_draws is not None
         generator = member.greedy_draws if greedy else member.learner.generators[member.index]
@@ -206,19 +373,55 @@ class Member:
 
     @property
     def stats(self) -> dict[str, float]:
+        """The member's numbers recorded with each episode it finishes (:meth:`Learner.stats`)."""
         return self.learner.stats(self.index)
 
     def train_stats(self, reset: bool = True) -> dict[str, float]:
+        """The member's ``train/*`` numbers (:meth:`Learner.train_stats`).
+
+        Args:
+            reset: whether reading starts a new interval for the numbers that are means over one.
+
+        Returns:
+            Name mapped to value.
+        """
         return self.learner.train_stats(self.index, reset)
 
     def model_state(self) -> dict:
+        """The member's trained model, as ``model.pt`` holds it (:meth:`Learner.model_state`).
+
+        Returns:
+            Tensors and plain values by name, ``kind`` among them.
+        """
         return self.learner.model_state(self.index)
 
     def load_model_state(self, state: Mapping, where: str) -> None:
+        """Loads a saved model into the member (:meth:`Learner.load_model_state`).
+
+        Args:
+            state: a :meth:`model_state`, as read from a file.
+            where: the state's origin, named in a :class:`StateMismatch`.
+
+        Raises:
+            StateMismatch: if the state has another shape or format than the learner's.
+        """
         self.learner.load_model_state(self.index, state, where)
 
     def training_state(self) -> dict:
+        """Everything the member's next update depends on (:meth:`Learner.training_state`).
+
+        Returns:
+            Tensors and plain values by name.
+        """
         return self.learner.training_state(self.index)
 
     def load_training_state(self, state: Mapping) -> None:
+        """Restores the member from a saved training state (:meth:`Learner.load_training_state`).
+
+        Args:
+            state: a :meth:`training_state`, as read from the training checkpoint.
+
+        Raises:
+            StateMismatch: if the state has another shape or format than the learner's.
+        """
         self.learner.load_training_state(self.index, state)

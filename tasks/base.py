@@ -27,7 +27,19 @@ MAX_SUBSTEPS = 10_000  # a step of more would take seconds of simulation per cal
 
 
 def substeps_for(running_step: float, timestep: float) -> int:
-    """How many physics steps of ``timestep`` make one control step."""
+    """How many physics steps of ``timestep`` make one control step.
+
+    Args:
+        running_step: simulated time per control step, s (``task.running_step``).
+        timestep: simulated time per physics step, s (``task.physics_timestep``).
+
+    Returns:
+        ``running_step / timestep``, a whole number from 1 to ``MAX_SUBSTEPS`` (10000).
+
+    Raises:
+        ConfigError: if either is not a finite number > 0, or ``running_step`` is not a whole multiple of
+            ``timestep`` (to within 1e-9 s) or is more than ``MAX_SUBSTEPS`` of them.
+    """
     require(finite(running_step) and running_step > 0,
             "task.running_step must be a finite number > 0", running_step)
     require(finite(timestep) and timestep > 0,
@@ -55,6 +67,20 @@ class Bounds:
 
     @classmethod
     def from_config(cls, spec: Mapping[str, Sequence[float]], observation_names: Sequence[str]):
+        """The entries and ranges ``task.tabular_state`` names.
+
+        Args:
+            spec: ``task.tabular_state``: observation names, each mapped to ``[low, high]``, two finite
+                numbers with ``low < high``.
+            observation_names: the task's observation entries, in order.
+
+        Returns:
+            (Bounds): The named entries in ``spec``'s order, their indices in the observation and their ranges.
+
+        Raises:
+            ConfigError: if ``spec`` is not a mapping, is empty, names an entry not among
+                ``observation_names`` or holds a pair that is not ``[low, high]`` as above.
+        """
         require(isinstance(spec, Mapping),
                 "task.tabular_state must map observation names to [low, high]", spec)
         names, indices, low, high = [], [], [], []
@@ -104,8 +130,20 @@ class Success:
     @classmethod
     def from_config(cls, win: Mapping[str, Any] | None, default: "Success",
                     measures: Mapping[str, tuple[str, str]]) -> "Success":
-        """``default`` with the entries of ``task.win`` applied; ``measures`` maps each
-        measure the task offers to its (unit, description)."""
+        """``default`` with the entries of ``task.win`` applied.
+
+        Args:
+            win: ``task.win``: some of ``measure``, ``threshold``, ``judge``, ``window``, ``min_episodes`` (or None).
+            default: the task's own rule, which gives each entry ``win`` leaves out.
+            measures: each measure the task offers, mapped to its ``(unit, description)``.
+
+        Returns:
+            The rule, with the unit and description of its measure.
+
+        Raises:
+            ConfigError: if ``win`` holds another key or a value out of its range (a measure not in ``measures``,
+                a judge not in ``JUDGES``, a NaN threshold, a window outside [1, 1000000], ...).
+        """
         win = dict(win or {})
         require(isinstance(win, dict), f"task.win must map {', '.join(cls.KEYS)} to values", win)
         unknown = sorted(set(win) - set(cls.KEYS))
@@ -130,11 +168,23 @@ class Success:
         return cls(measure, unit, description, float(threshold), judge, int(window), int(min_episodes))
 
     def met(self, value: float, episodes: int) -> bool:
-        """Whether a mean ``value`` of the measure, after ``episodes`` training episodes, solves."""
+        """Whether a mean ``value`` of the measure, after ``episodes`` training episodes, solves.
+
+        Args:
+            value: the mean of the measure over the episodes ``judge`` names, in ``unit``.
+            episodes: the training episodes finished so far.
+
+        Returns:
+            True when ``episodes`` >= ``min_episodes`` (and >= 1) and ``value`` >= ``threshold``.
+        """
         return episodes >= max(self.min_episodes, 1) and value >= self.threshold
 
     def describe(self) -> str:
-        """``"distance walked towards +y >= 1 m"``: the rule in words."""
+        """The rule in words.
+
+        Returns:
+            The measure's description, ``>=``, the threshold and its unit: ``"distance walked towards +y >= 1 m"``.
+        """
         return f"{self.description} >= {self.threshold:g} {self.unit}".rstrip()
 
 
@@ -158,13 +208,31 @@ class PerCopy:
         return tuple(spec), np.float64
 
     def allocate(self, n: int) -> None:
+        """Makes every declared array zeros for ``n`` copies (the values held before are dropped).
+
+        Args:
+            n: the number of copies (each array's rows).
+        """
         for name, (shape, dtype) in self._declared.items():
             setattr(self, name, np.zeros((n, *shape), dtype=dtype))
 
     def state_dict(self) -> dict[str, np.ndarray]:
+        """The declared arrays, copied, for a training checkpoint.
+
+        Returns:
+            Each declared name mapped to a copy of its array.
+        """
         return {name: getattr(self, name).copy() for name in self._declared}
 
     def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """Restores what :meth:`state_dict` returned, each array in its declared dtype.
+
+        Args:
+            state: every declared name mapped to an array of the shape it has now.
+
+        Raises:
+            ConfigError: if ``state`` names other arrays than the declared ones, or one has another shape.
+        """
         require(set(state) == set(self._declared),
                 f"per-copy task state must hold {sorted(self._declared)}", sorted(state))
         for name, value in state.items():
@@ -192,52 +260,122 @@ class Task(abc.ABC):
 
     @abc.abstractmethod
     def build_arena(self) -> Any:
-        """The MJCF arena with the robot attached (compiled once by the env)."""
+        """The MJCF arena with the robot attached (compiled once by the env).
+
+        Returns:
+            The arena's ``dm_control.mjcf`` root element, ``robot.mjcf_model`` attached to it.
+        """
 
     @abc.abstractmethod
     def bind(self, physics: BatchedPhysics) -> None:
-        """Resolves names in the compiled model; sizes per-copy state for ``physics.num_envs``."""
+        """Resolves names in the compiled model; sizes per-copy state for ``physics.num_envs``.
+
+        Args:
+            physics: the batch of copies of the compiled arena; the tasks here pass it on to their
+                robot's :meth:`~robots.base.Robot.bind`.
+        """
 
     @abc.abstractmethod
     def initialize_episode(self, physics: BatchedPhysics, mask: np.ndarray,
                            rng: np.random.Generator) -> None:
-        """Starts a new episode in the copies where ``mask`` is true."""
+        """Starts a new episode in the copies where ``mask`` is true.
+
+        Args:
+            physics: the batch of copies, the ``mask`` copies just put back to the model's initial state
+                (the env recomputes their sensor readings afterwards).
+            mask: bool ``(num_envs,)``: the copies that start an episode.
+            rng: the stream every random draw of the start comes from (one per seed block of the env).
+        """
 
     @abc.abstractmethod
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
-        """Turns each copy's action (int ``(num_envs,)``) into robot commands."""
+        """Turns each copy's action into robot commands.
+
+        Args:
+            physics: the batch of copies, whose controls the robot sets.
+            action: int ``(num_envs,)``: each copy's action, an index among ``n_actions``.
+        """
 
     @abc.abstractmethod
     def observation(self, physics: BatchedPhysics) -> np.ndarray:
-        """``(num_envs, len(observation_names))``."""
+        """Each copy's observation, after a step or an episode's start.
+
+        Args:
+            physics: the batch of copies.
+
+        Returns:
+            ``(num_envs, len(observation_names))``, entries in ``observation_names`` order (the env passes
+                them on as float32).
+        """
 
     @abc.abstractmethod
     def terminated(self, physics: BatchedPhysics, observation: np.ndarray) -> np.ndarray:
-        """Bool ``(num_envs,)``: the episode ended by failure or success (not by time)."""
+        """Which copies' episodes the step ended by failure or success (not by time).
+
+        Args:
+            physics: the batch of copies after the step.
+            observation: the step's :meth:`observation`, ``(num_envs, len(observation_names))``.
+
+        Returns:
+            Bool ``(num_envs,)``, true where the episode ended.
+        """
 
     @abc.abstractmethod
     def reward(self, physics: BatchedPhysics, observation: np.ndarray,
                terminated: np.ndarray) -> np.ndarray:
-        """``(num_envs,)`` rewards of the step just taken."""
+        """The rewards of the step just taken.
+
+        Args:
+            physics: the batch of copies after the step.
+            observation: the step's :meth:`observation`, ``(num_envs, len(observation_names))``.
+            terminated: bool ``(num_envs,)``: the step's :meth:`terminated` (false in a copy whose physics
+                diverged).
+
+        Returns:
+            ``(num_envs,)``, one reward per copy (the env makes a diverged copy's 0).
+        """
 
     @abc.abstractmethod
     def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
-        """Per copy, what its episode has achieved so far (``success.measure`` among
-        them unless it is the episode length); ``{}`` if nothing."""
+        """Per copy, what its episode has achieved so far.
+
+        Args:
+            physics: the batch of copies (read as a copy's episode ends).
+
+        Returns:
+            Named ``(num_envs,)`` arrays, ``success.measure`` among them unless it is the episode length;
+                ``{}`` if nothing.
+        """
 
     def state_dict(self) -> dict[str, np.ndarray]:
-        """The per-copy state (``per_copy``) as arrays, for a training checkpoint."""
+        """The per-copy state (``per_copy``) as arrays, for a training checkpoint.
+
+        Returns:
+            Each of ``per_copy``'s names mapped to a copy of its array.
+        """
         return self.per_copy.state_dict()
 
     def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
-        """Restores what :meth:`state_dict` returned."""
+        """Restores what :meth:`state_dict` returned.
+
+        Args:
+            state: each of ``per_copy``'s names mapped to an array of the shape it has now.
+
+        Raises:
+            ConfigError: if ``state`` names other arrays than ``per_copy``'s, or one has another shape.
+        """
         self.per_copy.load_state_dict(state)
 
     def observation_range(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(low, high)``, each ``(len(observation_names),)``: the values each observation
-        entry can take, ``-inf`` / ``inf`` where nothing bounds it (this default: all).
+        """The values each observation entry can take.
+
         True bounds, which Gymnasium's observation space declares; ``tabular_bounds``
-        are only the ranges a tabular learner bins, and values leave them."""
+        are only the ranges a tabular learner bins, and values leave them.
+
+        Returns:
+            ``(low, high)``, each ``(len(observation_names),)``, ``-inf`` / ``inf`` where nothing bounds
+                the entry (this default: all).
+        """
         n = len(self.observation_names)
         return np.full(n, -np.inf), np.full(n, np.inf)
 
@@ -253,7 +391,15 @@ _TYPES = {"robot": Robot, "tabular_bounds": Bounds, "success": Success, "per_cop
 
 
 def check_task(task: Any) -> None:
-    """Raises ``TypeError`` naming what ``task`` lacks of the contract."""
+    """Raises ``TypeError`` naming what ``task`` lacks of the contract.
+
+    Args:
+        task: the object to check.
+
+    Raises:
+        TypeError: if ``task`` lacks a member of :data:`CONTRACT`, its ``robot``, ``tabular_bounds``,
+            ``success`` or ``per_copy`` is of another type, or it does not derive from :class:`Task`.
+    """
     missing = [m for m in CONTRACT if not hasattr(task, m)]
     wrong = [f"{m} is not a {t.__name__}" for m, t in _TYPES.items()
              if hasattr(task, m) and not isinstance(getattr(task, m), t)]
@@ -267,8 +413,19 @@ def check_task(task: Any) -> None:
 def setup(task: Task, robot: type, robot_name: str, success: Success,
           measures: Mapping[str, tuple[str, str]]) -> None:
     """What every task's ``__post_init__`` does first: checks its declared parameters and
-    that its robot fits; sets ``n_substeps`` and ``success`` (``task.win`` over ``success``,
-    ``measures`` naming each measure the task offers with its unit and description)."""
+    that its robot fits; sets ``n_substeps`` and ``success``.
+
+    Args:
+        task: the task being made.
+        robot: the robot class ``task.robot`` must be an instance of.
+        robot_name: that robot's name in the message (``task <name> needs robot=<robot_name>``).
+        success: the task's own rule for "solved", which ``task.win`` adjusts.
+        measures: each measure the task offers, mapped to its ``(unit, description)``.
+
+    Raises:
+        ConfigError: if a declared parameter is out of its range, ``task.robot`` is not a ``robot``, or
+            ``task.running_step``, ``task.physics_timestep`` or ``task.win`` is one it cannot honour.
+    """
     check_fields(task, "task")
     require(isinstance(task.robot, robot), f"task {task.name} needs robot={robot_name}",
             type(task.robot).__name__)
@@ -281,22 +438,62 @@ class common:
 
     @staticmethod
     def running_step(default: float) -> Any:
+        """Declares ``running_step``, the simulated time per step (> 0).
+
+        Args:
+            default: the task's default, s.
+
+        Returns:
+            The dataclass field.
+        """
         return param(default, "simulated time per step, s", gt=0)
 
     @staticmethod
     def physics_timestep(default: float) -> Any:
+        """Declares ``physics_timestep``, the physics step (> 0; ``running_step`` a whole multiple of it).
+
+        Args:
+            default: the task's default, s.
+
+        Returns:
+            The dataclass field.
+        """
         return param(default, "physics step, s (running_step must be a whole multiple)", gt=0)
 
     @staticmethod
     def max_episode_steps(default: int) -> Any:
+        """Declares ``max_episode_steps``, the time limit after which the episode is truncated.
+
+        Args:
+            default: the task's default, steps (1 to 10**7).
+
+        Returns:
+            The dataclass field.
+        """
         return param(default, "time limit, steps (the episode is truncated)", ge=1, le=10**7)
 
     @staticmethod
     def tabular_state(when_null: str) -> Any:
+        """Declares ``tabular_state``, the observation entries a tabular learner bins (default null).
+
+        Args:
+            when_null: what null means for the task, shown in the parameter's description.
+
+        Returns:
+            The dataclass field.
+        """
         return param(None, f"observation entries a tabular learner bins: name: [low, high] "
                            f"(null: {when_null})")
 
     @staticmethod
     def win(when_null: str) -> Any:
+        """Declares ``win``: the measure, threshold, judge, window and min_episodes of solved (default null).
+
+        Args:
+            when_null: what null means for the task, shown in the parameter's description.
+
+        Returns:
+            The dataclass field.
+        """
         return param(None, f"what solved means: measure, threshold, judge, window, min_episodes "
                            f"(null: {when_null})")

@@ -38,18 +38,55 @@ def _build(node: Mapping[str, Any], key: str, kind: type, **extra: Any) -> Any:
 
 
 def build_robot(cfg: DictConfig) -> Robot:
-    """The robot of a composed config (its ``robot`` node)."""
+    """The robot of a composed config.
+
+    Args:
+        cfg: a composed config (:mod:`tasks.catalog`); its ``robot`` node names the class in ``_target_``
+            and holds its parameters.
+
+    Returns:
+        A new robot.
+
+    Raises:
+        ConfigError: if ``robot._target_`` does not name a :class:`~robots.base.Robot` class, or a value
+            is one the robot cannot honour.
+    """
     return _build(cfg.robot, "robot", Robot)
 
 
 def build_task(cfg: DictConfig) -> Task:
-    """A fresh task, with its robot, from a composed config's ``robot`` and ``task`` nodes."""
+    """A fresh task, with its robot, from a composed config.
+
+    Args:
+        cfg: a composed config (:mod:`tasks.catalog`); its ``robot`` and ``task`` nodes name the classes
+            in ``_target_`` and hold their parameters.
+
+    Returns:
+        A new task, holding a new robot.
+
+    Raises:
+        ConfigError: if ``robot._target_`` or ``task._target_`` does not name a robot or task class, or a
+            value is one the robot or task cannot honour.
+    """
     return _build(cfg.task, "task", Task, robot=build_robot(cfg))
 
 
 def build_env(cfg: DictConfig, num_envs: int | None = None,
               seed: int | Sequence[int] | None = None) -> RobotTaskEnv:
-    """The batched env of a composed config (``num_envs`` and ``seed`` default to the
-    config's; a list of seeds makes seed blocks, see :class:`RobotTaskEnv`)."""
+    """The batched env of a composed config.
+
+    Args:
+        cfg: a composed config (:mod:`tasks.catalog`): its ``robot`` and ``task`` nodes, ``num_envs``
+            and ``seed``.
+        num_envs: the number of copies; None: ``cfg.num_envs``.
+        seed: the seed, or a list of seeds that makes seed blocks (see :class:`RobotTaskEnv`);
+            None: ``cfg.seed``.
+
+    Returns:
+        A new env, with a fresh task and robot.
+
+    Raises:
+        ConfigError: as :func:`build_task` does.
+    """
     return RobotTaskEnv(build_task(cfg), num_envs=int(cfg.num_envs if num_envs is None else num_envs),
                         seed=int(cfg.seed) if seed is None else seed)
