@@ -2,7 +2,8 @@
 one trial at a time (run by hand).
 
     python bench/tune_batch.py [--robot cartpole] [--learner dqn] [--trials 12] [--seeds 0 1]
-                               [--budget 5000] [--per-batch N] [--space <file>] [-- extra overrides]
+                               [--budget 5000] [--per-batch N ...] [--repeats R] [--space <file>]
+                               [-- extra overrides]
 
 Runs ``train.py -m hydra/sweeper=optuna`` twice on the same pair, side by side in this run:
 ``trials_per_batch=1`` (each trial's seeds one batch, as a study ran before trials batched)
@@ -15,6 +16,11 @@ each study's wall seconds (start to exit), best value, and the batched study's p
 floor (its copy-steps priced at this machine's rollout cost at its widths, as
 ``bench/seed_batch.py`` prices a seed batch).
 
+One study's best value is one draw of the sampler's luck: ``--repeats R`` runs every
+variant with the sampler seeds 0 .. R-1 (the same seeds for each) and ``--per-batch``
+takes several sizes (``--per-batch 12 4``: all at once, and in rounds of four); the last
+line then gives each variant's mean best and wall over the repeats.
+
 Last lines: ``TUNE <robot> <learner> trials=<n> per_batch=<k> seeds=<s> budget=<steps> sequential_s=<v>
 batched_s=<v> ratio=<batched/sequential> physics_floor_s=<v> floor_ratio=<batched/floor>
 sequential_best=<v> batched_best=<v>``.
@@ -24,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -42,7 +49,7 @@ SPACES = {  # member-wise settings (the learners' MEMBER_WISE)
 }
 
 
-def study(args, tag: str, per_batch: int, space: Path, out: Path) -> tuple[float, float]:
+def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: int = 0) -> tuple[float, float]:
     """One study: (wall seconds, best value)."""
     import optuna
 
@@ -51,7 +58,7 @@ def study(args, tag: str, per_batch: int, space: Path, out: Path) -> tuple[float
            f"hydra.sweeper.study={tag}", f"hydra.sweeper.storage={url}", f"hydra.sweeper.search={space}",
            f"hydra.sweeper.n_trials={args.trials}", f"hydra.sweeper.trials_per_batch={per_batch}",
            f"hydra.sweeper.seeds=[{','.join(map(str, args.seeds))}]", f"hydra.sweeper.budget_steps={args.budget}",
-           "hydra.sweeper.pruner=null", "hydra.sweeper.sampler_seed=0", "hydra.sweeper.start_from_current=false",
+           "hydra.sweeper.pruner=null", f"hydra.sweeper.sampler_seed={sampler_seed}", "hydra.sweeper.start_from_current=false",
            f"hydra.sweep.dir={out / tag}", *args.extra]
     seconds, _, _ = timed(cmd)
     best = optuna.load_study(study_name=tag, storage=url).best_value
@@ -65,7 +72,9 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=12)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--budget", type=int, default=5000)
-    parser.add_argument("--per-batch", type=int, help="trials asked together by the batched study (default: all)")
+    parser.add_argument("--per-batch", type=int, nargs="+",
+                        help="trials asked together by the batched study, one or more sizes (default: all)")
+    parser.add_argument("--repeats", type=int, default=1, help="sampler seeds 0 .. R-1, every variant each")
     parser.add_argument("--space", type=Path)
     parser.add_argument("extra", nargs="*", help="overrides for every job (after --)")
     args = parser.parse_args()
@@ -77,18 +86,25 @@ def main() -> None:
     if not args.space:
         space.write_text("".join(f"{k}: {v}\n" for k, v in SPACES[args.learner].items()))
     print(f"load average (1/5/15 min) at the start: {load()} on {os.cpu_count()} cores", flush=True)
-    sequential_s, sequential_best = study(args, "sequential", 1, space, out)
-    per_batch = args.per_batch or args.trials
-    batched_s, batched_best = study(args, "batched", per_batch, space, out)
+    sizes = args.per_batch or [args.trials]
+    found: dict[int, list[tuple[float, float]]] = {1: [], **{k: [] for k in sizes}}
+    for r in range(args.repeats):
+        for k in found:  # interleaved: each repeat runs every variant
+            found[k].append(study(args, f"batch{k}_seed{r}", k, space, out, sampler_seed=r))
+            print(f"repeat {r}: per_batch={k} wall_s={found[k][-1][0]:.1f} best={found[k][-1][1]:.4g}", flush=True)
     from tasks import catalog
     copies = int(catalog.compose(args.robot, learner=args.learner, overrides=list(args.extra)).num_envs)
-    floor_s = floor_of(args.robot, out / "batched", per_batch * len(args.seeds) * copies)
     print(f"load average (1/5/15 min) at the end: {load()}")
-    print(f"TUNE {args.robot} {args.learner} trials={args.trials} per_batch={per_batch} seeds={len(args.seeds)} "
-          f"budget={args.budget} "
-          f"sequential_s={sequential_s:.1f} batched_s={batched_s:.1f} ratio={batched_s / sequential_s:.2f} "
-          f"physics_floor_s={floor_s:.1f} floor_ratio={batched_s / floor_s:.2f} "
-          f"sequential_best={sequential_best:.4g} batched_best={batched_best:.4g}")
+    sequential_s, sequential_best = (statistics.fmean(v[i] for v in found[1]) for i in (0, 1))
+    for k in sizes:
+        batched_s, batched_best = (statistics.fmean(v[i] for v in found[k]) for i in (0, 1))
+        floor_s = floor_of(args.robot, out / f"batch{k}_seed0", k * len(args.seeds) * copies)
+        print(f"TUNE {args.robot} {args.learner} trials={args.trials} per_batch={k} seeds={len(args.seeds)} "
+              f"budget={args.budget} repeats={args.repeats} "
+              f"sequential_s={sequential_s:.1f} batched_s={batched_s:.1f} ratio={batched_s / sequential_s:.2f} "
+              f"physics_floor_s={floor_s:.1f} floor_ratio={batched_s / floor_s:.2f} "
+              f"sequential_best={sequential_best:.4g} batched_best={batched_best:.4g} "
+              f"(bests {', '.join(f'{v[1]:.3g}' for v in found[k])} against {', '.join(f'{v[1]:.3g}' for v in found[1])})")
 
 
 if __name__ == "__main__":
