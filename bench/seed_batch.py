@@ -11,33 +11,13 @@ episode budget would let the batch wait for its slowest seed), training past "so
 every seed spends the whole budget. Timed from outside, start to exit; the CPU time is
 the process's user + system seconds (its physics thread pool's included: on a shared
 machine the wall time also counts the other jobs' turns); the peak memory is the largest
-resident set of the process. The load average is printed at the start and the end.
+resident set of the process. The load average is printed at the start and the end. The
+physics floor (``physics_floor_s``) is the batch's copy-steps (training and greedy
+evaluations) priced at this machine's rollout cost a copy-step at the batch's widths: no
+batch can go below it here.
 
-Measured 2026-11-26 (2 cores shared with other engineers' jobs: load average 3.6-6.1
-during the runs; seeds 10, the default budgets: qlearn 150,000 and dqn 30,000 env steps a
-seed), one run each, interleaved per row with the same bench on the code before the
-stacked learners (commit 65a91b9, "before"):
-
-    learner copies  one_s  batch_s  ratio  cpu_ratio  | before: one_s  batch_s  ratio  cpu_ratio
-    qlearn  8        37.9    194.5   5.13   5.56      |         32.0    305.7   9.56   8.61
-    qlearn  1        83.9    282.2   3.36   3.47      |         85.3    863.3  10.12  10.20
-    dqn     16       10.9     69.3   6.37   6.43      |         10.6     85.0   8.04   8.13
-    dqn     1        20.5    115.7   5.63   5.74      |         20.3    195.4   9.61   9.50
-
-Peak memory of the batches 591-626 MB (one seed 471-479 MB). The targets (qlearn 2x, dqn
-3x) are not met: per seed the batch still pays its physics (80 or 160 copies cost ~5x 8
-or 16 on this machine), its greedy evaluations (every 100 episodes, 20 episodes each: a
-third of the dqn batch's time) and its checkpoints, and a per-episode DQN's update rounds
-(2.3 seeds a round at 16 copies). docs/comparing.md "Seeds in one process" has the profile.
-
-Then, with the physics floor (``physics_floor_s``: the batch's copy-steps, training and
-greedy evaluations, priced at this machine's rollout cost a copy-step at the batch's
-widths; below it no batch can go here) and the final evaluations of seeds ending at one
-step made together (2026-11-26, load average 3.1 at the start, 6.7 at the end):
-
-    learner copies  one_s  batch_s  ratio  cpu_ratio  physics_floor_s  floor_ratio  peak_rss_mb
-    qlearn  8        56.7    328.6   5.79   5.61       125.7            2.22         621
-    dqn     16       25.1    190.2   7.57   6.63        50.0            1.99         641
+Its measurements (with their date and machine) are on the docs' performance page
+(docs/performance.md, "Seeds in one process").
 
 Last lines, per learner and copies: ``BATCH <learner> num_envs=<n> seeds=<N> one_s=<v>
 batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)> physics_floor_s=<v>

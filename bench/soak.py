@@ -13,12 +13,8 @@ run (after warm-up) and the last one (slow: Python allocations are traced). ``--
 returns the C heap's free memory to the system (glibc's ``malloc_trim``) before each
 sample: growth that remains is memory in use, not the allocator holding on to freed pages.
 
-Goal: flat after warm-up, under 10 MB per 100,000 episodes. Measured on a shared 2-core
-machine (defaults, 8,000 episodes, least squares past the first third): before issue 28
-(TorchRL's CSV logger kept every scalar, Python lists per episode) 1559 KB per 1,000
-episodes; after, 331 KB per 1,000 resident (steps of ~0.5 MB: pages glibc keeps), and with
-``--trim`` 37 KB per 1,000 (3.7 MB per 100,000: memory in use, 16 KB of it the packed
-per-episode numbers). The last line is machine-readable::
+Goal: flat after warm-up, under 10 MB per 100,000 episodes; the measurements are on the docs'
+performance page (docs/performance.md). The last line is machine-readable::
 
     SOAK episodes=<n> rss_mb_start=<MB at the first sample> rss_mb_end=<MB> kb_per_1000=<growth
     per 1,000 episodes after warm-up (least squares over the samples past the first third)>
