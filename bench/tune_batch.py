@@ -21,6 +21,10 @@ variant with the sampler seeds 0 .. R-1 (the same seeds for each) and ``--per-ba
 takes several sizes (``--per-batch 12 4``: all at once, and in rounds of four); the last
 line then gives each variant's mean best and wall over the repeats.
 
+``--pruners null median successive_halving hyperband``: instead, the batched study with
+each pruner (rungs as the grid's studies: from a ninth of the budget), over the repeats:
+each one's mean best value and the env steps its jobs took (a pruner's saving).
+
 Last lines: ``TUNE <robot> <learner> trials=<n> per_batch=<k> seeds=<s> budget=<steps> sequential_s=<v>
 batched_s=<v> ratio=<batched/sequential> physics_floor_s=<v> floor_ratio=<batched/floor>
 sequential_best=<v> batched_best=<v>``.
@@ -49,20 +53,29 @@ SPACES = {  # member-wise settings (the learners' MEMBER_WISE)
 }
 
 
-def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: int = 0) -> tuple[float, float]:
-    """One study: (wall seconds, best value)."""
+def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: int = 0,
+          pruner: str = "null") -> tuple[float, float, int]:
+    """One study: (wall seconds, best value, env steps its jobs took)."""
+    import json
+
     import optuna
+
+    rung = max(args.budget // 9, 1)  # as the grid's studies (bench/tune_grid.py)
+    pruning = [f"hydra.sweeper.pruner={pruner}", f"hydra.sweeper.report_every={max(rung // 3, 1)}",
+               *([f"hydra.sweeper.pruners.{pruner}.min_resource={rung}"]
+                 if pruner in ("successive_halving", "hyperband") else [])]
 
     url = f"sqlite:///{out / 'studies.db'}"
     cmd = [sys.executable, "train.py", "-m", "hydra/sweeper=optuna", f"robot={args.robot}", f"learner={args.learner}",
            f"hydra.sweeper.study={tag}", f"hydra.sweeper.storage={url}", f"hydra.sweeper.search={space}",
            f"hydra.sweeper.n_trials={args.trials}", f"hydra.sweeper.trials_per_batch={per_batch}",
            f"hydra.sweeper.seeds=[{','.join(map(str, args.seeds))}]", f"hydra.sweeper.budget_steps={args.budget}",
-           "hydra.sweeper.pruner=null", f"hydra.sweeper.sampler_seed={sampler_seed}", "hydra.sweeper.start_from_current=false",
+           *pruning, f"hydra.sweeper.sampler_seed={sampler_seed}", "hydra.sweeper.start_from_current=false",
            f"hydra.sweep.dir={out / tag}", *args.extra]
     seconds, _, _ = timed(cmd)
     best = optuna.load_study(study_name=tag, storage=url).best_value
-    return seconds, best
+    steps = sum(json.loads(f.read_text()).get("env_steps", 0) for f in (out / tag).glob("*/summary.json"))
+    return seconds, best, steps
 
 
 def main() -> None:
@@ -75,6 +88,8 @@ def main() -> None:
     parser.add_argument("--per-batch", type=int, nargs="+",
                         help="trials asked together by the batched study, one or more sizes (default: all)")
     parser.add_argument("--repeats", type=int, default=1, help="sampler seeds 0 .. R-1, every variant each")
+    parser.add_argument("--pruners", nargs="+", help="instead: the batched study with each pruner (null, median, "
+                        "successive_halving, hyperband): best value and env steps spent")
     parser.add_argument("--space", type=Path)
     parser.add_argument("extra", nargs="*", help="overrides for every job (after --)")
     args = parser.parse_args()
@@ -86,11 +101,13 @@ def main() -> None:
     if not args.space:
         space.write_text("".join(f"{k}: {v}\n" for k, v in SPACES[args.learner].items()))
     print(f"load average (1/5/15 min) at the start: {load()} on {os.cpu_count()} cores", flush=True)
+    if args.pruners:
+        return compare_pruners(args, space, out)
     sizes = args.per_batch or [args.trials]
     found: dict[int, list[tuple[float, float]]] = {1: [], **{k: [] for k in sizes}}
     for r in range(args.repeats):
         for k in found:  # interleaved: each repeat runs every variant
-            found[k].append(study(args, f"batch{k}_seed{r}", k, space, out, sampler_seed=r))
+            found[k].append(study(args, f"batch{k}_seed{r}", k, space, out, sampler_seed=r)[:2])
             print(f"repeat {r}: per_batch={k} wall_s={found[k][-1][0]:.1f} best={found[k][-1][1]:.4g}", flush=True)
     from tasks import catalog
     copies = int(catalog.compose(args.robot, learner=args.learner, overrides=list(args.extra)).num_envs)
@@ -105,6 +122,22 @@ def main() -> None:
               f"physics_floor_s={floor_s:.1f} floor_ratio={batched_s / floor_s:.2f} "
               f"sequential_best={sequential_best:.4g} batched_best={batched_best:.4g} "
               f"(bests {', '.join(f'{v[1]:.3g}' for v in found[k])} against {', '.join(f'{v[1]:.3g}' for v in found[1])})")
+
+
+def compare_pruners(args, space: Path, out: Path) -> None:
+    """Each pruner's batched study over the repeats: mean best value, env steps, wall."""
+    found: dict[str, list[tuple[float, float, int]]] = {k: [] for k in args.pruners}
+    for r in range(args.repeats):
+        for pruner in args.pruners:
+            found[pruner].append(study(args, f"{pruner}_seed{r}", args.trials, space, out, r, pruner))
+            s, best, steps = found[pruner][-1]
+            print(f"repeat {r}: pruner={pruner} wall_s={s:.1f} best={best:.4g} env_steps={steps}", flush=True)
+    print(f"load average (1/5/15 min) at the end: {load()}")
+    for pruner, rows in found.items():
+        wall, best, steps = (statistics.fmean(v[i] for v in rows) for i in range(3))
+        print(f"PRUNE {args.robot} {args.learner} pruner={pruner} trials={args.trials} seeds={len(args.seeds)} "
+              f"budget={args.budget} repeats={args.repeats} best={best:.4g} env_steps={steps:.0f} wall_s={wall:.1f} "
+              f"(bests {', '.join(f'{v[1]:.3g}' for v in rows)})")
 
 
 if __name__ == "__main__":
