@@ -379,8 +379,9 @@ def declaration_record(cls: type) -> dict:
 def declared(path: str) -> tuple[Spec, ...] | None:
     """The declared parameters of the class named ``path``, from ``params/declared.json``
     without importing it; None where it is not there, or where a file it was read from has
-    changed since (then the class itself is the one to ask). A parameter's own ``check`` (a
-    device that must exist) is left to the class, which runs it when built."""
+    changed since (then the class itself is the one to ask). A parameter with its own
+    ``check`` (a device that must exist) has it run by the class, imported then, for any
+    value but its default."""
     global _DECLARED
     if _DECLARED is None:
         try:
@@ -402,6 +403,21 @@ def declared(path: str) -> tuple[Spec, ...] | None:
         if "choices" in rng:
             rng["choices"] = tuple(rng["choices"])
         default = REQUIRED if p["required"] else p["default"]
+        extra = _owners_check(path, p["name"], default) if p.get("has_check") else None
         out.append(Spec(p["name"], eval(p["hint"], {"__builtins__": {}}, _HINT_NAMES), default,  # noqa: S307
-                        p["doc"], Range(**rng), p["note"]))
+                        p["doc"], Range(**rng), p["note"], extra))
     return tuple(out)
+
+
+def _owners_check(path: str, name: str, default: Any) -> typing.Callable[[Any], None]:
+    """Parameter ``name``'s own ``check``, run by the class ``path`` (imported for it) on any
+    value but the default (which the class holds valid)."""
+    def check(value: Any) -> None:
+        if value == default:
+            return
+        from params import locate
+
+        for spec in specs(locate(path)):
+            if spec.name == name and spec.extra is not None:
+                spec.extra(value)
+    return check
