@@ -346,10 +346,21 @@ class TuningSweep:
         began = ran_text if ran_file is not None and ran_file.resolve() == base_file.resolve() else None
         kept = kept and bool(began or base_file.is_file())  # without a file, the best trial's values are written
         study.set_user_attr("tuned_kept", kept)
+        why = None
         if kept:
             why = (f"the best trial is the current configuration (trial {best.number})" if own else
                    f"the current configuration ({plan.objective} {current:.4g} on the same seeds and budget) is at "
                    "least as good as the best trial")
+        self._write_tuned(base_file, text, header, why, began, sweep_dir,
+                          f"robot={robot}{f' task={plan.task}' if per_task else ''} learner={learner}")
+
+    def _write_tuned(self, base_file: Path, text: str, header: list[str], why: str | None, began: str | None,
+                     sweep_dir: Path, picks: str) -> None:
+        """The pair's tuned file: kept (``why`` says why; with ``write_tuned`` the study's header
+        put on the file as the study ``began`` with it), replaced by ``text`` (``write_tuned``),
+        or left for the user to copy."""
+        out = sweep_dir / f"tuned_{base_file.name}"
+        if why is not None:
             print(f"{why}: {base_file.name} stays as it is")
             if self.write_tuned:
                 mine = [f"{KEPT} ({now_utc()}): study {self.study_name} in {shown_url(self.storage_url)}: {why}",
@@ -358,8 +369,7 @@ class TuningSweep:
                 print(f"{base_file}: the study's header added, its settings and notes as the study began with them")
         elif self.write_tuned:
             print(replace_tuned(base_file, text, sweep_dir))
-            print(f"the next `python train.py robot={robot}{f' task={plan.task}' if per_task else ''} "
-                  f"learner={learner}` uses it")
+            print(f"the next `python train.py {picks}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
 

@@ -15,8 +15,10 @@ from tasks.factory import build_env
 
 def test_the_head_is_value_plus_advantage_less_its_mean():
     x = torch.tensor([[2.0, 1.0, 3.0, 5.0]])  # V = 2, A = (1, 3, 5), mean 3
-    assert dueling(x).tolist() == [[0.0, 2.0, 4.0]]
+    assert torch.allclose(dueling(x), torch.tensor([[0.0, 2.0, 4.0]]), atol=1e-6)  # one product: rounding
     assert torch.equal(DuelingHead()(x), dueling(x))
+    per_atom = torch.tensor([[2.0, 1.0, 3.0, 5.0, -1.0, 0.0, 0.0, 3.0]])  # two atoms, each its own V and A
+    assert torch.allclose(dueling(per_atom, atoms=2), torch.tensor([[0.0, 2.0, 4.0, -2.0, -2.0, 1.0]]), atol=1e-6)
     assert dueling(x).argmax(-1).item() == 2  # the advantage's argmax, whatever V
 
 

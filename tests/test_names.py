@@ -125,22 +125,8 @@ def test_a_checkpoint_saved_before_the_returns_were_kept_reads_them_from_metrics
 
 
 # -- the Optuna objective -------------------------------------------------------------------
-def objective(task_overrides: list[str]) -> str:
-    from tasks.catalog import compose
-    from sweeps.optuna_sweep import _check_builds, _objective
-
-    cfg = compose(overrides=task_overrides)
-    return _objective(cfg, _check_builds(cfg))
-
-
-def test_the_tuning_objective_is_the_headline_by_its_name():
-    assert objective(["robot=cube"]) == "greedy_distance_walked"
-    assert objective(["robot=turtlebot"]) == "greedy_laps"
-    assert objective(["robot=cartpole"]) == "train_length_last100"
-    # no evaluation at the end: a greedily judged task is valued by its training episodes
-    assert objective(["robot=cube", "eval_episodes=0"]) == "train_distance_walked_last100"
-
-
+# Its value per job is runs.summary.success_and_speed (tests/test_tune.py); its name is the
+# study's metric name, and a study of another is refused.
 def test_the_study_is_named_for_its_objective_and_refuses_another(tmp_path):
     from sweeps.optuna_sweep import TuningSweep
     from sweeps.tuning import Plan
