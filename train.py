@@ -44,7 +44,7 @@ from params import CheckpointError, ConfigError, did_you_mean
 from runs.console import tee_console, tuned_changes
 from tasks.catalog import (GROUPS, compose, locate_model, names, run_choices, unreadable_conf_file, use_config_dirs,
                           with_tuned_layers)
-from runs.folder import (MadeFolders, check_new_run, check_output_folder, eval_config, is_run_folder,
+from runs.folder import (MadeFolders, check_new_run, check_output_folder, eval_config, is_run_folder, is_sweep_folder,
                          resumed_config, run_folder_of, taken, with_run_choices, write_hydra_record)
 from runs.settings import check_no_empty_mappings, check_run_config, moved, moved_to
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
@@ -53,13 +53,6 @@ from sweeps.tuning import trial_link
 
 if TYPE_CHECKING:
     from runs.lifecycle import Job
-
-
-def is_sweep_folder(path) -> bool:
-    """:func:`sweeps.resume.is_sweep_folder`, imported only when a path is given."""
-    from sweeps.resume import is_sweep_folder as is_sweep
-
-    return is_sweep(path)
 
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);

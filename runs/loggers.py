@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
+from runs.folder import is_sweep_folder
 from runs.metrics_files import Episode
 from runs.metrics_files import rolling_field
 from runs.summary import measure_keys
@@ -53,7 +54,7 @@ RUN_COUNTS = ("env_steps", "episodes", "wall_s", "divergences", "solved")
 def sweep_of(run_dir: Path) -> Path | None:
     """The sweep folder ``run_dir`` is a job of (Hydra's ``multirun.yaml`` beside it), or None."""
     parent = Path(run_dir).resolve().parent
-    return parent if (parent / "multirun.yaml").is_file() else None
+    return parent if is_sweep_folder(parent) else None
 
 
 def make_logger(kind: str | None, run_dir: Path, exp_name: str, offline: bool = True,

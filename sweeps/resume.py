@@ -30,11 +30,6 @@ from sweeps.folder import job_folders, overrides_dict, sweep_jobs
 from sweeps.state import report_stopped_sweep
 
 
-def is_sweep_folder(path) -> bool:
-    """Whether ``path`` is a Hydra multirun sweep folder (Hydra's ``multirun.yaml`` in it)."""
-    return bool(path) and (Path(str(path)) / "multirun.yaml").is_file()
-
-
 def never_started(folder: Path) -> list[str]:
     """The command that runs each job of the sweep in ``folder`` that never started, into
     the folder its sweep would have given it."""
