@@ -60,17 +60,14 @@ def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: 
 
     import optuna
 
-    rung = max(args.budget // 9, 1)  # as the grid's studies (bench/tune_grid.py)
-    pruning = [f"hydra.sweeper.pruner={pruner}", f"hydra.sweeper.report_every={max(rung // 3, 1)}",
-               *([f"hydra.sweeper.pruners.{pruner}.min_resource={rung}"]
-                 if pruner in ("successive_halving", "hyperband") else [])]
+    from tune_grid import pruning  # the grid's studies' rungs
 
     url = f"sqlite:///{out / 'studies.db'}"
     cmd = [sys.executable, "train.py", "-m", "hydra/sweeper=optuna", f"robot={args.robot}", f"learner={args.learner}",
            f"hydra.sweeper.study={tag}", f"hydra.sweeper.storage={url}", f"hydra.sweeper.search={space}",
            f"hydra.sweeper.n_trials={args.trials}", f"hydra.sweeper.trials_per_batch={per_batch}",
            f"hydra.sweeper.seeds=[{','.join(map(str, args.seeds))}]", f"hydra.sweeper.budget_steps={args.budget}",
-           *pruning, f"hydra.sweeper.sampler_seed={sampler_seed}", "hydra.sweeper.start_from_current=false",
+           *pruning(pruner, args.budget), f"hydra.sweeper.sampler_seed={sampler_seed}", "hydra.sweeper.start_from_current=false",
            f"hydra.sweep.dir={out / tag}", *args.extra]
     seconds, _, _ = timed(cmd)
     best = optuna.load_study(study_name=tag, storage=url).best_value

@@ -30,25 +30,24 @@ ROOT = Path(__file__).resolve().parents[1]
 STUDIES = Path("bench") / "studies"  # from ROOT (the URL in each tuned file's header names no machine)
 
 
-def study_counts(name: str, path: Path) -> tuple[int, int, bool]:
+def study_counts(name: str, path: Path) -> tuple[int, int]:
     """(trials the study holds that count: finished, pruned, failed but not asked again;
-    trials running; whether it kept the hand-picked file, which beat its best) of study
-    ``name`` in the journal file ``path`` ((0, 0, False) if none)."""
+    trials running) of study ``name`` in the journal file ``path`` ((0, 0) if none)."""
     import optuna
 
     if not (ROOT / path).is_file():
-        return 0, 0, False
+        return 0, 0
     from sweeps.tuning import open_storage
 
     try:
         study = optuna.load_study(study_name=name, storage=open_storage(f"journal://{ROOT / path}"))
     except KeyError:
-        return 0, 0, False
+        return 0, 0
     state = optuna.trial.TrialState
     retried = {t.user_attrs.get("retry_of") for t in study.trials}
     counted = [t for t in study.trials if t.state in (state.COMPLETE, state.PRUNED)
                or (t.state == state.FAIL and t.number not in retried)]
-    return len(counted), sum(t.state == state.RUNNING for t in study.trials), bool(study.user_attrs.get("tuned_kept"))
+    return len(counted), sum(t.state == state.RUNNING for t in study.trials)
 
 
 def written(spec: dict, learner: str, task: str) -> bool:
@@ -62,20 +61,27 @@ def written(spec: dict, learner: str, task: str) -> bool:
     return path.is_file() and f"study bench-{task}-{learner} in" in path.read_text()
 
 
+def pruning(pruner: str, budget: int, first_rung: int = 9) -> list[str]:
+    """The sweeper's pruning overrides for trials of ``budget`` env steps: ``pruner``, its
+    first rung at ``budget / first_rung`` (successive halving and Hyperband), and reports
+    three times a rung."""
+    rung = max(budget // first_rung, 1)
+    return [f"hydra.sweeper.report_every={max(rung // 3, 1)}", f"hydra.sweeper.pruner={pruner}",
+            *([f"hydra.sweeper.pruners.{pruner}.min_resource={rung}"]
+              if pruner in ("successive_halving", "hyperband") else [])]
+
+
 def command(task: str, spec: dict, learner: str, tuning: dict, missing: int) -> list[str]:
     """The tuning sweep of one pair: ``missing`` more trials of its study."""
     budget = int(spec["budget_steps"])
-    rung = max(budget // int(tuning.get("first_rung", 9)), 1)
     name = f"{task}_{learner}"
     return [sys.executable, "train.py", "-m", "hydra/sweeper=optuna", f"robot={spec['robot']}", f"task={spec['task']}",
             f"learner={learner}", f"hydra.sweeper.study=bench-{task}-{learner}",
             f"hydra.sweeper.storage=journal://{STUDIES / f'{name}.log'}",
             f"hydra.sweeper.n_trials={missing}", f"hydra.sweeper.trials_per_batch={int(tuning['trials'])}",
             f"hydra.sweeper.seeds=[{','.join(str(s) for s in tuning['seeds'])}]",
-            f"hydra.sweeper.budget_steps={budget}", f"hydra.sweeper.report_every={max(rung // 3, 1)}",
-            f"hydra.sweeper.pruner={tuning['pruner']}",
-            *([f"hydra.sweeper.pruners.{tuning['pruner']}.min_resource={rung}"]
-              if tuning["pruner"] in ("successive_halving", "hyperband") else []),
+            f"hydra.sweeper.budget_steps={budget}",
+            *pruning(tuning["pruner"], budget, int(tuning.get("first_rung", 9))),
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(tuning.get('write_tuned', True)).lower()}",
             f"hydra.sweep.dir=tuning/bench/{name}/{time.strftime('%Y%m%d-%H%M%S')}"]
 
@@ -97,7 +103,7 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                 print(f"{name}: a variant of {variant['learner']} (overrides {variant['overrides']}): runs "
                       f"{variant['learner']}'s tuned file with them, not tuned")
                 continue
-            counted, running, _ = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
+            counted, running = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
             missing = int(tuning["trials"]) - counted - running
             if missing <= 0 and not running and (written(spec, learner, task) or not tuning.get("write_tuned", True)):
                 print(f"{name}: study complete ({counted} trials)")

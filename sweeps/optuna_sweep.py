@@ -351,15 +351,15 @@ class TuningSweep:
             why = (f"the best trial is the current configuration (trial {best.number})" if own else
                    f"the current configuration ({plan.objective} {current:.4g} on the same seeds and budget) is at "
                    "least as good as the best trial")
-        self._write_tuned(base_file, text, header, why, began, sweep_dir,
+        self._write_tuned(base_file, out, text, header, why, began,
                           f"robot={robot}{f' task={plan.task}' if per_task else ''} learner={learner}")
 
-    def _write_tuned(self, base_file: Path, text: str, header: list[str], why: str | None, began: str | None,
-                     sweep_dir: Path, picks: str) -> None:
+    def _write_tuned(self, base_file: Path, out: Path, text: str, header: list[str], why: str | None,
+                     began: str | None, picks: str) -> None:
         """The pair's tuned file: kept (``why`` says why; with ``write_tuned`` the study's header
-        put on the file as the study ``began`` with it), replaced by ``text`` (``write_tuned``),
-        or left for the user to copy."""
-        out = sweep_dir / f"tuned_{base_file.name}"
+        put on the file as the study ``began`` with it), replaced by ``text`` (written to ``out``
+        in the sweep folder; with ``write_tuned`` to the pair's file too), or left for the user
+        to copy."""
         if why is not None:
             print(f"{why}: {base_file.name} stays as it is")
             if self.write_tuned:
@@ -368,7 +368,7 @@ class TuningSweep:
                 base_file.write_text(kept_text(began or base_file.read_text(), mine))
                 print(f"{base_file}: the study's header added, its settings and notes as the study began with them")
         elif self.write_tuned:
-            print(replace_tuned(base_file, text, sweep_dir))
+            print(replace_tuned(base_file, text, out.parent))
             print(f"the next `python train.py {picks}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")

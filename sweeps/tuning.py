@@ -502,8 +502,8 @@ class TrialLink:
             if not frozen.user_attrs.get("seeds") or not math.isfinite(value):
                 return
             self._storage.set_trial_user_attr(self._trial_id, f"solved_seed{self.seed}", [int(step), float(value)])
-            later = sorted({int(k[4:].split("_")[0]) for k in frozen.user_attrs
-                            if re.fullmatch(r"step\d+_seed\d+", k) and int(k[4:].split("_")[0]) > step})
+            reported = (re.fullmatch(r"step(\d+)_seed\d+", k) for k in frozen.user_attrs)
+            later = sorted({int(m.group(1)) for m in reported if m and int(m.group(1)) > step})
             self._complete_steps(frozen, {f"solved_seed{self.seed}": [int(step), float(value)]}, later)
         except Exception as err:  # noqa: BLE001 - as __call__: the run's result does not depend on it
             print(f"warning: trial {self.number}: cannot reach the study ({type(err).__name__})")
@@ -532,7 +532,8 @@ def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header
     return "\n".join(lines) + "\n" + OmegaConf.to_yaml(conf)
 
 
-KEPT = "Kept by Optuna"  # the first header line of a file a study kept
+KEPT = "Kept by Optuna"  # the first header line of a file a study kept ...
+KEPT_END = "end of the study's header; the file's own notes follow"  # ... and its last
 
 
 def kept_text(text: str, header: list[str]) -> str:
@@ -543,9 +544,9 @@ def kept_text(text: str, header: list[str]) -> str:
     head = lines[:1] if lines and lines[0].startswith("# @package") else []
     rest = lines[len(head):]
     if rest and rest[0].startswith(f"# {KEPT}"):  # an earlier study's header: replaced
-        end = next((i for i, line in enumerate(rest) if line.startswith("# end of the study's header")), 0)
+        end = next((i for i, line in enumerate(rest) if line == f"# {KEPT_END}"), 0)
         rest = rest[end + 1:]
-    ours = [f"# {line}".rstrip() for line in header] + ["# end of the study's header; the file's own notes follow"]
+    ours = [f"# {line}".rstrip() for line in [*header, KEPT_END]]
     return "\n".join([*head, *ours, *rest]) + "\n"
 
 
