@@ -44,8 +44,9 @@ from params import CheckpointError, ConfigError, did_you_mean
 from runs.console import tee_console, tuned_changes
 from tasks.catalog import (GROUPS, compose, locate_model, names, run_choices, unreadable_conf_file, use_config_dirs,
                           with_tuned_layers)
-from runs.folder import (MadeFolders, check_new_run, check_output_folder, eval_config, is_run_folder, is_sweep_folder,
-                         resumed_config, run_folder_of, taken, with_run_choices, write_hydra_record)
+from runs.folder import (MadeFolders, check_new_run, check_output_folder, eval_config, resumed_config, run_folder_of,
+                         taken, with_run_choices, write_hydra_record)
+from runs.layout import is_run_folder, is_sweep_folder
 from runs.settings import check_no_empty_mappings, check_run_config, moved, moved_to
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
                           sibling_should_exit, stop_sweep, sweep_dir, sweep_stopped)

@@ -53,17 +53,6 @@ def check_output_folder(key: str, path: str) -> None:
                           "this project")
 
 
-def is_run_folder(path) -> bool:
-    """Whether ``path`` holds a run of this project (its ``run.json`` and ``config.yaml``)."""
-    return bool(path) and all((Path(str(path)) / name).is_file() for name in ("run.json", "config.yaml"))
-
-
-def is_sweep_folder(path) -> bool:
-    """Whether ``path`` is a Hydra multirun sweep folder (Hydra's ``multirun.yaml`` in it): a
-    run folder's parent when the run is a sweep's job."""
-    return bool(path) and (Path(str(path)) / "multirun.yaml").is_file()
-
-
 def is_finished(run_dir: Path) -> bool:
     """Whether the run in ``run_dir`` ended (its summary.json, written last, does not say
     ``interrupted``); a missing or unreadable summary.json is a run still to finish."""

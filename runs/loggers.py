@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from runs.folder import is_sweep_folder
+from runs.layout import is_sweep_folder
 from runs.metrics_files import Episode
 from runs.metrics_files import rolling_field
 from runs.summary import measure_keys

@@ -22,7 +22,8 @@ from omegaconf import DictConfig, OmegaConf
 from params import ConfigError
 from runs.lifecycle import Job, run_jobs, same_batch
 from runs.checkpoint import CheckpointError
-from runs.folder import is_finished, is_run_folder, resumed_config
+from runs.folder import is_finished, resumed_config
+from runs.layout import is_run_folder
 from runs.training_state import read_run_json
 from runs.settings import check_run_config
 from sweeps.comparison import NotASweep, report

@@ -1,0 +1,18 @@
+"""What kind of folder a path is, told by the files in it: a run of this project or a
+Hydra multirun sweep. Imports nothing of the project, so the loggers and the folder
+code can both ask."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def is_run_folder(path) -> bool:
+    """Whether ``path`` holds a run of this project (its ``run.json`` and ``config.yaml``)."""
+    return bool(path) and all((Path(str(path)) / name).is_file() for name in ("run.json", "config.yaml"))
+
+
+def is_sweep_folder(path) -> bool:
+    """Whether ``path`` is a Hydra multirun sweep folder (Hydra's ``multirun.yaml`` in it): a
+    run folder's parent when the run is a sweep's job."""
+    return bool(path) and (Path(str(path)) / "multirun.yaml").is_file()
