@@ -336,6 +336,12 @@ class TuningSweep:
                           "(where there is one), which the trials ran with too")
         if base_values:
             header.append(f"settings not searched are {ran_with}.yaml's, which the trials ran with")
+        began_with = current if current is not None else next(  # the settings the file held: their value
+            (t.value for t in study.trials if plan.current is not None and t.params == plan.current
+             and t.value is not None and t.state == state.COMPLETE), None)
+        if began_with is not None and not kept:
+            header.append(f"replacing the settings the study began with: {plan.objective} {began_with:.4g} on the "
+                          "same seeds and budget")
         text = tuned_text(values, base_values, header)
         out = sweep_dir / f"tuned_{name}"
         out.write_text(text)

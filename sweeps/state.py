@@ -66,6 +66,9 @@ def compare_sweep(folder: Path | None, stopped: str | None = None) -> None:
         return
     SWEEP["compared"] = True
     print(flush=True)
+    if folder.is_dir() and not job_folders(folder):
+        print("no job of this sweep ran: nothing to compare", flush=True)  # (a study's sweep of no new trials)
+        return
     try:
         rows = report(folder, stopped)
         SWEEP["jobs"] = sum(int(r["seeds"]) for r in rows)

@@ -195,6 +195,9 @@ def test_a_current_configuration_outside_the_space_is_scored_and_kept_unless_bea
     current, best = study.user_attrs["current_value"], study.best_value
     assert study.user_attrs["tuned_kept"] == (current >= best)
     assert ("stays as it is" in proc.stdout) == (current >= best)
+    written = (tmp_path / "sweep" / "tuned_cartpole_qlearn.yaml").read_text()  # a replacement says what it beat
+    replacing = f"# replacing the settings the study began with: success_and_speed {current:.4g} on the same seeds"
+    assert (replacing in written) == (current < best), written
     again = tuning(tmp_path, "s", "again")  # scored once per study
     assert again.returncode == 0 and "current configuration (outside" not in again.stdout
 
