@@ -37,6 +37,8 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from tqdm import tqdm
 
+from runs.layout import is_sweep_folder
+
 ROOT = Path(__file__).resolve().parents[1]
 PLAN = Path(__file__).with_name("benchmark.yaml")
 BEGIN, END = "<!-- benchmark:begin -->", "<!-- benchmark:end -->"
@@ -209,14 +211,18 @@ def run_job(job: Job, out: Path, bar: tqdm, solo: bool = False) -> dict:
     command, exit code and wall seconds go to ``<learner>_<setting>.json`` beside it, its
     console to ``<learner>_<setting>.log``. The bar moves as each seed writes its verdict.
     ``solo``: also times the first seed trained alone (``solo_wall_s``), to say what
-    training the seeds in one process saved."""
+    training the seeds in one process saved. A pair stopped part way (its sweep folder
+    there, no record) continues its seeds from their checkpoints (``train.py
+    resume=<sweep>``; ``resumed`` in the record: its wall seconds count from there)."""
     sweep = out / job.folder
     sweep.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
-           f"seed={','.join(map(str, job.seeds))}", *overrides(job)]
+    resumed = is_sweep_folder(sweep)
+    cmd = ([sys.executable, "train.py", f"resume={sweep}"] if resumed else
+           [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
+            f"seed={','.join(map(str, job.seeds))}", *overrides(job)])
     done = 0
     t0 = time.perf_counter()
-    with open(sweep.with_suffix(".log"), "w") as log:
+    with open(sweep.with_suffix(".log"), "a" if resumed else "w") as log:
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
         while proc.poll() is None:
             time.sleep(1.0)
@@ -227,7 +233,7 @@ def run_job(job: Job, out: Path, bar: tqdm, solo: bool = False) -> dict:
     bar.update(len(job.seeds) - done)
     lines = sweep.with_suffix(".log").read_text(errors="replace").strip().splitlines()
     record = {"command": cmd, "returncode": proc.returncode, "wall_s": time.perf_counter() - t0,
-              "last_line": lines[-1] if lines else ""}
+              "last_line": lines[-1] if lines else "", **({"resumed": True} if resumed else {})}
     if solo:
         t0 = time.perf_counter()
         alone = subprocess.run([sys.executable, "train.py", "quiet=true", f"hydra.run.dir={sweep}_solo",
@@ -515,7 +521,8 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         if args.tune:
             sys.exit("stopped; run the same command again: each study takes over the trials it left running")
-        sys.exit(f"stopped; finished pairs are kept: run the same command with --out {args.out} to go on")
+        sys.exit(f"stopped; run the same command with --out {args.out} to go on (finished pairs are kept, a "
+                 "stopped one continues from its checkpoints)")
 
 
 if __name__ == "__main__":

@@ -162,3 +162,29 @@ def test_a_tuned_budget_is_its_benchmark_tasks_budget():
                 assert steps == budget, f"{robot}/{task}/{learner}: max_env_steps {steps}, benchmark {budget}"
                 checked += 1
     assert checked >= 3  # cube qlearn, cube dqn, wall dqn
+
+
+def test_a_pair_stopped_part_way_continues_from_its_checkpoints(tmp_path):
+    """A benchmark killed while a pair trains (its seeds' checkpoints on disk, no record of
+    the pair): the same command resumes those seeds (``train.py resume=<the pair's sweep>``)
+    instead of refusing their folders, and tabulates them."""
+    out = tmp_path / "results"
+    args = ["--quick", "--learners", "qlearn", "--seeds", "2", "--budget", "1600", "--out", str(out),
+            "--no-readme", "--", "task.max_episode_steps=100", "eval_episodes=2", "checkpoint_every=5"]
+    job = benchmark.plan_jobs(benchmark.parse_args(args), benchmark.load_plan(True))[0]
+    sweep = out / job.folder
+    killed = subprocess.run(
+        [sys.executable, "tests/kill_at.py", "checkpoint:3", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
+         f"seed={','.join(map(str, job.seeds))}", *benchmark.overrides(job)],
+        cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert killed.returncode == -9, killed.stderr[-2000:]
+    assert not any(sweep.glob("*/summary.json")) and any(sweep.glob("*/checkpoint.pt"))
+    proc = subprocess.run([sys.executable, "-m", "bench.benchmark", *args], cwd=ROOT, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "resuming" in sweep.with_suffix(".log").read_text()
+    assert benchmark.job_record(job, out)["resumed"] is True
+    with open(out / "seeds.csv") as f:
+        seeds = list(csv.DictReader(f))
+    assert [(r["seed"], r["status"]) for r in seeds] == [("1000", "ok"), ("1001", "ok")]
+    assert all(int(r["env_steps"]) >= 1600 for r in seeds)  # the budget, not what was left of it
