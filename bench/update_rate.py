@@ -11,9 +11,9 @@ Q += alpha * (r + gamma * max - Q)), given the states already discretised, one
 transition at a time. The two alternate in chunks of ``--seconds``; medians over
 ``--rounds``.
 
-dqn: one update of ``learners.dqn`` (one member) on cart-pole's network (4x64x64x2, batch
-128, tuned settings) and its parts, each timed in chunks of 100 calls alternating with the
-others.
+dqn: one update of ``learners.dqn`` (one member) on a cart-pole network of 4x64x64x2, batch
+128 (:data:`PINNED`; the tuned file's other settings) and its parts, each timed in chunks
+of 100 calls alternating with the others.
 
 ``--switches``: instead, one update of the plain dqn against the dqn with each of Rainbow's
 parts on (``learner.n_step=3``, ``prioritized``, ``dueling``, ``noisy``, ``distributional``
@@ -140,10 +140,16 @@ def qlearn_rates(batch: int, seconds: float, rounds: int) -> dict[str, float]:
 
 
 # -- dqn ----------------------------------------------------------------------
+# The network and minibatch every timed update uses, whatever the tuned files hold (the
+# cart-pole's studies pick other sizes per learner, which would time sizes, not switches).
+PINNED = ("learner.hidden=[64,64]", "learner.batch_size=128")
+
+
 def dqn_learner(stored: int = 20_000, learner: str = "dqn", overrides: tuple[str, ...] = ()):
-    """The tuned cart-pole DQN (one member; ``learner`` and ``overrides``: another of the
-    family), its buffer holding ``stored`` random transitions."""
-    cfg = compose(robot="cartpole", learner=learner, overrides=list(overrides))
+    """The cart-pole DQN with its tuned file but :data:`PINNED` sizes (one member;
+    ``learner`` and ``overrides``: another of the family), its buffer holding ``stored``
+    random transitions."""
+    cfg = compose(robot="cartpole", learner=learner, overrides=[*PINNED, *overrides])
     learner = instantiate(cfg.learner, _convert_="all")
     learner.build(StayUp(CartPole()), torch.Generator().manual_seed(0))
     gen = torch.Generator().manual_seed(0)
