@@ -118,15 +118,16 @@ def test_the_tuned_setting_names_and_uses_a_task_tuned_file(tmp_path):
     from tasks import catalog
 
     (tmp_path / "tuned").mkdir()
-    (tmp_path / "tuned" / "cartpole_stay_up_mbalunovic.yaml").write_text("# @package _global_\nlearner:\n  gamma: 0.9\n")
+    (tmp_path / "tuned" / "acrobot_swingup_mbalunovic.yaml").write_text("# @package _global_\nlearner:\n  gamma: 0.9\n")
     (tmp_path / "tuned" / "cartpole_stay_up_qlearn.yaml").write_text("# @package _global_\nlearner:\n  gamma: 0.93\n")
     job = lambda learner, setting="tuned": benchmark.Job(  # noqa: E731
         "cartpole", "cartpole", "stay_up", learner, setting, 8000, (1000,))
-    assert not benchmark.has_tuned_file(job("mbalunovic"))
+    acrobot = benchmark.Job("acrobot", "acrobot", "swingup", "mbalunovic", "tuned", 8000, (1000,))  # no robot file
+    assert not benchmark.has_tuned_file(acrobot)
     catalog.use_config_dirs([tmp_path])
     try:
-        assert benchmark.has_tuned_file(job("mbalunovic"))  # the task's file alone
-        assert benchmark.tuned_files(job("mbalunovic")) == ["cartpole_stay_up_mbalunovic"]
+        assert benchmark.has_tuned_file(acrobot)  # the task's file alone
+        assert benchmark.tuned_files(acrobot) == ["acrobot_swingup_mbalunovic"]
         assert benchmark.tuned_files(job("qlearn")) == ["cartpole_qlearn", "cartpole_stay_up_qlearn"]
         tuned = catalog.compose(overrides=benchmark.overrides(job("qlearn")))
         assert tuned.learner.gamma == 0.93 and tuned.num_envs == 8  # both layers

@@ -10,6 +10,7 @@ import sys
 
 import pytest
 from hydra.core.global_hydra import GlobalHydra
+from omegaconf import OmegaConf
 
 import train
 from runs.console import Console, Tee, summary_line, tee_console
@@ -105,16 +106,17 @@ def test_tee_copies_stdout_and_stderr_into_the_log(tmp_path, capsys):
 
 
 def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypatch, capsys):
-    """cartpole x mbalunovic has no conf/tuned file: no "tuned:" line, and run.json says none."""
+    """acrobot x mbalunovic has no conf/tuned file (the benchmark's studies do not tune the
+    acrobot): no "tuned:" line, and run.json says none."""
     from tasks.catalog import conf_dir, run_choices
 
-    assert not (conf_dir() / "tuned" / "cartpole_mbalunovic.yaml").exists()
-    assert run_choices({"robot": "cartpole", "learner": "mbalunovic", "tuned": "cartpole_mbalunovic"})["tuned"] is None
+    assert not (conf_dir() / "tuned" / "acrobot_mbalunovic.yaml").exists()
+    assert run_choices({"robot": "acrobot", "learner": "mbalunovic", "tuned": "acrobot_mbalunovic"})["tuned"] is None
     assert run_choices({"robot": "cartpole", "learner": "qlearn", "tuned": "cartpole_qlearn"})["tuned"] == "cartpole_qlearn"
-    code = cli(["learner=mbalunovic", "max_episodes=1", "eval_episodes=0", "quiet=true",
+    code = cli(["robot=acrobot", "learner=mbalunovic", "max_episodes=1", "eval_episodes=0", "quiet=true",
                 f"hydra.run.dir={tmp_path}"], monkeypatch)
     out = capsys.readouterr().out.splitlines()
-    assert code == 0 and out[0].startswith("cartpole / stay_up / mbalunovic")
+    assert code == 0 and out[0].startswith("acrobot / swingup / mbalunovic")
     assert out[1].startswith("solved when: ") and not any(line.startswith("tuned:") for line in out)
     assert json.loads((tmp_path / "run.json").read_text())["tuned"] is None
 
@@ -181,7 +183,8 @@ def test_eval_from_a_run_folder_needs_no_other_override(dqn_run, tmp_path, monke
     code = cli(["mode=eval", f"checkpoint={checkpoint}", f"hydra.run.dir={tmp_path}"], monkeypatch)
     out = capsys.readouterr().out
     assert code == 0, out
-    assert out.splitlines()[0] == "evaluate cartpole / stay_up / dqn, seed 0, 16 copies"
+    copies = OmegaConf.load(dqn_run / "config.yaml").num_envs  # the run's (its tuned file's)
+    assert out.splitlines()[0] == f"evaluate cartpole / stay_up / dqn, seed 0, {copies} cop{'y' if copies == 1 else 'ies'}"
     result = json.loads((tmp_path / "eval.json").read_text())
     assert result["episodes"] == 20 and result["measure"] == "length"
     assert "greedy evaluation over 20 episodes: steps balanced" in out

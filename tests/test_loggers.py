@@ -18,6 +18,8 @@ from runs.training_state import seed_everything
 from tasks.factory import build_env
 from tasks.catalog import compose
 
+TUNED_DQN = OmegaConf.to_container(compose(robot="cartpole", learner="dqn"))  # with its tuned file
+TUNED_DQN_LR = TUNED_DQN["learner"]["lr"]
 DQN_SHORT = ["max_episodes=24", "learner.learning_starts=32", "learner.batch_size=32",
              "eval_every=10"]
 
@@ -92,9 +94,9 @@ def test_dqn_logs_train_scalars_and_hparams_to_tensorboard_against_env_steps(tmp
     assert "_hparams_/session_start_info" in content and "_hparams_/experiment" not in content
     start = plugin_data_pb2.HParamsPluginData.FromString(
         content["_hparams_/session_start_info"]).session_start_info
-    assert start.hparams["learner.lr"].number_value == pytest.approx(0.001)
+    assert start.hparams["learner.lr"].number_value == pytest.approx(TUNED_DQN_LR)  # conf/tuned/cartpole_dqn.yaml's
     assert start.hparams["learner._target_"].string_value == "learners.dqn.DQN"
-    assert start.hparams["learner.hidden"].string_value == "[64, 64]"
+    assert start.hparams["learner.hidden"].string_value == str(TUNED_DQN["learner"]["hidden"])  # a list as text
 
 
 def hparams_tab(logdir: Path) -> tuple[set, dict]:
@@ -168,7 +170,7 @@ def test_logging_changes_no_training_result(tmp_path):
     scalars = tmp_path / "csv" / "logs" / "run" / "scalars"
     assert (scalars / "train" / "loss.csv").read_text().strip()
     hparams = (tmp_path / "csv" / "logs" / "run" / "texts" / "hparams0.txt").read_text()
-    assert "learner.lr: 0.001" in hparams.splitlines()
+    assert f"learner.lr: {TUNED_DQN_LR}" in hparams.splitlines()
 
 
 def test_qlearn_logs_the_visited_fraction_of_its_table(tmp_path):
