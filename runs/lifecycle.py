@@ -410,7 +410,8 @@ def _check_memory(env: RobotTaskEnv, cfg: DictConfig, seeds: int) -> None:
     del one
     free = available_bytes()
     if free is not None and need > 0.8 * free:
-        raise ConfigError(f"a batch of {seeds} seeds x {env.block_size} copies needs about {need / 2**30:.3g} "
+        copies = f"{env.block_size} cop{'y' if env.block_size == 1 else 'ies'}"
+        raise ConfigError(f"a batch of {seeds} seeds x {copies} needs about {need / 2**30:.3g} "
                           f"GiB, more than 80% of the {free / 2**30:.3g} GiB free: fewer seeds per batch "
                           "(hydra.launcher.max_seeds=...) or fewer copies (num_envs=...)")
 
