@@ -336,9 +336,10 @@ class TuningSweep:
                           "(where there is one), which the trials ran with too")
         if base_values:
             header.append(f"settings not searched are {ran_with}.yaml's, which the trials ran with")
-        began_with = current if current is not None else next(  # the settings the file held: their value
-            (t.value for t in study.trials if plan.current is not None and t.params == plan.current
-             and t.value is not None and t.state == state.COMPLETE), None)
+        began_with = current  # the value of the settings the file held: scored apart, or a trial's
+        if began_with is None and plan.current is not None:
+            began_with = next((t.value for t in study.trials
+                               if t.state == state.COMPLETE and t.params == plan.current), None)
         if began_with is not None and not kept:
             header.append(f"replacing the settings the study began with: {plan.objective} {began_with:.4g} on the "
                           "same seeds and budget")
