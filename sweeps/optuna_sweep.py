@@ -336,7 +336,7 @@ class TuningSweep:
                           "(where there is one), which the trials ran with too")
         if base_values:
             header.append(f"settings not searched are {ran_with}.yaml's, which the trials ran with")
-        began_with = current  # the value of the settings the file held: scored apart, or a trial's
+        began_with = current  # the value of the settings the file held: valued apart, or a trial's
         if began_with is None and plan.current is not None:
             began_with = next((t.value for t in study.trials
                                if t.state == state.COMPLETE and t.params == plan.current), None)
