@@ -202,6 +202,20 @@ def test_a_current_configuration_outside_the_space_is_scored_and_kept_unless_bea
     assert again.returncode == 0 and "current configuration (outside" not in again.stdout
 
 
+def test_a_replacement_file_says_what_it_replaced(tmp_path):
+    """A study whose starting settings were valued below every trial writes a file that
+    replaces them, and its header says with what value (the line the benchmark's tuned files
+    carry)."""
+    study = optuna.create_study(study_name="r", storage=f"sqlite:///{tmp_path / 's.db'}", direction="maximize")
+    study.set_user_attr("current_value", -1.0)  # valued already: below any trial's success_and_speed
+    proc = tuning(tmp_path, "r", "sweep")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "current configuration (outside" not in proc.stdout and "stays as it is" not in proc.stdout
+    written = (tmp_path / "sweep" / "tuned_cartpole_qlearn.yaml").read_text()
+    assert "# replacing the settings the study began with: success_and_speed -1 on the same seeds and budget\n" \
+        in written, written
+
+
 def test_a_trial_killed_before_its_jobs_could_continue_is_asked_again(tmp_path):
     """Killed after the first checkpoint of one seed (the other seed has none): the next sweep
     tells the stopped trial failed, runs its values again, then its own new trial."""
