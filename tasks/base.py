@@ -266,14 +266,17 @@ class Task(abc.ABC):
             The arena's ``dm_control.mjcf`` root element, ``robot.mjcf_model`` attached to it.
         """
 
-    @abc.abstractmethod
     def bind(self, physics: BatchedPhysics) -> None:
-        """Resolves names in the compiled model; sizes per-copy state for ``physics.num_envs``.
+        """Resolves the robot's names in the compiled model; sizes ``per_copy`` for ``physics.num_envs``.
+
+        A task that resolves names of its own (arena bodies, sites) extends this.
 
         Args:
-            physics: the batch of copies of the compiled arena; the tasks here pass it on to their
-                robot's :meth:`~robots.base.Robot.bind`.
+            physics: the batch of copies of the compiled arena, passed on to the robot's
+                :meth:`~robots.base.Robot.bind`.
         """
+        self.robot.bind(physics)
+        self.per_copy.allocate(physics.num_envs)
 
     @abc.abstractmethod
     def initialize_episode(self, physics: BatchedPhysics, mask: np.ndarray,

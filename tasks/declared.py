@@ -136,10 +136,6 @@ class DeclaredTask(Task):
         offscreen.offwidth, offscreen.offheight = 1920, 1080
         return model
 
-    def bind(self, physics: BatchedPhysics) -> None:
-        self.robot.bind(physics)
-        self.per_copy.allocate(physics.num_envs)
-
     def initialize_episode(self, physics: BatchedPhysics, mask: np.ndarray,
                            rng: np.random.Generator) -> None:
         """Joints at the declared start (else where the model puts them), plus uniform noise."""

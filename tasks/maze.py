@@ -175,10 +175,6 @@ class MazeTask(Task):
         arena.attach(self.robot.mjcf_model)
         return arena
 
-    def bind(self, physics: BatchedPhysics) -> None:
-        self.robot.bind(physics)
-        self.per_copy.allocate(physics.num_envs)
-
     def initialize_episode(
         self, physics: BatchedPhysics, mask: np.ndarray, rng: np.random.Generator
     ) -> None:

@@ -143,10 +143,6 @@ class OneDiskWalk(Task):
         arena.attach(self.robot.mjcf_model).add("freejoint")
         return arena
 
-    def bind(self, physics: BatchedPhysics) -> None:
-        self.robot.bind(physics)
-        self.per_copy.allocate(physics.num_envs)
-
     def initialize_episode(
         self, physics: BatchedPhysics, mask: np.ndarray, rng: np.random.Generator
     ) -> None:
