@@ -343,15 +343,15 @@ def test_hydra_composes_cube_with_its_task_and_tuned_learner():
         bad = compose(config_name="config", overrides=["robot=cartpole", "task=one_disk_walk"])
     assert cfg.task._target_ == "tasks.one_disk_walk.OneDiskWalk"
     assert cfg.task.running_step == 0.06 and cfg.task.end_episode_points == 1000
-    assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (0.1, 0.995, 0.9)
+    assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (0.2193, 0.9611, 0.9)  # its study's
     # Without the tuned file: the course unit's parameters, the baseline.
     assert (course.learner.alpha, course.learner.gamma, course.learner.epsilon_discount) == (0.1, 0.7, 0.999)
-    assert dict(cfg.learner.number_splits) == {"wheel_speed": 21, "y_speed": 5, "yaw": 3}
+    assert dict(cfg.learner.number_splits) == {"wheel_speed": 24, "y_speed": 5, "yaw": 5}
     task = factory.build_task(cfg)
     assert task.tabular_bounds.names == ("wheel_speed", "y_speed", "yaw")
     learner = instantiate(cfg.learner, _convert_="all")
     learner.build(task)
-    assert learner.discretizer.n_states == 21 * 5 * 3
+    assert learner.discretizer.n_states == 24 * 5 * 5
     with pytest.raises(Exception, match="one_disk_walk needs robot=cube"):
         factory.build_task(bad)
 
