@@ -37,6 +37,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from tqdm import tqdm
 
+from bench import child
 from runs.layout import is_sweep_folder
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -221,18 +222,20 @@ def run_job(job: Job, out: Path, bar: tqdm, solo: bool = False) -> dict:
            [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
             f"seed={','.join(map(str, job.seeds))}", *overrides(job)])
     done = 0
+
+    def progress() -> None:
+        nonlocal done
+        finished = sum(1 for d in sweep.glob("*/") if (d / "summary.json").exists()
+                       or (d / "error.txt").exists()) if sweep.is_dir() else 0
+        bar.update(max(0, finished - done))
+        done = max(done, finished)
+
     t0 = time.perf_counter()
     with open(sweep.with_suffix(".log"), "a" if resumed else "w") as log:
-        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
-        while proc.poll() is None:
-            time.sleep(1.0)
-            finished = sum(1 for d in sweep.glob("*/") if (d / "summary.json").exists()
-                           or (d / "error.txt").exists()) if sweep.is_dir() else 0
-            bar.update(max(0, finished - done))
-            done = max(done, finished)
+        returncode = child.call(cmd, cwd=ROOT, stdout=log, poll=progress)
     bar.update(len(job.seeds) - done)
     lines = sweep.with_suffix(".log").read_text(errors="replace").strip().splitlines()
-    record = {"command": cmd, "returncode": proc.returncode, "wall_s": time.perf_counter() - t0,
+    record = {"command": cmd, "returncode": returncode, "wall_s": time.perf_counter() - t0,
               "last_line": lines[-1] if lines else "", **({"resumed": True} if resumed else {})}
     if solo:
         t0 = time.perf_counter()
@@ -241,8 +244,8 @@ def run_job(job: Job, out: Path, bar: tqdm, solo: bool = False) -> dict:
         if alone.returncode == 0:
             record["solo_wall_s"] = time.perf_counter() - t0
     sweep.with_suffix(".json").write_text(json.dumps(record, indent=1))
-    if proc.returncode not in (0, 1):  # 1: some seed failed (its row says why)
-        tqdm.write(f"warning: {job.folder} exited {proc.returncode}: {record['last_line']}")
+    if returncode not in (0, 1):  # 1: some seed failed (its row says why)
+        tqdm.write(f"warning: {job.folder} exited {returncode}: {record['last_line']}")
     return record
 
 

@@ -21,10 +21,11 @@ the switch).
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+from bench import child
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDIES = Path("bench") / "studies"  # from ROOT (the URL in each tuned file's header names no machine)
@@ -114,10 +115,10 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             if dry_run:
                 left += 1
                 continue
-            code = subprocess.call(cmd, cwd=ROOT)
+            code = child.call(cmd, cwd=ROOT)
             if code != 0:
                 print(f"{name}: the sweep exited {code}; run the same command again to go on", flush=True)
                 left += 1
-                if code >= 128:  # stopped (Ctrl-C, a kill): the grid stops too
+                if code < 0 or code >= 128:  # killed by a signal: the grid stops too
                     return left
     return left

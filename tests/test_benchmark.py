@@ -4,8 +4,11 @@ its one-line errors for bad input."""
 from __future__ import annotations
 
 import csv
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -189,3 +192,73 @@ def test_a_pair_stopped_part_way_continues_from_its_checkpoints(tmp_path):
         seeds = list(csv.DictReader(f))
     assert [(r["seed"], r["status"]) for r in seeds] == [("1000", "ok"), ("1001", "ok")]
     assert all(int(r["env_steps"]) >= 1600 for r in seeds)  # the budget, not what was left of it
+
+
+STOPPER = """
+import pathlib, signal, sys, time
+out, got = pathlib.Path(sys.argv[1]), []
+signal.signal(signal.SIGINT, lambda *a: got.append(1))
+(out / "ready").write_text("")
+while not got:
+    time.sleep(0.01)
+time.sleep(0.5)  # saving its checkpoint
+(out / "saved").write_text(str(len(got)))
+sys.exit(130)
+"""
+
+CALLER = """
+import sys
+sys.path.insert(0, {root!r})
+from bench import child
+try:
+    child.call([sys.executable, "-c", {stopper!r}, {out!r}], cwd={out!r})
+except KeyboardInterrupt:
+    print("stopped")
+    sys.exit(3)
+"""
+
+
+def test_a_ctrl_c_of_the_caller_reaches_its_child_once_and_waits_for_it(tmp_path):
+    """``kill -INT`` of the benchmark alone: its child gets exactly one SIGINT (train.py's
+    'stop after this step and save'), is given the time it takes, and the caller stops after
+    it; ``subprocess.call`` had killed it a quarter of a second later, before it saved."""
+    script = CALLER.format(root=str(ROOT), stopper=STOPPER, out=str(tmp_path))
+    caller = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (tmp_path / "ready").exists():
+        assert time.monotonic() < deadline and caller.poll() is None
+        time.sleep(0.05)
+    os.kill(caller.pid, signal.SIGINT)
+    out, _ = caller.communicate(timeout=60)
+    assert caller.returncode == 3 and out.strip() == "stopped"
+    assert (tmp_path / "saved").read_text() == "1"
+
+
+def test_a_benchmark_stopped_by_ctrl_c_saves_and_goes_on(tmp_path):
+    """SIGINT to the benchmark while a pair trains: its seeds stop after their step with a
+    checkpoint (train.py's own stop), no process is left, and the same command finishes them."""
+    out = tmp_path / "results"
+    args = ["--quick", "--learners", "qlearn", "--seeds", "2", "--budget", "1600", "--out", str(out),
+            "--no-readme", "--", "task.max_episode_steps=100", "eval_episodes=2", "checkpoint_every=5"]
+    job = benchmark.plan_jobs(benchmark.parse_args(args), benchmark.load_plan(True))[0]
+    sweep = out / job.folder
+    proc = subprocess.Popen([sys.executable, "-m", "bench.benchmark", *args], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not any(sweep.glob("*/checkpoint.pt")):
+        assert time.monotonic() < deadline and proc.poll() is None, proc.communicate()
+        time.sleep(0.2)
+    os.kill(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 1 and "stopped; run the same command with --out" in err, err[-2000:]
+    log = sweep.with_suffix(".log").read_text()
+    assert "SIGINT: stopping after this step and saving a checkpoint" in log and "resume with" in log, log[-2000:]
+    assert not sweep.with_suffix(".json").exists()  # no record: the pair is not done
+    again = subprocess.run([sys.executable, "-m", "bench.benchmark", *args], cwd=ROOT, capture_output=True,
+                           text=True, timeout=600)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
+    assert benchmark.job_record(job, out)["resumed"] is True
+    with open(out / "seeds.csv") as f:
+        seeds = list(csv.DictReader(f))
+    assert [(r["seed"], r["status"]) for r in seeds] == [("1000", "ok"), ("1001", "ok")]
+    assert all(int(r["env_steps"]) >= 1600 for r in seeds)  # the whole budget across the stop
