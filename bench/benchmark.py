@@ -446,13 +446,13 @@ def run(args: argparse.Namespace) -> Path:
         for job in todo:
             check_budget(job)
         out.mkdir(parents=True, exist_ok=True)
+        commands = [c for c in commands if c != command] + [command]  # run again to go on: listed once
         (out / "plan.json").write_text(json.dumps(
-            {"commands": [*commands, command], "jobs": [asdict(job) for job in jobs]}, indent=1))
+            {"commands": commands, "jobs": [asdict(job) for job in jobs]}, indent=1))
         with tqdm(total=sum(len(job.seeds) for job in todo), unit="seed", desc="benchmark") as bar:
             for job in todo:
                 bar.set_postfix_str(job.folder)
                 run_job(job, out, bar, args.solo)
-        commands.append(command)
     pairs, all_seeds = tabulate(jobs, runnable, out)
     page = None if args.no_readme else args.readme or (None if quick_run(commands) else ROOT / "docs" / "benchmark.md")
     figures = {}

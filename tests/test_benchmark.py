@@ -4,6 +4,7 @@ its one-line errors for bad input."""
 from __future__ import annotations
 
 import csv
+import json
 import os
 import signal
 import subprocess
@@ -262,3 +263,4 @@ def test_a_benchmark_stopped_by_ctrl_c_saves_and_goes_on(tmp_path):
         seeds = list(csv.DictReader(f))
     assert [(r["seed"], r["status"]) for r in seeds] == [("1000", "ok"), ("1001", "ok")]
     assert all(int(r["env_steps"]) >= 1600 for r in seeds)  # the whole budget across the stop
+    assert len(json.loads((out / "plan.json").read_text())["commands"]) == 1  # the same command, listed once
