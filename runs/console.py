@@ -224,15 +224,19 @@ def budget(cfg: DictConfig) -> str:
     return " or ".join(parts)
 
 
+def copies(n: int) -> str:
+    """``n`` copies in words: "1 copy", "16 copies"."""
+    return f"{n} cop{'y' if n == 1 else 'ies'}"
+
+
 def banner_lines(cfg: DictConfig, choices: Mapping[str, str | None], changes: Sequence[str] | None,
                  success: Success, run_dir: Path) -> list[str]:
     """The start banner: robot / task / learner and the run's scale, the tuned file and what
     it changed (``changes``; ``None``: not worked out, e.g. a resumed run), what "solved" means
     here, the run folder."""
-    copies = int(cfg.num_envs)
     what = "evaluate " if cfg.mode == "eval" else ""
     lines = [f"{what}{choices.get('robot')} / {choices.get('task')} / {choices.get('learner')}, "
-             f"seed {cfg.seed}, {copies} cop{'y' if copies == 1 else 'ies'}"
+             f"seed {cfg.seed}, {copies(int(cfg.num_envs))}"
              + (f", up to {budget(cfg)}" if cfg.mode == "train" else "")
              + (", training past 'solved'" if cfg.mode == "train" and not cfg.get("stop_when_solved", True) else "")
              + (f", Optuna trial {cfg.trial}" if cfg.get("trial") is not None else "")]

@@ -48,7 +48,7 @@ from tensordict import TensorDictBase
 from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
-from runs.console import Tee, banner_lines
+from runs.console import Tee, banner_lines, copies
 from runs.evaluate import GreedyEvaluator, describe_evaluation, greedy_evaluations, measure_of
 from runs.folder import model_path, run_lock, start_run
 from runs.loggers import log_hparams, make_logger, run_scalar_names
@@ -410,8 +410,7 @@ def _check_memory(env: RobotTaskEnv, cfg: DictConfig, seeds: int) -> None:
     del one
     free = available_bytes()
     if free is not None and need > 0.8 * free:
-        copies = f"{env.block_size} cop{'y' if env.block_size == 1 else 'ies'}"
-        raise ConfigError(f"a batch of {seeds} seeds x {copies} needs about {need / 2**30:.3g} "
+        raise ConfigError(f"a batch of {seeds} seeds x {copies(env.block_size)} needs about {need / 2**30:.3g} "
                           f"GiB, more than 80% of the {free / 2**30:.3g} GiB free: fewer seeds per batch "
                           "(hydra.launcher.max_seeds=...) or fewer copies (num_envs=...)")
 
@@ -527,8 +526,8 @@ class _FinalEvaluations:
             return {}
         seeds = [slot.session.evaluator.seed for slot in owing]
         if len(owing) not in self.envs:
-            copies = owing[0].session.final_episodes
-            self.envs[len(owing)] = build_env(self.cfg, len(owing) * copies, seeds)
+            per_seed = owing[0].session.final_episodes  # copies: one per evaluation episode
+            self.envs[len(owing)] = build_env(self.cfg, len(owing) * per_seed, seeds)
         try:
             results = greedy_evaluations([slot.session.learner for slot in owing], self.envs[len(owing)], seeds)
         except Exception:  # noqa: BLE001 - each seed then evaluates alone, a failure its own
