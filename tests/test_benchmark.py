@@ -169,14 +169,34 @@ def test_a_tuned_budget_is_its_benchmark_tasks_budget():
     assert checked >= 3  # cube qlearn, cube dqn, wall dqn
 
 
+def small_pair(tmp_path: Path) -> tuple[list[str], benchmark.Job, Path]:
+    """The benchmark's arguments for one small pair (qlearn on the cart-pole, two seeds,
+    a checkpoint every 5 episodes), its job and its results folder."""
+    out = tmp_path / "results"
+    args = ["--quick", "--learners", "qlearn", "--seeds", "2", "--budget", "1600", "--out", str(out),
+            "--no-readme", "--", "task.max_episode_steps=100", "eval_episodes=2", "checkpoint_every=5"]
+    return args, benchmark.plan_jobs(benchmark.parse_args(args), benchmark.load_plan(True))[0], out
+
+
+def goes_on(args: list[str], job: benchmark.Job, out: Path) -> None:
+    """The same benchmark command, run again, resumes the stopped pair's seeds from their
+    checkpoints and finishes both on the whole budget (not what was left of it)."""
+    proc = subprocess.run([sys.executable, "-m", "bench.benchmark", *args], cwd=ROOT, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "resuming" in (out / job.folder).with_suffix(".log").read_text()
+    assert benchmark.job_record(job, out)["resumed"] is True
+    with open(out / "seeds.csv") as f:
+        seeds = list(csv.DictReader(f))
+    assert [(r["seed"], r["status"]) for r in seeds] == [("1000", "ok"), ("1001", "ok")]
+    assert all(int(r["env_steps"]) >= 1600 for r in seeds)
+
+
 def test_a_pair_stopped_part_way_continues_from_its_checkpoints(tmp_path):
     """A benchmark killed while a pair trains (its seeds' checkpoints on disk, no record of
     the pair): the same command resumes those seeds (``train.py resume=<the pair's sweep>``)
     instead of refusing their folders, and tabulates them."""
-    out = tmp_path / "results"
-    args = ["--quick", "--learners", "qlearn", "--seeds", "2", "--budget", "1600", "--out", str(out),
-            "--no-readme", "--", "task.max_episode_steps=100", "eval_episodes=2", "checkpoint_every=5"]
-    job = benchmark.plan_jobs(benchmark.parse_args(args), benchmark.load_plan(True))[0]
+    args, job, out = small_pair(tmp_path)
     sweep = out / job.folder
     killed = subprocess.run(
         [sys.executable, "tests/kill_at.py", "checkpoint:3", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
@@ -184,15 +204,7 @@ def test_a_pair_stopped_part_way_continues_from_its_checkpoints(tmp_path):
         cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert killed.returncode == -9, killed.stderr[-2000:]
     assert not any(sweep.glob("*/summary.json")) and any(sweep.glob("*/checkpoint.pt"))
-    proc = subprocess.run([sys.executable, "-m", "bench.benchmark", *args], cwd=ROOT, capture_output=True,
-                          text=True, timeout=600)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    assert "resuming" in sweep.with_suffix(".log").read_text()
-    assert benchmark.job_record(job, out)["resumed"] is True
-    with open(out / "seeds.csv") as f:
-        seeds = list(csv.DictReader(f))
-    assert [(r["seed"], r["status"]) for r in seeds] == [("1000", "ok"), ("1001", "ok")]
-    assert all(int(r["env_steps"]) >= 1600 for r in seeds)  # the budget, not what was left of it
+    goes_on(args, job, out)
 
 
 STOPPER = """
@@ -238,10 +250,7 @@ def test_a_ctrl_c_of_the_caller_reaches_its_child_once_and_waits_for_it(tmp_path
 def test_a_benchmark_stopped_by_ctrl_c_saves_and_goes_on(tmp_path):
     """SIGINT to the benchmark while a pair trains: its seeds stop after their step with a
     checkpoint (train.py's own stop), no process is left, and the same command finishes them."""
-    out = tmp_path / "results"
-    args = ["--quick", "--learners", "qlearn", "--seeds", "2", "--budget", "1600", "--out", str(out),
-            "--no-readme", "--", "task.max_episode_steps=100", "eval_episodes=2", "checkpoint_every=5"]
-    job = benchmark.plan_jobs(benchmark.parse_args(args), benchmark.load_plan(True))[0]
+    args, job, out = small_pair(tmp_path)
     sweep = out / job.folder
     proc = subprocess.Popen([sys.executable, "-m", "bench.benchmark", *args], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
@@ -255,12 +264,5 @@ def test_a_benchmark_stopped_by_ctrl_c_saves_and_goes_on(tmp_path):
     log = sweep.with_suffix(".log").read_text()
     assert "SIGINT: stopping after this step and saving a checkpoint" in log and "resume with" in log, log[-2000:]
     assert not sweep.with_suffix(".json").exists()  # no record: the pair is not done
-    again = subprocess.run([sys.executable, "-m", "bench.benchmark", *args], cwd=ROOT, capture_output=True,
-                           text=True, timeout=600)
-    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
-    assert benchmark.job_record(job, out)["resumed"] is True
-    with open(out / "seeds.csv") as f:
-        seeds = list(csv.DictReader(f))
-    assert [(r["seed"], r["status"]) for r in seeds] == [("1000", "ok"), ("1001", "ok")]
-    assert all(int(r["env_steps"]) >= 1600 for r in seeds)  # the whole budget across the stop
+    goes_on(args, job, out)
     assert len(json.loads((out / "plan.json").read_text())["commands"]) == 1  # the same command, listed once
