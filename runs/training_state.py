@@ -29,6 +29,7 @@ the checkpoint's episodes. ``runs.folder.resumed_config`` calls
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import json
@@ -98,9 +99,17 @@ def run_identity(run_dir: Path | str) -> dict:
     except OSError as err:
         raise CheckpointError(f"{config} is not readable ({type(err).__name__})") from None
     run_id = read_run_json(run_dir).get("run_id") or "config-" + hashlib.sha256(raw).hexdigest()[:32]
+    return {"run_id": run_id, "config_sha256": _settings_sha256(str(run_dir), hashlib.sha256(raw).hexdigest())}
+
+
+@functools.lru_cache(maxsize=256)
+def _settings_sha256(run_dir: str, raw_sha256: str) -> str:
+    """The hash of ``run_dir``'s config.yaml settings, parsed once per content of the file
+    (``raw_sha256``): a run saves its checkpoints under the same config.yaml, which a
+    parse would otherwise read again at every save."""
     settings = OmegaConf.to_container(load_run_config(run_dir), resolve=False)
     canonical = json.dumps(settings, sort_keys=True, separators=(",", ":"), default=repr)
-    return {"run_id": run_id, "config_sha256": hashlib.sha256(canonical.encode()).hexdigest()}
+    return hashlib.sha256(canonical.encode()).hexdigest()
 
 
 def check_targets(cfg: Any, where: str = "") -> None:

@@ -19,7 +19,7 @@ mean over the trial's seeds is its intermediate value, and every seed's job stop
 the pruner says the trial is hopeless.
 
 A trial the sweeper asked is its own (:func:`claim`: ``sweeper`` = host and process,
-``alive_at`` renewed by every report of its jobs) until told. A trial left running by a
+``alive_at`` renewed by its jobs' reports, every :data:`RENEW_S` seconds at most) until told. A trial left running by a
 sweeper that is gone (:func:`abandoned`: its process ended on this machine, or no word
 from it for :data:`LEASE_S` seconds) is taken over by the next sweep of its study.
 """
@@ -60,6 +60,7 @@ class Plan:
 
 
 LEASE_S = 600  # seconds without word from another machine's trial before it counts as abandoned
+RENEW_S = 30  # a trial's jobs renew its lease at a report this long after the last renewal
 
 
 def claim(storage: Any, trial_id: int, seeds: Iterable[int]) -> None:
@@ -443,6 +444,7 @@ class TrialLink:
         study_id = self._storage.get_study_id_from_name(study)
         self._trial_id = self._storage.get_trial_id_from_study_id_trial_number(study_id, number)
         self._pruner = self._study.pruner
+        self._renewed = -math.inf  # when this job last renewed the trial's lease
         where = f"{socket.gethostname()}:{os.getpid()}"
         key = "worker" if lead else f"worker_{os.getpid()}"
         self._storage.set_trial_user_attr(self._trial_id, key, where)
@@ -467,10 +469,12 @@ class TrialLink:
             if frozen.user_attrs.get("pruned_at_step") is not None:
                 TrialLink._pruned.add(self._key)  # another seed's report pruned it
                 return True
-            self._storage.set_trial_user_attr(self._trial_id, "alive_at", time.time())  # the trial's lease
-            if math.isfinite(value):
-                self._report(step, float(value), frozen)
-                frozen = self._storage.get_trial(self._trial_id)
+            if time.time() - self._renewed >= RENEW_S:  # the trial's lease
+                self._renewed = time.time()
+                self._storage.set_trial_user_attr(self._trial_id, "alive_at", self._renewed)
+            if not (math.isfinite(value) and self._report(step, float(value), frozen)):
+                return False  # no new intermediate value: nothing new for the pruner to judge
+            frozen = self._storage.get_trial(self._trial_id)
             if self._pruner.prune(self._study, frozen):
                 self._storage.set_trial_user_attr(self._trial_id, "pruned_at_step", step)
                 TrialLink._pruned.add(self._key)
@@ -482,16 +486,17 @@ class TrialLink:
             self.every = 0
             return False
 
-    def _report(self, step: int, value: float, frozen: Any) -> None:
+    def _report(self, step: int, value: float, frozen: Any) -> bool:
         """This seed's value at ``step``; the trial's intermediate value there once every seed's
-        is in (the first seed's alone for a trial asked without its seeds)."""
+        is in (the first seed's alone for a trial asked without its seeds). True when it
+        wrote an intermediate value."""
         seeds = frozen.user_attrs.get("seeds")
         if not seeds:
             if self.lead:
                 self._storage.set_trial_intermediate_value(self._trial_id, step, value)
-            return
+            return self.lead
         self._storage.set_trial_user_attr(self._trial_id, f"step{step}_seed{self.seed}", value)
-        self._complete_steps(frozen, {f"step{step}_seed{self.seed}": value}, [step])
+        return bool(self._complete_steps(frozen, {f"step{step}_seed{self.seed}": value}, [step]))
 
     def solved(self, step: int, value: float) -> None:
         """This seed stopped solved at ``step`` env steps with ``value``: it counts with that
@@ -508,10 +513,11 @@ class TrialLink:
         except Exception as err:  # noqa: BLE001 - as __call__: the run's result does not depend on it
             print(f"warning: trial {self.number}: cannot reach the study ({type(err).__name__})")
 
-    def _complete_steps(self, frozen: Any, new: dict, steps: list[int]) -> None:
+    def _complete_steps(self, frozen: Any, new: dict, steps: list[int]) -> list[int]:
         """The trial's intermediate value at each of ``steps`` where every seed's is now in
-        (``new``: attributes just written): a seed solved before a step counts its solved value."""
-        values = {**frozen.user_attrs, **new}
+        (``new``: attributes just written): a seed solved before a step counts its solved
+        value. Returns the steps it wrote."""
+        values, written = {**frozen.user_attrs, **new}, []
         for step in steps:
             reported = []
             for s in frozen.user_attrs["seeds"]:
@@ -519,6 +525,8 @@ class TrialLink:
                 reported.append(values.get(f"step{step}_seed{s}", held[1] if held and held[0] < step else None))
             if all(v is not None for v in reported) and step not in frozen.intermediate_values:
                 self._storage.set_trial_intermediate_value(self._trial_id, step, sum(reported) / len(reported))
+                written.append(step)
+        return written
 
 
 def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header: list[str]) -> str:
