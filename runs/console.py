@@ -12,7 +12,7 @@ nothing. :func:`tee_console` copies the console into the run folder's log.
 from __future__ import annotations
 
 import argparse
-
+import functools
 import math
 import sys
 from contextlib import contextmanager
@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from params import dotted
 from runs.metrics_files import Episode, rolling_field
-from tasks.catalog import GROUPS, TASK_TUNED, TUNED_PICKS, compose
+from tasks.catalog import GROUPS, TASK_TUNED, TUNED_PICKS, compose, config_dirs
 
 if TYPE_CHECKING:
     from tasks.base import Success
@@ -185,19 +185,55 @@ def tuned_changes(cfg: DictConfig, choices: Mapping[str, str | None],
     """``key before -> after`` for each value the tuned files (the robot's and the task's)
     changed in ``cfg`` (the same command composed with ``~tuned``, which leaves out both);
     ``[]`` when no tuned file applies, ``None`` when the command does not compose without
-    them (an override of a key only they add)."""
+    them (an override of a key only they add).
+
+    An override that sets one value (``learner.lr=0.01``, ``seed=3``) sets it in both
+    configs, so the composition without the tuned files leaves it out and is made once for
+    all the jobs of a sweep that differ only in such values (the configs hold no
+    interpolations outside ``hydra``)."""
     if not tuned_files(choices):
         return []
     kept = [o for o in overrides if o.split("=", 1)[0].lstrip("+~") not in PICKS]
-    try:
-        plain = compose(choices.get("robot"), choices.get("task"), choices.get("learner"),
-                        [*kept, "~tuned"])
-    except Exception:  # noqa: BLE001 - the banner still names the file
+    values = [o for o in kept if _sets_one_value(o, cfg)]
+    before = _without_tuned(choices.get("robot"), choices.get("task"), choices.get("learner"),
+                            tuple(o for o in kept if o not in values), _config_signature())
+    set_keys = {o.split("=", 1)[0] for o in values}
+    if before is None or not set_keys <= before.keys():
         return None
-    before = dotted(OmegaConf.to_container(plain, resolve=True))
     after = dotted(OmegaConf.to_container(cfg, resolve=True))
     return [f"{key} {before.get(key)} -> {value}" for key, value in after.items()
-            if before.get(key) != value]
+            if key not in set_keys and before.get(key) != value]
+
+
+def _sets_one_value(override: str, cfg: DictConfig) -> bool:
+    """Whether ``override`` is ``key=value`` of a leaf ``cfg`` has (not a config group, an
+    addition, a deletion or a ``hydra.`` setting)."""
+    key = override.split("=", 1)[0]
+    if "=" not in override or key[:1] in "+~" or "/" in key or "@" in key:
+        return False
+    node = OmegaConf.select(cfg, key, default=_ABSENT)
+    return node is not _ABSENT and not isinstance(node, DictConfig)
+
+
+_ABSENT = object()
+
+
+def _config_signature() -> tuple:
+    """Every config file's path, time and size: a cached composition holds while it is the same."""
+    files = (p for folder in config_dirs() for p in sorted(folder.rglob("*.yaml")))
+    return tuple((str(p), (st := p.stat()).st_mtime_ns, st.st_size) for p in files)
+
+
+@functools.lru_cache(maxsize=32)
+def _without_tuned(robot: str | None, task: str | None, learner: str | None, overrides: tuple[str, ...],
+                   signature: tuple) -> dict | None:
+    """The dotted resolved config of the command without its tuned files (None where it
+    does not compose so); ``signature`` (:func:`_config_signature`) keys the cache only."""
+    try:
+        plain = compose(robot, task, learner, [*overrides, "~tuned"])
+    except Exception:  # noqa: BLE001 - the banner still names the file
+        return None
+    return dotted(OmegaConf.to_container(plain, resolve=True))
 
 
 def tuned_files(choices: Mapping[str, str | None]) -> list[str]:

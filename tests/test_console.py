@@ -122,6 +122,48 @@ def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypat
 
 
 
+CARTPOLE_DQN = {"robot": "cartpole", "task": "stay_up", "learner": "dqn", "tuned": "cartpole_dqn", "tuned_task": None}
+
+
+@pytest.mark.parametrize("overrides", [
+    [], ["learner.lr=0.01", "seed=3"], ["learner.hidden=[32,32]", "trial=2"], ["num_envs=2", "learner.gamma=0.9"],
+    ["learner.epsilon.steps=100"], ["learner=rainbow", "learner.lr=0.01"], ["+note=1", "~learner.grad_clip"],
+])
+def test_what_the_tuned_file_changed_is_the_command_against_itself_without_it(overrides):
+    """The banner's changes are those of the same command composed with and without
+    ``~tuned``, though a value override is left out of the cached composition."""
+    from params import dotted
+    from runs.console import tuned_changes
+    from tasks.catalog import compose
+
+    learner = next((o.split("=")[1] for o in overrides if o.startswith("learner=")), "dqn")
+    rest = [o for o in overrides if not o.startswith("learner=")]
+    choices = {**CARTPOLE_DQN, "learner": learner, "tuned": f"cartpole_{learner}"}
+    cfg = compose("cartpole", None, learner, rest)
+    before = dotted(OmegaConf.to_container(compose("cartpole", None, learner, [*rest, "~tuned"]), resolve=True))
+    after = dotted(OmegaConf.to_container(cfg, resolve=True))
+    expected = [f"{key} {before.get(key)} -> {value}" for key, value in after.items() if before.get(key) != value]
+    assert expected and tuned_changes(cfg, choices, overrides) == expected
+
+
+def test_jobs_that_differ_in_values_only_share_one_composition_without_the_tuned_file(monkeypatch):
+    """A sweep's jobs (seeds, trials' learning rates) compose the command without its tuned
+    file once, not once each."""
+    import runs.console as console
+    from tasks.catalog import compose
+
+    calls = []
+    monkeypatch.setattr(console, "compose", lambda *a, **k: calls.append(a) or compose(*a, **k))
+    console._without_tuned.cache_clear()
+    seen = set()
+    for seed, lr in [(0, 0.01), (1, 0.01), (0, 0.002), (1, 0.002)]:
+        overrides = [f"learner.lr={lr}", f"seed={seed}", f"trial={int(lr * 1000)}"]
+        changes = console.tuned_changes(compose("cartpole", None, "dqn", overrides), CARTPOLE_DQN, overrides)
+        assert changes and not any(line.startswith(("learner.lr ", "seed ", "trial ")) for line in changes)
+        seen.add(tuple(changes))
+    assert len(calls) == 1 and len(seen) == 1
+
+
 def test_the_banner_names_a_task_tuned_file_on_top_of_the_robot_one(tmp_path, monkeypatch, capsys):
     """conf/tuned/<robot>_<task>_<learner>.yaml (here from a --config-dir) is named after the
     robot's file, its values among what they changed; '~tuned' leaves out both."""
