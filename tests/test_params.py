@@ -242,12 +242,17 @@ def test_every_setting_of_the_parameters_table_is_settable_without_a_plus():
             continue
         for group_file in files[:1] if key == "" else files:
             picks = {} if key == "" else _picks(group_file)
-            for spec in specs(cls):
-                if isinstance(spec.default, dataclasses._MISSING_TYPE):
-                    continue  # required: every config file gives it
-                override = f"{key + '.' if key else ''}{spec.name}={_hydra_value(spec.default)}"
+            overrides = [f"{key + '.' if key else ''}{spec.name}={_hydra_value(spec.default)}"
+                         for spec in specs(cls)
+                         if not isinstance(spec.default, dataclasses._MISSING_TYPE)]  # required: every file gives it
+            try:  # all of the file's settings in one command; one at a time to name a refused one
+                catalog.compose(**picks, overrides=["~tuned", *overrides])  # the file itself
+                continue
+            except Exception:  # noqa: BLE001 - Hydra's refusal of a key it lacks
+                pass
+            for override in overrides:
                 try:
-                    catalog.compose(**picks, overrides=["~tuned", override])  # the file itself
-                except Exception as err:  # noqa: BLE001 - Hydra's refusal of a key it lacks
+                    catalog.compose(**picks, overrides=["~tuned", override])
+                except Exception as err:  # noqa: BLE001 - as above
                     refused.append(f"{group_file} {override}: {str(err).splitlines()[0][:80]}")
     assert not refused, "\n".join(refused)

@@ -384,9 +384,11 @@ def test_top_camera_frames_the_maze_and_robot():
 
 
 def test_q_learning_drives_round_the_ring_far_longer_than_random(tmp_path):
-    """The tuned run of ``train.py robot=turtlebot learner=qlearn`` (500 episodes), on 4
-    copies with seed 0: about 15 s, so the CI version is the whole run."""
-    cfg = compose_cfg("robot=turtlebot", "learner=qlearn", "seed=0", "num_envs=4")
+    """The first 200 of the tuned run's 500 episodes (``train.py robot=turtlebot
+    learner=qlearn``), on 4 copies with seed 0: greedy 476 steps and 77.6 m round the loop
+    against random's 24.4 steps and 2.5 m (2026-11-27; the whole run: 500 steps, 88.1 m, in
+    twice the time)."""
+    cfg = compose_cfg("robot=turtlebot", "learner=qlearn", "seed=0", "num_envs=4", "max_episodes=200")
     generator = seed_everything(0)
     env = build_env(cfg, 4, seed=0)
     learner = instantiate(cfg.learner, _convert_="all")
