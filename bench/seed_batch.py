@@ -46,12 +46,12 @@ WRAP = ("import resource, subprocess, sys; code = subprocess.call(sys.argv[1:], 
 TUNED = {"qlearn": 8, "dqn": 16}  # conf/tuned/cartpole_<learner>.yaml's num_envs
 
 
-def timed(cmd: list[str]) -> tuple[float, float, float]:
-    """Runs ``cmd`` in the project folder; (seconds start to exit, its CPU seconds, its peak
-    RSS in MB)."""
-    print("running:", " ".join(cmd), flush=True)
+def timed(cmd: list[str], cwd: Path = ROOT) -> tuple[float, float, float]:
+    """Runs ``cmd`` in the project folder (or ``cwd``: another checkout); (seconds start to
+    exit, its CPU seconds, its peak RSS in MB)."""
+    print("running:" if cwd == ROOT else f"running in {cwd}:", " ".join(cmd), flush=True)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", WRAP, *cmd], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.run([sys.executable, "-c", WRAP, *cmd], cwd=cwd, stderr=subprocess.PIPE, text=True)
     seconds = time.perf_counter() - t0
     if proc.returncode:
         sys.exit(f"error: {' '.join(cmd)} exited {proc.returncode}: {proc.stderr[-500:]}")

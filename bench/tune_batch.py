@@ -21,6 +21,10 @@ variant with the sampler seeds 0 .. R-1 (the same seeds for each) and ``--per-ba
 takes several sizes (``--per-batch 12 4``: all at once, and in rounds of four); the last
 line then gives each variant's mean best and wall over the repeats.
 
+``--ref <commit>``: instead, the batched study in an earlier commit (a git worktree) and
+in this checkout, alternating, each ``--repeats`` times: ``TUNE_REF ... before_s after_s
+ratio`` and each one's floor ratio.
+
 ``--pruners null median successive_halving hyperband``: instead, the batched study with
 each pruner (rungs as the grid's studies: from a ninth of the budget), over the repeats:
 each one's mean best value and the env steps its jobs took (a pruner's saving).
@@ -54,8 +58,9 @@ SPACES = {  # member-wise settings (the learners' MEMBER_WISE)
 
 
 def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: int = 0,
-          pruner: str = "null") -> tuple[float, float, int]:
-    """One study: (wall seconds, best value, env steps its jobs took)."""
+          pruner: str = "null", tree: Path = ROOT) -> tuple[float, float, int]:
+    """One study (run by ``tree``'s train.py: this checkout or another commit's): (wall
+    seconds, best value, env steps its jobs took)."""
     import json
 
     import optuna
@@ -69,7 +74,7 @@ def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: 
            f"hydra.sweeper.seeds=[{','.join(map(str, args.seeds))}]", f"hydra.sweeper.budget_steps={args.budget}",
            *pruning(pruner, args.budget), f"hydra.sweeper.sampler_seed={sampler_seed}", "hydra.sweeper.start_from_current=false",
            f"hydra.sweep.dir={out / tag}", *args.extra]
-    seconds, _, _ = timed(cmd)
+    seconds, _, _ = timed(cmd, cwd=tree)
     best = optuna.load_study(study_name=tag, storage=url).best_value
     steps = sum(json.loads(f.read_text()).get("env_steps", 0) for f in (out / tag).glob("*/summary.json"))
     return seconds, best, steps
@@ -88,6 +93,8 @@ def main() -> None:
     parser.add_argument("--pruners", nargs="+", help="instead: the batched study with each pruner (null, median, "
                         "successive_halving, hyperband): best value and env steps spent")
     parser.add_argument("--space", type=Path)
+    parser.add_argument("--ref", help="instead: the batched study in this checkout against the same study in this "
+                        "earlier commit (a git worktree under /tmp), alternating which goes first each repeat")
     parser.add_argument("extra", nargs="*", help="overrides for every job (after --)")
     args = parser.parse_args()
     if args.trials < 1 or args.budget < 1:
@@ -100,6 +107,8 @@ def main() -> None:
     print(f"load average (1/5/15 min) at the start: {load()} on {os.cpu_count()} cores", flush=True)
     if args.pruners:
         return compare_pruners(args, space, out)
+    if args.ref:
+        return against_ref(args, space, out)
     sizes = args.per_batch or [args.trials]
     found: dict[int, list[tuple[float, float]]] = {1: [], **{k: [] for k in sizes}}
     for r in range(args.repeats):
@@ -119,6 +128,30 @@ def main() -> None:
               f"physics_floor_s={floor_s:.1f} floor_ratio={batched_s / floor_s:.2f} "
               f"sequential_best={sequential_best:.4g} batched_best={batched_best:.4g} "
               f"(bests {', '.join(f'{v[1]:.3g}' for v in found[k])} against {', '.join(f'{v[1]:.3g}' for v in found[1])})")
+
+
+def against_ref(args, space: Path, out: Path) -> None:
+    """The batched study (all trials at once, or the first ``--per-batch``) in ``--ref``'s
+    tree and in this checkout, alternating which goes first each repeat: each one's wall
+    seconds, the ratio, and each one's distance from the physics floor of its own jobs."""
+    from before_after import worktree
+
+    trees = {"before": worktree(args.ref), "after": ROOT}
+    k = (args.per_batch or [args.trials])[0]
+    found: dict[str, list[float]] = {name: [] for name in trees}
+    for r in range(args.repeats):
+        for name in (list(trees) if r % 2 == 0 else list(trees)[::-1]):
+            found[name].append(study(args, f"{name}{r}", k, space, out, sampler_seed=r, tree=trees[name])[0])
+            print(f"repeat {r}: {name} wall_s={found[name][-1]:.1f}", flush=True)
+    from tasks import catalog
+    copies = int(catalog.compose(args.robot, learner=args.learner, overrides=list(args.extra)).num_envs)
+    floors = {name: floor_of(args.robot, out / f"{name}0", k * len(args.seeds) * copies) for name in trees}
+    print(f"load average (1/5/15 min) at the end: {load()}")
+    before, after = (statistics.fmean(found[name]) for name in trees)
+    print(f"TUNE_REF {args.robot} {args.learner} trials={args.trials} per_batch={k} seeds={len(args.seeds)} "
+          f"budget={args.budget} repeats={args.repeats} ref={args.ref} before_s={before:.1f} after_s={after:.1f} "
+          f"ratio={after / before:.2f} floor_ratio_before={before / floors['before']:.2f} "
+          f"floor_ratio_after={after / floors['after']:.2f}")
 
 
 def compare_pruners(args, space: Path, out: Path) -> None:
