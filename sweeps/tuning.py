@@ -432,6 +432,9 @@ class TrialLink:
     # Trials this process has seen pruned, (storage, study, number): shared by the links of
     # one trial's seeds that train side by side.
     _pruned: set[tuple[str, str, int]] = set()
+    # The storages this process opened, by URL: the jobs of a batch share one (a journal
+    # file is then read once per report, not once per job).
+    _storages: dict[str, Any] = {}
 
     def __init__(self, storage: str, study: str, number: int, lead: bool,
                  pruner: Mapping[str, Any] | None, every: int, run_dir: Path, seed: int = 0) -> None:
@@ -439,7 +442,9 @@ class TrialLink:
 
         self.every, self.lead, self.number, self.seed = int(every), lead, number, int(seed)
         self._key = (storage, study, number)
-        self._storage = open_storage(storage)
+        if storage not in TrialLink._storages:
+            TrialLink._storages[storage] = open_storage(storage)
+        self._storage = TrialLink._storages[storage]
         self._study = optuna.load_study(study_name=study, storage=self._storage, pruner=make_pruner(pruner))
         study_id = self._storage.get_study_id_from_name(study)
         self._trial_id = self._storage.get_trial_id_from_study_id_trial_number(study_id, number)
