@@ -50,8 +50,10 @@ CLIENT = """
 def test_a_plain_install_makes_gym_ids_and_full_hd_videos(tmp_path):
     pytest.importorskip("pip")
     src, site, work = tmp_path / "src", tmp_path / "site", tmp_path / "work"
-    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
-        ".git", ".venv", "__pycache__", "*.egg-info", "build", "outputs", "multirun", ".pytest_cache"))
+    # The source as a clean clone has it: what .gitignore names (runs, studies' folders) left out.
+    ignored = [line.strip().strip("/") for line in (ROOT / ".gitignore").read_text().splitlines()
+               if line.strip() and not line.startswith("#")]
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".git", *ignored))
     # No build isolation: the build uses this environment's setuptools (no download).
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation",
                     "--no-cache-dir", "--quiet", "--target", str(site), str(src)],
