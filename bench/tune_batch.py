@@ -80,6 +80,13 @@ def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: 
     return seconds, best, steps
 
 
+def copies_of(args) -> int:
+    """The copies each job of the studies runs (its config's ``num_envs``)."""
+    from tasks import catalog
+
+    return int(catalog.compose(args.robot, learner=args.learner, overrides=list(args.extra)).num_envs)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="cartpole")
@@ -115,8 +122,7 @@ def main() -> None:
         for k in found:  # interleaved: each repeat runs every variant
             found[k].append(study(args, f"batch{k}_seed{r}", k, space, out, sampler_seed=r)[:2])
             print(f"repeat {r}: per_batch={k} wall_s={found[k][-1][0]:.1f} best={found[k][-1][1]:.4g}", flush=True)
-    from tasks import catalog
-    copies = int(catalog.compose(args.robot, learner=args.learner, overrides=list(args.extra)).num_envs)
+    copies = copies_of(args)
     print(f"load average (1/5/15 min) at the end: {load()}")
     sequential_s, sequential_best = (statistics.fmean(v[i] for v in found[1]) for i in (0, 1))
     for k in sizes:
@@ -143,8 +149,7 @@ def against_ref(args, space: Path, out: Path) -> None:
         for name in (list(trees) if r % 2 == 0 else list(trees)[::-1]):
             found[name].append(study(args, f"{name}{r}", k, space, out, sampler_seed=r, tree=trees[name])[0])
             print(f"repeat {r}: {name} wall_s={found[name][-1]:.1f}", flush=True)
-    from tasks import catalog
-    copies = int(catalog.compose(args.robot, learner=args.learner, overrides=list(args.extra)).num_envs)
+    copies = copies_of(args)
     floors = {name: floor_of(args.robot, out / f"{name}0", k * len(args.seeds) * copies) for name in trees}
     print(f"load average (1/5/15 min) at the end: {load()}")
     before, after = (statistics.fmean(found[name]) for name in trees)

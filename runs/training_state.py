@@ -98,8 +98,9 @@ def run_identity(run_dir: Path | str) -> dict:
         raw = config.read_bytes()
     except OSError as err:
         raise CheckpointError(f"{config} is not readable ({type(err).__name__})") from None
-    run_id = read_run_json(run_dir).get("run_id") or "config-" + hashlib.sha256(raw).hexdigest()[:32]
-    return {"run_id": run_id, "config_sha256": _settings_sha256(str(run_dir), hashlib.sha256(raw).hexdigest())}
+    raw_sha256 = hashlib.sha256(raw).hexdigest()
+    run_id = read_run_json(run_dir).get("run_id") or "config-" + raw_sha256[:32]
+    return {"run_id": run_id, "config_sha256": _settings_sha256(str(run_dir), raw_sha256)}
 
 
 @functools.lru_cache(maxsize=256)

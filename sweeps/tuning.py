@@ -19,9 +19,10 @@ mean over the trial's seeds is its intermediate value, and every seed's job stop
 the pruner says the trial is hopeless.
 
 A trial the sweeper asked is its own (:func:`claim`: ``sweeper`` = host and process,
-``alive_at`` renewed by its jobs' reports, every :data:`RENEW_S` seconds at most) until told. A trial left running by a
-sweeper that is gone (:func:`abandoned`: its process ended on this machine, or no word
-from it for :data:`LEASE_S` seconds) is taken over by the next sweep of its study.
+``alive_at`` renewed by its jobs' reports, every :data:`RENEW_S` seconds at most) until
+told. A trial left running by a sweeper that is gone (:func:`abandoned`: its process
+ended on this machine, or no word from it for :data:`LEASE_S` seconds) is taken over by
+the next sweep of its study.
 """
 
 from __future__ import annotations
