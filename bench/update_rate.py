@@ -19,10 +19,15 @@ of 100 calls alternating with the others.
 parts on (``learner.n_step=3``, ``prioritized``, ``dueling``, ``noisy``, ``distributional``
 on 51 atoms) and with all of them (``learner=rainbow``), in alternating chunks of 100.
 
+``--denormals``: instead, one Adam step of the cart-pole rainbow's network whose first moment
+holds denormal numbers (as a dead unit's weights leave it), with the runs' flushing of them to
+0 (``runs.lifecycle.denormals_flushed``) and without, alternating.
+
 The last lines are machine-readable::
 
     DQN_UPDATE batch=128 us=<median per update>
     DQN_SWITCH name=<plain|n_step|...|rainbow> us=<median per update> ratio=<to plain>   (--switches)
+    ADAM_DENORMALS us=<median, denormals kept> flushed_us=<median, flushed> ratio=<x>   (--denormals)
     QLEARN_RATE batch=64 ours=<t/s> dict=<t/s> ratio=<x>
     QLEARN_RATE batch=4096 ours=<t/s> dict=<t/s> ratio=<x>
 """
@@ -30,6 +35,7 @@ The last lines are machine-readable::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import random
 import statistics
 import sys
@@ -230,13 +236,52 @@ def dqn_times(rounds: int) -> dict[str, float]:
     return interleaved({name: timer(call) for name, call in parts.items()}, rounds)
 
 
+def denormal_times(rounds: int) -> dict[str, float]:
+    """Median microseconds of one Adam step of the cart-pole rainbow's network (its tuned
+    file's sizes, one member) whose first moment holds denormal numbers where the gradient
+    is 0 (a dead unit's weights: 68% of them, the share a trained run's large layers held),
+    inside :func:`runs.lifecycle.denormals_flushed` and outside, alternating chunks of 100."""
+    from learners.dqn import adam_step
+    from runs.lifecycle import denormals_flushed
+
+    learner = instantiate(compose(robot="cartpole", learner="rainbow").learner, _convert_="all")
+    learner.build(StayUp(CartPole()), torch.Generator().manual_seed(0))
+    gen = torch.Generator().manual_seed(0)
+    dead = torch.rand(learner.params.shape, generator=gen) < 0.68
+    grads = torch.randn(learner.params.shape, generator=gen).mul_(1e-3).masked_fill_(dead, 0.0)
+
+    def timer(flush: bool) -> Callable[[], float]:
+        params, exp_avg_sq = learner.params.clone(), grads.square().masked_fill_(dead, 1e-10)  # decaying
+        exp_avg = grads.clone().masked_fill_(dead, torch.finfo(torch.float32).smallest_normal / 2 ** 23)
+
+        def run() -> float:
+            with denormals_flushed() if flush else contextlib.nullcontext():
+                start = time.perf_counter()
+                for _ in range(100):
+                    adam_step(params, grads, exp_avg, exp_avg_sq, [1000], [1e-3])
+                return (time.perf_counter() - start) / 100 * 1e6
+        return run
+
+    print(f"adam step of {learner.params.shape[1]:,} parameters, {int(dead.sum()):,} of them holding denormals:")
+    return interleaved({"denormals": timer(False), "flushed": timer(True)}, rounds)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=0.5, help="length of one timed chunk")
     parser.add_argument("--rounds", type=int, default=5, help="chunks per contestant")
     parser.add_argument("--switches", action="store_true", help="the dqn's update with each of Rainbow's parts")
+    parser.add_argument("--denormals", action="store_true",
+                        help="an Adam step on moments holding denormals, flushed to 0 or not")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.denormals:
+        times = denormal_times(max(args.rounds, 5) * 3)
+        for name, us in times.items():
+            print(f"  {name:10s} {us:8.1f}")
+        print(f"ADAM_DENORMALS us={times['denormals']:.1f} flushed_us={times['flushed']:.1f} "
+              f"ratio={times['denormals'] / times['flushed']:.2f}")
+        return
     if args.switches:
         times = switch_times(max(args.rounds, 5) * 3)
         print("dqn, cart-pole network 4x64x64x2, batch 128: one update (median us), each part on alone:")

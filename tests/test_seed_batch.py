@@ -315,3 +315,25 @@ def test_a_batch_that_would_not_fit_in_memory_is_one_line_before_training(tmp_pa
     with pytest.raises(ConfigError, match=rf"a batch of 2 seeds x {shown} needs about .* GiB free"):
         run_jobs(jobs("dqn", tmp_path, "batch"))
     assert not any((job.run_dir / "metrics.csv").exists() for job in jobs("dqn", tmp_path, "batch"))
+
+
+def test_a_run_updates_with_denormal_numbers_flushed_and_leaves_the_process_as_it_was(tmp_path, monkeypatch):
+    """Adam's first moment of a dead unit's weights sticks in denormal numbers, where the
+    CPU's arithmetic is ~5x slower: a run's updates compute them as 0
+    (``denormals_flushed``); after the run a product below float32's normal range is kept."""
+    import learners.dqn as dqn_module
+
+    real_adam, flushed = dqn_module.adam_step, []
+
+    def adam_step(*args, **kwargs):
+        flushed.append((torch.tensor([1e-30]) * 1e-10).item() == 0.0)
+        return real_adam(*args, **kwargs)
+
+    monkeypatch.setattr(dqn_module, "adam_step", adam_step)
+    job = jobs("dqn", tmp_path, "run")[0]
+    job.run_dir.mkdir()
+    execute(job.cfg, job.run_dir, choices=job.choices)
+    assert flushed and all(flushed), len(flushed)
+    assert (torch.tensor([1e-30]) * 1e-10).item() > 0.0
+    with batch_module.denormals_flushed():
+        assert (torch.tensor([1e-30]) * 1e-10).item() == 0.0
