@@ -125,6 +125,9 @@ class RowReplayBuffer(ReplayBuffer):
     ``extend`` itself: every path of ``ReplayBuffer`` goes through ``_storage``), and
     before it would hold more rows than the buffer, so the buffer never sees the
     difference: the same rows at the same places, the same cursor and length.
+    :meth:`stored` gives that length without writing them: a learner that updates every
+    fourth env step writes once per update instead of once per step (TorchRL's ``extend``
+    was ~12% of a cart-pole dqn run).
     """
 
     def __init__(self, capacity: int, width: int, batch_size: int,
@@ -163,6 +166,11 @@ class RowReplayBuffer(ReplayBuffer):
             self.flush()  # one extend never wraps onto its own rows
         self._queue.append(rows)
         self._queued += len(rows)
+
+    def stored(self) -> int:
+        """``len(self)`` as it will be once the queued rows are written, without writing them
+        (a DQN asks it every env step, and samples only every few)."""
+        return min(len(self.__dict__["_storage_"]) + self._queued, self._capacity)
 
     def flush(self) -> None:
         """Writes the queued rows (one ``extend``)."""
@@ -765,7 +773,7 @@ class DQN:
     def _owe(self, b: int, updates: float) -> None:
         """Adds ``updates`` to member ``b``'s credit once its buffer holds ``learning_starts``
         transitions; the whole ones are owed."""
-        if len(self.buffers[b]) < max(self.settings[b].learning_starts, 1):
+        if self.buffers[b].stored() < max(self.settings[b].learning_starts, 1):
             return
         self.credit[b] += updates
         whole = int(self.credit[b])

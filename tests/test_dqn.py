@@ -213,7 +213,8 @@ def test_td_loss_equals_torchrl_dqnloss(loss, double, tau):
 
 def test_queued_rows_land_as_one_extend_per_put_would():
     """``put`` queues rows and writes them when the buffer is read: the storage, cursor and
-    length are those of TorchRL's ``extend`` per call, across wrap-arounds of the ring."""
+    length are those of TorchRL's ``extend`` per call, across wrap-arounds of the ring;
+    ``stored`` tells the length they will make without writing them."""
     from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 
     from learners.dqn import RowReplayBuffer
@@ -226,6 +227,8 @@ def test_queued_rows_land_as_one_extend_per_put_would():
         rows = torch.randn(size, 3, generator=gen)
         ours.put(rows)
         theirs.extend(rows)
+        queued = ours._queued
+        assert ours.stored() == len(theirs) and ours._queued == queued  # still queued
         if step % 4 == 3:  # read now and then, as updates do
             assert len(ours) == len(theirs)
     state, expected = ours.state_dict(), theirs.state_dict()
