@@ -47,13 +47,24 @@ CLIENT = """
 """
 
 
+def clean_clone_ignore():
+    """A ``copytree`` ignore that leaves out what a clean clone lacks: ``.git`` and what
+    .gitignore names (runs, studies' folders), its ``/``-anchored names at the top only
+    (``/benchmark/`` is not ``docs/assets/benchmark``)."""
+    lines = [line.strip() for line in (ROOT / ".gitignore").read_text().splitlines()
+             if line.strip() and not line.startswith("#")]
+    anywhere = shutil.ignore_patterns(".git", *(line.strip("/") for line in lines if not line.startswith("/")))
+    at_top = {line.strip("/") for line in lines if line.startswith("/")}
+
+    def ignore(folder: str, names: list[str]) -> set[str]:
+        return set(anywhere(folder, names)) | (at_top & set(names) if Path(folder) == ROOT else set())
+    return ignore
+
+
 def test_a_plain_install_makes_gym_ids_and_full_hd_videos(tmp_path):
     pytest.importorskip("pip")
     src, site, work = tmp_path / "src", tmp_path / "site", tmp_path / "work"
-    # The source as a clean clone has it: what .gitignore names (runs, studies' folders) left out.
-    ignored = [line.strip().strip("/") for line in (ROOT / ".gitignore").read_text().splitlines()
-               if line.strip() and not line.startswith("#")]
-    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".git", *ignored))
+    shutil.copytree(ROOT, src, ignore=clean_clone_ignore())
     # No build isolation: the build uses this environment's setuptools (no download).
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation",
                     "--no-cache-dir", "--quiet", "--target", str(site), str(src)],
