@@ -4,7 +4,7 @@
     python -m bench.benchmark --quick              # cart-pole x qlearn, dqn; 3 seeds; minutes
     python -m bench.benchmark --tasks cube --learners dqn --seeds 5 [-- extra overrides]
     python -m bench.benchmark --read benchmark/<folder>   # tabulate a finished (or partial) run again
-    python -m bench.benchmark --tune [--tasks ...] [--learners ...]   # one study per pair (bench/tune_grid.py)
+    python -m bench.benchmark --tune [--tasks ...] [--learners ...] [--jobs N]   # one study per pair (bench/tune_grid.py)
 
 Each task x learner x setting (``published``: the learner's defaults, ``'~tuned'``;
 ``tuned``: its ``conf/tuned/`` files, the robot's ``<robot>_<learner>`` and the task's
@@ -106,6 +106,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--tune", action="store_true",
                         help="tune every pair by one study each (the plan's tuning block), resuming; run nothing else")
     parser.add_argument("--dry-run", action="store_true", help="with --tune: print each pair's command only")
+    parser.add_argument("--jobs", type=int, help="with --tune: studies at once, a process of one thread each "
+                                                 "(default: one per core)")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (after --)")
     return parser.parse_args(argv)
 
@@ -517,7 +519,9 @@ def main(argv: list[str] | None = None) -> None:
         if args.tune:
             from bench.tune_grid import tune
 
-            sys.exit(1 if tune(load_plan(False), args.tasks, args.learners, args.dry_run) else 0)
+            if args.jobs is not None and args.jobs < 1:
+                raise BadInput(f"--jobs must be at least 1 (studies at once), got {args.jobs}")
+            sys.exit(1 if tune(load_plan(False), args.tasks, args.learners, args.dry_run, args.jobs) else 0)
         run(args)
     except BadInput as err:
         sys.exit(f"error: {err}")

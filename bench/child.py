@@ -1,12 +1,13 @@
-"""A child command (``train.py``) that a Ctrl-C of its caller stops as it would stop alone.
+"""Child commands (``train.py``) that a Ctrl-C of their caller stops as each would stop alone.
 
 ``subprocess.call`` gives a child a quarter of a second after Ctrl-C, then kills it: a
 sweep killed mid-step loses what it would have saved, and the killed process leaves
 "leaked semaphore" warnings behind. A child left running by a caller that was signalled
-alone (``kill -INT <pid>``) goes on training unseen. Here the child runs in its own
-session, so the caller passes each SIGINT on exactly once: the first asks ``train.py`` to
-stop after its step and save a checkpoint, a second to abort without saving; the caller
-waits for the child to exit, then stops too.
+alone (``kill -INT <pid>``) goes on training unseen. Here each child runs in its own
+session, so the caller passes each SIGINT on exactly once to every child running: the
+first asks ``train.py`` to stop after its step and save a checkpoint, a second to abort
+without saving; the caller starts no more children, waits for those running to exit,
+then stops too.
 """
 
 from __future__ import annotations
@@ -36,18 +37,64 @@ def call(cmd: Sequence[str], cwd: Path, stdout: IO | None = None, poll: Callable
     Raises:
         KeyboardInterrupt: after the child, passed the caller's SIGINT, has exited.
     """
-    proc = subprocess.Popen(cmd, cwd=cwd, stdout=stdout, stderr=subprocess.STDOUT if stdout else None,
-                            start_new_session=True)
-    interrupted = False
-    while proc.poll() is None:
+    return call_all([cmd], cwd, 1, [stdout], poll=poll, every=every)[0]
+
+
+def call_all(cmds: Sequence[Sequence[str]], cwd: Path, jobs: int, stdouts: Sequence[IO | None] | None = None,
+             started: Callable[[int], None] | None = None, ended: Callable[[int, int], None] | None = None,
+             poll: Callable[[], None] | None = None, every: float = 1.0) -> list[int | None]:
+    """Runs ``cmds`` in order, up to ``jobs`` at once, and returns their exit codes.
+
+    A child that a signal ended (a kill, a machine out of memory: exit code below 0 or 128
+    and above) starts no more of them; those running go on to their end.
+
+    Args:
+        cmds: the command lines.
+        cwd: their working folder.
+        jobs: children running at once (at least 1).
+        stdouts: per command, a file for its stdout and stderr together; None: the caller's.
+        started: called with a command's index when it starts.
+        ended: called with a command's index and exit code when it exits.
+        poll: called every ``every`` seconds while children run.
+        every: seconds between polls.
+
+    Returns:
+        Each command's exit code; None for one never started.
+
+    Raises:
+        KeyboardInterrupt: after every child, passed the caller's SIGINT, has exited.
+    """
+    stdouts = list(stdouts or [None] * len(cmds))
+    codes: list[int | None] = [None] * len(cmds)
+    running: dict[int, subprocess.Popen] = {}
+    following, interrupted, halted = 0, False, False
+    while True:
+        while not (interrupted or halted) and following < len(cmds) and len(running) < max(jobs, 1):
+            out = stdouts[following]
+            running[following] = subprocess.Popen(cmds[following], cwd=cwd, stdout=out,
+                                                  stderr=subprocess.STDOUT if out else None,
+                                                  start_new_session=True)
+            if started is not None:
+                started(following)
+            following += 1
+        for i, proc in list(running.items()):
+            if proc.poll() is not None:
+                del running[i]
+                codes[i] = proc.returncode
+                halted = halted or proc.returncode < 0 or proc.returncode >= 128
+                if ended is not None:
+                    ended(i, proc.returncode)
+        if not running and (interrupted or halted or following == len(cmds)):
+            break
         try:
-            time.sleep(every)
+            time.sleep(every if running else 0)
             if poll is not None:
                 poll()
         except KeyboardInterrupt:
             interrupted = True
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
+            for proc in running.values():
+                if proc.poll() is None:
+                    proc.send_signal(signal.SIGINT)
     if interrupted:
         raise KeyboardInterrupt
-    return proc.returncode
+    return codes

@@ -21,6 +21,8 @@ the switch).
 
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
 import time
 from pathlib import Path
@@ -29,6 +31,7 @@ from bench import child
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDIES = Path("bench") / "studies"  # from ROOT (the URL in each tuned file's header names no machine)
+SWEEPS = Path("tuning") / "bench"  # from ROOT: each pair's sweep folders (and consoles, several at once)
 
 
 def study_counts(name: str, path: Path) -> tuple[int, int]:
@@ -72,8 +75,9 @@ def pruning(pruner: str, budget: int, first_rung: int = 9) -> list[str]:
               if pruner in ("successive_halving", "hyperband") else [])]
 
 
-def command(task: str, spec: dict, learner: str, tuning: dict, missing: int) -> list[str]:
-    """The tuning sweep of one pair: ``missing`` more trials of its study."""
+def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, sweep_dir: Path) -> list[str]:
+    """The tuning sweep of one pair: ``missing`` more trials of its study, its folders in
+    ``sweep_dir``."""
     budget = int(spec["budget_steps"])
     name = f"{task}_{learner}"
     return [sys.executable, "train.py", "-m", "hydra/sweeper=optuna", f"robot={spec['robot']}", f"task={spec['task']}",
@@ -84,14 +88,23 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int) -> 
             f"hydra.sweeper.budget_steps={budget}",
             *pruning(tuning["pruner"], budget, int(tuning.get("first_rung", 9))),
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(tuning.get('write_tuned', True)).lower()}",
-            f"hydra.sweep.dir=tuning/bench/{name}/{time.strftime('%Y%m%d-%H%M%S')}"]
+            f"hydra.sweep.dir={sweep_dir}"]
 
 
-def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_run: bool = False) -> int:
-    """Tunes every pair asked for (the plan's by default); the number of pairs left unfinished."""
+def cores() -> int:
+    """The CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_run: bool = False,
+         jobs: int | None = None) -> int:
+    """Tunes every pair asked for (the plan's by default), ``jobs`` studies at once (each a
+    process of one thread; default: one per core); the number of pairs left unfinished.
+    With more than one at once, each sweep's console goes to ``tuning/bench/<pair>/<time>.log``."""
     tuning = plan["tuning"]
     (ROOT / STUDIES).mkdir(parents=True, exist_ok=True)
-    left = 0
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    pending: list[tuple[str, list[str]]] = []  # (pair, its sweep's command)
     for task in tasks or list(plan["tasks"]):
         spec = plan["tasks"][task]
         if spec.get("overrides"):
@@ -109,16 +122,33 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             if missing <= 0 and not running and (written(spec, learner, task) or not tuning.get("write_tuned", True)):
                 print(f"{name}: study complete ({counted} trials)")
                 continue
-            cmd = command(task, spec, learner, tuning, max(missing, 0))
+            cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp)
             print(f"{name}: {counted} trials done, {running} left running, {max(missing, 0)} to ask\n  "
                   + " ".join(cmd[1:]), flush=True)
-            if dry_run:
-                left += 1
-                continue
-            code = child.call(cmd, cwd=ROOT)
-            if code != 0:
-                print(f"{name}: the sweep exited {code}; run the same command again to go on", flush=True)
-                left += 1
-                if code < 0 or code >= 128:  # killed by a signal: the grid stops too
-                    return left
-    return left
+            pending.append((name, cmd))
+    if dry_run or not pending:
+        return len(pending)
+    jobs = min(jobs or cores(), len(pending))
+    logs = [ROOT / SWEEPS / name / f"{stamp}.log" for name, _ in pending] if jobs > 1 else [None] * len(pending)
+    clock: dict[int, float] = {}
+
+    def started(i: int) -> None:
+        clock[i] = time.monotonic()
+        if logs[i] is not None:
+            print(f"{pending[i][0]}: started, its console in {logs[i].relative_to(ROOT)}", flush=True)
+
+    def ended(i: int, code: int) -> None:
+        minutes = (time.monotonic() - clock[i]) / 60
+        print(f"{pending[i][0]}: " + (f"done in {minutes:.1f} min" if code == 0 else
+                                      f"the sweep exited {code} after {minutes:.1f} min; run the same "
+                                      "command again to go on"), flush=True)
+
+    print(f"{len(pending)} studies to run, {jobs} at once", flush=True)
+    with contextlib.ExitStack() as stack:
+        outs = []
+        for log in logs:
+            if log is not None:
+                log.parent.mkdir(parents=True, exist_ok=True)
+            outs.append(None if log is None else stack.enter_context(log.open("a")))
+        codes = child.call_all([cmd for _, cmd in pending], ROOT, jobs, outs, started=started, ended=ended)
+    return sum(code != 0 for code in codes)

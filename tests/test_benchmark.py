@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from bench import benchmark
+from bench import benchmark, child
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -245,6 +245,56 @@ def test_a_ctrl_c_of_the_caller_reaches_its_child_once_and_waits_for_it(tmp_path
     out, _ = caller.communicate(timeout=60)
     assert caller.returncode == 3 and out.strip() == "stopped"
     assert (tmp_path / "saved").read_text() == "1"
+
+
+POOL = """
+import sys
+sys.path.insert(0, {root!r})
+from bench import child
+outs = [{out!r} + f"/{{i}}" for i in range(3)]
+try:
+    child.call_all([[sys.executable, "-c", {stopper!r}, out] for out in outs], cwd={out!r}, jobs=2,
+                   started=lambda i: print("started", i, flush=True))
+except KeyboardInterrupt:
+    print("stopped")
+    sys.exit(3)
+"""
+
+
+def test_a_ctrl_c_reaches_every_child_running_at_once_and_starts_no_more(tmp_path):
+    """``--tune --jobs 2``'s pool stopped: each of the two children running gets exactly one
+    SIGINT and the time to save, the third command never starts, the caller stops after them."""
+    for i in range(3):
+        (tmp_path / str(i)).mkdir()
+    script = POOL.format(root=str(ROOT), stopper=STOPPER, out=str(tmp_path))
+    caller = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not all((tmp_path / str(i) / "ready").exists() for i in range(2)):
+        assert time.monotonic() < deadline and caller.poll() is None
+        time.sleep(0.05)
+    os.kill(caller.pid, signal.SIGINT)
+    out, _ = caller.communicate(timeout=60)
+    assert caller.returncode == 3 and out.split() == ["started", "0", "started", "1", "stopped"]
+    assert [(tmp_path / str(i) / "saved").read_text() for i in range(2)] == ["1", "1"]
+    assert not any((tmp_path / "2").iterdir())
+
+
+def test_the_pool_runs_its_commands_jobs_at_a_time_and_stops_starting_after_a_kill(tmp_path):
+    """Exit codes in the commands' order; at most ``jobs`` running at once; a child ended by
+    a signal starts no more (those running finish)."""
+    log = tmp_path / "log"
+    sleeper = ("import sys, time, pathlib; log = pathlib.Path(sys.argv[1]); "
+               "log.open('a').write(f'+{sys.argv[2]}\\n'); time.sleep(0.3); log.open('a').write(f'-{sys.argv[2]}\\n'); "
+               "sys.exit(int(sys.argv[3]))")
+    cmds = [[sys.executable, "-c", sleeper, str(log), str(i), code] for i, code in enumerate(["0", "2", "0"])]
+    assert child.call_all(cmds, cwd=tmp_path, jobs=2, every=0.05) == [0, 2, 0]
+    running = peak = 0
+    for line in log.read_text().split():
+        running += 1 if line[0] == "+" else -1
+        peak = max(peak, running)
+    assert peak == 2
+    killer = [sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGKILL)"]
+    assert child.call_all([killer, cmds[0]], cwd=tmp_path, jobs=1, every=0.05) == [-9, None]
 
 
 def test_a_benchmark_stopped_by_ctrl_c_saves_and_goes_on(tmp_path):
