@@ -77,6 +77,7 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
     (["--seeds", "0"], "--seeds must be at least 1, got 0"),
     (["--budget", "-3"], "--budget must be a positive number of env steps, got -3"),
     (["--settings", "best"], "unknown setting 'best'; settings: published, tuned"),
+    (["--tune", "--jobs", "0"], "--jobs must be at least 1 (studies at once), got 0"),
     (["--quick", "--budget", "100"], "a budget of 100 env steps cannot finish an episode of cartpole x qlearn "
                                      "(tuned): 8 copies x up to 1000 steps need 8000; give --budget 8000 or more"),
     (["--read", "/no/such/folder"], "--read /no/such/folder: no such results folder"),
