@@ -25,7 +25,6 @@ import argparse
 import csv
 import json
 import math
-import os
 import platform
 import statistics
 import subprocess
@@ -383,7 +382,7 @@ def rewrite_readme(readme: Path, body: str, block: str | None = None) -> None:
 
 def describe(jobs: list[Job], commands: list[str]) -> str:
     """How the table was made: the commands, the seeds, what success and the numbers mean."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cores = child.cores()
     seeds = sorted({s for job in jobs for s in job.seeds})
     mine = [set(job.overrides) for job in jobs if job.setting == "published"]
     published = sorted(set.intersection(*mine)) if mine else []  # a variant's or a task's own: in its row

@@ -12,12 +12,19 @@ then stops too.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import subprocess
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO
+
+
+def cores() -> int:
+    """The CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def call(cmd: Sequence[str], cwd: Path, stdout: IO | None = None, poll: Callable[[], None] | None = None,
@@ -40,7 +47,7 @@ def call(cmd: Sequence[str], cwd: Path, stdout: IO | None = None, poll: Callable
     return call_all([cmd], cwd, 1, [stdout], poll=poll, every=every)[0]
 
 
-def call_all(cmds: Sequence[Sequence[str]], cwd: Path, jobs: int, stdouts: Sequence[IO | None] | None = None,
+def call_all(cmds: Sequence[Sequence[str]], cwd: Path, jobs: int, stdouts: Sequence[IO | Path | None] | None = None,
              started: Callable[[int], None] | None = None, ended: Callable[[int, int], None] | None = None,
              poll: Callable[[], None] | None = None, every: float = 1.0) -> list[int | None]:
     """Runs ``cmds`` in order, up to ``jobs`` at once, and returns their exit codes.
@@ -52,7 +59,8 @@ def call_all(cmds: Sequence[Sequence[str]], cwd: Path, jobs: int, stdouts: Seque
         cmds: the command lines.
         cwd: their working folder.
         jobs: children running at once (at least 1).
-        stdouts: per command, a file for its stdout and stderr together; None: the caller's.
+        stdouts: per command, a file for its stdout and stderr together (a path: appended to,
+            opened when the command starts); None: the caller's.
         started: called with a command's index when it starts.
         ended: called with a command's index and exit code when it exits.
         poll: called every ``every`` seconds while children run.
@@ -70,10 +78,14 @@ def call_all(cmds: Sequence[Sequence[str]], cwd: Path, jobs: int, stdouts: Seque
     following, interrupted, halted = 0, False, False
     while True:
         while not (interrupted or halted) and following < len(cmds) and len(running) < max(jobs, 1):
-            out = stdouts[following]
-            running[following] = subprocess.Popen(cmds[following], cwd=cwd, stdout=out,
-                                                  stderr=subprocess.STDOUT if out else None,
-                                                  start_new_session=True)
+            with contextlib.ExitStack() as stack:
+                out = stdouts[following]
+                if isinstance(out, Path):  # the child keeps its own copy of the open file
+                    out.parent.mkdir(parents=True, exist_ok=True)
+                    out = stack.enter_context(out.open("a"))
+                running[following] = subprocess.Popen(cmds[following], cwd=cwd, stdout=out,
+                                                      stderr=subprocess.STDOUT if out else None,
+                                                      start_new_session=True)
             if started is not None:
                 started(following)
             following += 1
@@ -87,7 +99,7 @@ def call_all(cmds: Sequence[Sequence[str]], cwd: Path, jobs: int, stdouts: Seque
         if not running and (interrupted or halted or following == len(cmds)):
             break
         try:
-            time.sleep(every if running else 0)
+            time.sleep(every)
             if poll is not None:
                 poll()
         except KeyboardInterrupt:

@@ -21,8 +21,6 @@ the switch).
 
 from __future__ import annotations
 
-import contextlib
-import os
 import sys
 import time
 from pathlib import Path
@@ -91,11 +89,6 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
             f"hydra.sweep.dir={sweep_dir}"]
 
 
-def cores() -> int:
-    """The CPU cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_run: bool = False,
          jobs: int | None = None) -> int:
     """Tunes every pair asked for (the plan's by default), ``jobs`` studies at once (each a
@@ -128,7 +121,7 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             pending.append((name, cmd))
     if dry_run or not pending:
         return len(pending)
-    jobs = min(jobs or cores(), len(pending))
+    jobs = min(jobs or child.cores(), len(pending))
     logs = [ROOT / SWEEPS / name / f"{stamp}.log" for name, _ in pending] if jobs > 1 else [None] * len(pending)
     clock: dict[int, float] = {}
 
@@ -144,11 +137,5 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                                       "command again to go on"), flush=True)
 
     print(f"{len(pending)} studies to run, {jobs} at once", flush=True)
-    with contextlib.ExitStack() as stack:
-        outs = []
-        for log in logs:
-            if log is not None:
-                log.parent.mkdir(parents=True, exist_ok=True)
-            outs.append(None if log is None else stack.enter_context(log.open("a")))
-        codes = child.call_all([cmd for _, cmd in pending], ROOT, jobs, outs, started=started, ended=ended)
+    codes = child.call_all([cmd for _, cmd in pending], ROOT, jobs, logs, started=started, ended=ended)
     return sum(code != 0 for code in codes)

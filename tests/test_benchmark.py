@@ -251,10 +251,12 @@ def test_a_ctrl_c_of_the_caller_reaches_its_child_once_and_waits_for_it(tmp_path
 POOL = """
 import sys
 sys.path.insert(0, {root!r})
+from pathlib import Path
 from bench import child
 outs = [{out!r} + f"/{{i}}" for i in range(3)]
 try:
     child.call_all([[sys.executable, "-c", {stopper!r}, out] for out in outs], cwd={out!r}, jobs=2,
+                   stdouts=[Path(out) / "console.log" for out in outs],
                    started=lambda i: print("started", i, flush=True))
 except KeyboardInterrupt:
     print("stopped")
@@ -264,7 +266,8 @@ except KeyboardInterrupt:
 
 def test_a_ctrl_c_reaches_every_child_running_at_once_and_starts_no_more(tmp_path):
     """``--tune --jobs 2``'s pool stopped: each of the two children running gets exactly one
-    SIGINT and the time to save, the third command never starts, the caller stops after them."""
+    SIGINT and the time to save, the third command never starts (not even its console file
+    is made), the caller stops after them."""
     for i in range(3):
         (tmp_path / str(i)).mkdir()
     script = POOL.format(root=str(ROOT), stopper=STOPPER, out=str(tmp_path))
@@ -277,6 +280,7 @@ def test_a_ctrl_c_reaches_every_child_running_at_once_and_starts_no_more(tmp_pat
     out, _ = caller.communicate(timeout=60)
     assert caller.returncode == 3 and out.split() == ["started", "0", "started", "1", "stopped"]
     assert [(tmp_path / str(i) / "saved").read_text() for i in range(2)] == ["1", "1"]
+    assert all((tmp_path / str(i) / "console.log").is_file() for i in range(2))
     assert not any((tmp_path / "2").iterdir())
 
 
