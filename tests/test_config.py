@@ -94,6 +94,19 @@ def test_tuned_parameters_follow_robot_and_learner_yet_stay_overridable():
     assert cfg.learner.alpha == 0.33
 
 
+def test_rainbow_is_the_papers_settings_and_its_studies_keep_the_replay_period():
+    """The rainbow's settings where they are not Atari's scale, an update every 4 env steps
+    among them; its studies do not search that (ranked by env steps, they would buy env
+    steps with updates of ~3x a plain one's cost)."""
+    cfg = catalog.compose("cartpole", learner="rainbow", overrides=["~tuned"]).learner
+    assert (cfg.double_dqn, cfg.n_step, cfg.prioritized, cfg.dueling, cfg.noisy, cfg.distributional) == (
+        True, 3, True, True, True, True)
+    assert (cfg.priority_alpha, cfg.priority_beta, cfg.noisy_sigma, cfg.atoms, cfg.updates) == (0.5, 0.4, 0.5, 51, 0.25)
+    space = OmegaConf.load(CONF / "search" / "rainbow.yaml")
+    assert "learner.updates" not in space and "learner.n_step" in space
+    assert "updates" not in OmegaConf.load(CONF / "tuned" / "cartpole_rainbow.yaml").learner
+
+
 def test_unknown_option_and_key_fail_with_hydra_message():
     with pytest.raises(ConfigCompositionException, match="robot"):
         compose_cfg("robot=submarine")
