@@ -2,6 +2,7 @@
 cartpole/stay_up, over 3 seeds, and what a whole process costs around it (run by hand).
 
     python bench/time_to_solve.py [--seeds 0 1 2] [--num-envs-dqn 16] [--num-envs-qlearn 1]
+    python bench/time_to_solve.py --against rainbow --seeds 1000 1001 1002 1003
 
 Per learner, a Hydra sweep over the seeds; ``wall_s`` is the run's own clock to the
 solving episode (training, from the run's start). Then one plain process,
@@ -15,6 +16,12 @@ to the first env step> wall_to_solve_s=<in the run> rest_s=<the remainder: after
 verdict is known, writing and plotting, and exiting>`` and ``SOLVE <learner>
 cartpole/stay_up median_wall_s=<v> solved=<k>/3`` (the median over the seeds that
 solved; ``nan`` if none did).
+
+``--against rainbow`` instead: ``python train.py robot=cartpole learner=<dqn|rainbow>
+seed=<s> quiet=true`` (each with its tuned file), one process at a time, the two
+alternating which goes first from seed to seed; per seed each one's time to solve (the
+run's own clock) and the ratio, then ``AGAINST rainbow/dqn cartpole/stay_up
+median_ratio=<v> medians=<rainbow>/<dqn> both_solved=<k>/<n>`` (the issue's target: within 2x).
 """
 
 from __future__ import annotations
@@ -52,13 +59,49 @@ def whole_process(seed: int, num_envs: int) -> str:
             f"wall_to_solve_s={fmt(solve, '.1f')} rest_s={fmt(rest, '.1f')}")
 
 
+def to_solve(learner: str, seed: int) -> dict:
+    """One plain ``train.py`` run of ``learner`` on the cart-pole: its summary."""
+    cmd = [sys.executable, "train.py", "robot=cartpole", f"learner={learner}", f"seed={seed}", "quiet=true"]
+    print("running:", " ".join(cmd), flush=True)
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    found = re.search(r"^VERDICT .* run_dir=(.+)$", proc.stdout, re.MULTILINE)
+    if proc.returncode not in (0, 1) or found is None:
+        sys.exit(f"error: train.py exit code {proc.returncode}\n{proc.stdout}{proc.stderr}")
+    return summarize_run(ROOT / found.group(1))
+
+
+def against(other: str, base: str, seeds: list[int]) -> None:
+    """``other`` and ``base`` seed by seed, one process at a time, alternating which goes first."""
+    won: dict[str, list[float]] = {other: [], base: []}
+    ratios = []
+    for i, seed in enumerate(seeds):
+        order = (base, other) if i % 2 == 0 else (other, base)
+        walls = {learner: to_solve(learner, seed).get("wall_to_solve") for learner in order}
+        for learner, wall in walls.items():
+            if wall is not None:
+                won[learner].append(wall)
+        both = None not in walls.values()
+        if both:
+            ratios.append(walls[other] / walls[base])
+        print(f"seed={seed} {base}_s={fmt(walls[base], '.1f')} {other}_s={fmt(walls[other], '.1f')} "
+              f"ratio={fmt(ratios[-1] if both else None, '.2f')}", flush=True)
+    median = statistics.median(ratios) if ratios else float("nan")
+    medians = "/".join(f"{statistics.median(won[k]):.1f}" if won[k] else "nan" for k in (other, base))
+    print(f"AGAINST {other}/{base} cartpole/stay_up median_ratio={median:.2f} medians={medians} "
+          f"both_solved={len(ratios)}/{len(seeds)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--num-envs-dqn", type=int, default=16)
     parser.add_argument("--num-envs-qlearn", type=int, default=1)
     parser.add_argument("--learners", nargs="+", default=["dqn", "qlearn"], choices=["dqn", "qlearn"])
+    parser.add_argument("--against", choices=["rainbow"],
+                        help="instead: this learner against dqn, one plain run at a time per seed")
     args = parser.parse_args()
+    if args.against:
+        return against(args.against, "dqn", args.seeds)
     seeds = ",".join(map(str, args.seeds))
     results = {}
     for learner, n in (("dqn", args.num_envs_dqn), ("qlearn", args.num_envs_qlearn)):
