@@ -17,7 +17,8 @@ floor (its copy-steps priced at this machine's rollout cost at its widths, as
 ``bench/seed_batch.py`` prices a seed batch).
 
 One study's best value is one draw of the sampler's luck: ``--repeats R`` runs every
-variant with the sampler seeds 0 .. R-1 (the same seeds for each) and ``--per-batch``
+variant with the sampler seeds 0 .. R-1 (the same seeds for each; ``--sampler-seeds 2 3``
+names them instead, to add repeats to an earlier run's) and ``--per-batch``
 takes several sizes (``--per-batch 12 4``: all at once, and in rounds of four); the last
 line then gives each variant's mean best and wall over the repeats.
 
@@ -97,6 +98,8 @@ def main() -> None:
     parser.add_argument("--per-batch", type=int, nargs="+",
                         help="trials asked together by the batched study, one or more sizes (default: all)")
     parser.add_argument("--repeats", type=int, default=1, help="sampler seeds 0 .. R-1, every variant each")
+    parser.add_argument("--sampler-seeds", type=int, nargs="+",
+                        help="instead of --repeats: these sampler seeds (to add one to earlier repeats)")
     parser.add_argument("--pruners", nargs="+", help="instead: the batched study with each pruner (null, median, "
                         "successive_halving, hyperband): best value and env steps spent")
     parser.add_argument("--space", type=Path)
@@ -106,6 +109,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.trials < 1 or args.budget < 1:
         sys.exit("error: --trials and --budget must be >= 1")
+    args.sampler_seeds = args.sampler_seeds or list(range(args.repeats))
+    args.repeats = len(args.sampler_seeds)
     out = ROOT / "multirun" / f"bench_tune_batch_{time.strftime('%Y%m%d-%H%M%S')}"
     out.mkdir(parents=True)
     space = args.space or out / "space.yaml"
@@ -118,7 +123,7 @@ def main() -> None:
         return against_ref(args, space, out)
     sizes = args.per_batch or [args.trials]
     found: dict[int, list[tuple[float, float]]] = {1: [], **{k: [] for k in sizes}}
-    for r in range(args.repeats):
+    for r in args.sampler_seeds:
         for k in found:  # interleaved: each repeat runs every variant
             found[k].append(study(args, f"batch{k}_seed{r}", k, space, out, sampler_seed=r)[:2])
             print(f"repeat {r}: per_batch={k} wall_s={found[k][-1][0]:.1f} best={found[k][-1][1]:.4g}", flush=True)
@@ -127,7 +132,7 @@ def main() -> None:
     sequential_s, sequential_best = (statistics.fmean(v[i] for v in found[1]) for i in (0, 1))
     for k in sizes:
         batched_s, batched_best = (statistics.fmean(v[i] for v in found[k]) for i in (0, 1))
-        floor_s = floor_of(args.robot, out / f"batch{k}_seed0", k * len(args.seeds) * copies)
+        floor_s = floor_of(args.robot, out / f"batch{k}_seed{args.sampler_seeds[0]}", k * len(args.seeds) * copies)
         print(f"TUNE {args.robot} {args.learner} trials={args.trials} per_batch={k} seeds={len(args.seeds)} "
               f"budget={args.budget} repeats={args.repeats} "
               f"sequential_s={sequential_s:.1f} batched_s={batched_s:.1f} ratio={batched_s / sequential_s:.2f} "
@@ -145,12 +150,12 @@ def against_ref(args, space: Path, out: Path) -> None:
     trees = {"before": worktree(args.ref), "after": ROOT}
     k = (args.per_batch or [args.trials])[0]
     found: dict[str, list[float]] = {name: [] for name in trees}
-    for r in range(args.repeats):
-        for name in (list(trees) if r % 2 == 0 else list(trees)[::-1]):
+    for i, r in enumerate(args.sampler_seeds):
+        for name in (list(trees) if i % 2 == 0 else list(trees)[::-1]):
             found[name].append(study(args, f"{name}{r}", k, space, out, sampler_seed=r, tree=trees[name])[0])
             print(f"repeat {r}: {name} wall_s={found[name][-1]:.1f}", flush=True)
     copies = copies_of(args)
-    floors = {name: floor_of(args.robot, out / f"{name}0", k * len(args.seeds) * copies) for name in trees}
+    floors = {name: floor_of(args.robot, out / f"{name}{args.sampler_seeds[0]}", k * len(args.seeds) * copies) for name in trees}
     print(f"load average (1/5/15 min) at the end: {load()}")
     before, after = (statistics.fmean(found[name]) for name in trees)
     print(f"TUNE_REF {args.robot} {args.learner} trials={args.trials} per_batch={k} seeds={len(args.seeds)} "
@@ -162,7 +167,7 @@ def against_ref(args, space: Path, out: Path) -> None:
 def compare_pruners(args, space: Path, out: Path) -> None:
     """Each pruner's batched study over the repeats: mean best value, env steps, wall."""
     found: dict[str, list[tuple[float, float, int]]] = {k: [] for k in args.pruners}
-    for r in range(args.repeats):
+    for r in args.sampler_seeds:
         for pruner in args.pruners:
             found[pruner].append(study(args, f"{pruner}_seed{r}", args.trials, space, out, r, pruner))
             s, best, steps = found[pruner][-1]
