@@ -33,17 +33,16 @@ import statistics
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 from sweep import ROOT, fmt, run_sweep
 from runs.summary import summarize_run  # noqa: E402  (sweep puts the root on the path)
 
 
-def whole_process(seed: int, num_envs: int) -> str:
-    """One plain ``train.py`` dqn run, timed from outside; its START line."""
-    cmd = [sys.executable, "train.py", "robot=cartpole", "learner=dqn", f"seed={seed}",
-           "eval_episodes=0", "quiet=true"]
-    if num_envs != 16:  # the tuned file's
-        cmd.append(f"num_envs={num_envs}")
+def plain_run(overrides: list[str]) -> tuple[float, Path]:
+    """One plain ``train.py robot=cartpole <overrides> quiet=true``, timed from outside:
+    (seconds from start to exit, its run folder)."""
+    cmd = [sys.executable, "train.py", "robot=cartpole", *overrides, "quiet=true"]
     print("running:", " ".join(cmd), flush=True)
     start = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
@@ -51,23 +50,20 @@ def whole_process(seed: int, num_envs: int) -> str:
     found = re.search(r"^VERDICT .* run_dir=(.+)$", proc.stdout, re.MULTILINE)
     if proc.returncode != 0 or found is None:
         sys.exit(f"error: train.py exit code {proc.returncode}\n{proc.stdout}{proc.stderr}")
-    run_dir = ROOT / found.group(1)
+    return process_s, ROOT / found.group(1)
+
+
+def whole_process(seed: int, num_envs: int) -> str:
+    """One plain ``train.py`` dqn run, timed from outside; its START line."""
+    overrides = ["learner=dqn", f"seed={seed}", "eval_episodes=0"]
+    if num_envs != 16:  # the tuned file's
+        overrides.append(f"num_envs={num_envs}")
+    process_s, run_dir = plain_run(overrides)
     first = json.loads((run_dir / "summary.json").read_text()).get("first_step_s")
     solve = summarize_run(run_dir).get("wall_to_solve")
     rest = None if first is None or solve is None else process_s - first - solve
     return (f"START dqn cartpole/stay_up process_s={process_s:.1f} first_step_s={fmt(first, '.1f')} "
             f"wall_to_solve_s={fmt(solve, '.1f')} rest_s={fmt(rest, '.1f')}")
-
-
-def to_solve(learner: str, seed: int) -> dict:
-    """One plain ``train.py`` run of ``learner`` on the cart-pole: its summary."""
-    cmd = [sys.executable, "train.py", "robot=cartpole", f"learner={learner}", f"seed={seed}", "quiet=true"]
-    print("running:", " ".join(cmd), flush=True)
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
-    found = re.search(r"^VERDICT .* run_dir=(.+)$", proc.stdout, re.MULTILINE)
-    if proc.returncode not in (0, 1) or found is None:
-        sys.exit(f"error: train.py exit code {proc.returncode}\n{proc.stdout}{proc.stderr}")
-    return summarize_run(ROOT / found.group(1))
 
 
 def against(other: str, base: str, seeds: list[int]) -> None:
@@ -76,7 +72,10 @@ def against(other: str, base: str, seeds: list[int]) -> None:
     ratios = []
     for i, seed in enumerate(seeds):
         order = (base, other) if i % 2 == 0 else (other, base)
-        walls = {learner: to_solve(learner, seed).get("wall_to_solve") for learner in order}
+        walls = {}
+        for learner in order:
+            _, run_dir = plain_run([f"learner={learner}", f"seed={seed}"])
+            walls[learner] = summarize_run(run_dir).get("wall_to_solve")
         for learner, wall in walls.items():
             if wall is not None:
                 won[learner].append(wall)
