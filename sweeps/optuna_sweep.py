@@ -28,7 +28,7 @@ from tasks.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name
 from runs.settings import check_run_config
 from runs.summary import SUCCESS_AND_SPEED, final_measure, success_and_speed, summarize_run
 from sweeps.resume import continuable, resume_runs
-from sweeps.tuning import (KEPT, Plan, abandoned, check_space, check_sweeper_settings, claim, current_trial,
+from sweeps.tuning import (KEPT, Plan, abandoned, batch_size, check_space, check_sweeper_settings, claim, current_trial,
                            job_folders_of, kept_text, load_space, make_pruner, now_utc, open_storage, override_value,
                            replace_tuned, shown_url, tuned_text)
 from tasks.base import Success
@@ -157,8 +157,8 @@ class TuningSweep:
         to_ask = self.n_trials + self._take_over(study, plan)  # trials asked again are not new ones
         results, done = [], 0
         while done < to_ask and not (sweep_dir / ".stop").exists():
-            batch = [study.ask({k: p.distribution for k, p in plan.params.items()})
-                     for _ in range(min(self.trials_per_batch, to_ask - done))]
+            size = batch_size(self.trials_per_batch, to_ask - done, _finished(study), self.startup_trials)
+            batch = [study.ask({k: p.distribution for k, p in plan.params.items()}) for _ in range(size)]
             for trial in batch:
                 claim(self._storage, self._trial_id(study, trial.number), self.seeds)
             results.append(self._run_batch(study, batch, plan, first_job=done * len(self.seeds)))
@@ -379,6 +379,14 @@ class TuningSweep:
             print(f"the next `python train.py {picks}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
+
+
+def _finished(study) -> int:
+    """The study's trials the sampler learns from (complete or pruned)."""
+    import optuna
+
+    state = optuna.trial.TrialState
+    return len(study.get_trials(deepcopy=False, states=(state.COMPLETE, state.PRUNED)))
 
 
 def _summaries(run_dirs: list) -> list[dict]:

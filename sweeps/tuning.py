@@ -147,6 +147,16 @@ def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def batch_size(per_batch: int, left: int, finished: int, startup: int) -> int:
+    """How many trials to ask together next: ``per_batch`` (at most the ``left`` to ask), but
+    while fewer than ``startup`` trials have finished (complete or pruned: the TPE sampler
+    draws at random until then), only the random ones still due. A trial the sampler could
+    guide is not asked before the random trials it would learn from have run, so a batched
+    study samples as many trials at random as one asked one at a time, not all of them."""
+    size = min(per_batch, left)
+    return min(size, startup - finished) if finished < startup else size
+
+
 def pruner_settings(pruner: Any, pruners: Any = None,
                     refuse: Callable[[str, str], ConfigError] | None = None) -> dict | None:
     """The pruner a sweep uses, ``{"kind": ..., <settings>}`` or None: ``pruner`` names a kind

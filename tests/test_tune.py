@@ -13,7 +13,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from runs.settings import check_run_config
-from sweeps.tuning import (TrialLink, check_space, current_trial, load_space, open_storage, parse_space,
+from sweeps.tuning import (TrialLink, batch_size, check_space, current_trial, load_space, open_storage, parse_space,
                              tuned_text)
 from params import ConfigError
 from tasks.catalog import compose, conf_dir
@@ -147,6 +147,23 @@ def test_trials_that_differ_in_member_wise_settings_train_as_one_batch(tmp_path)
     trials = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     assert len(trials) == 2 and all(t.intermediate_values for t in trials)
     assert trials[0].params != trials[1].params
+
+
+@pytest.mark.parametrize("per_batch, startup, sizes", [
+    (12, 5, [5, 7]),  # the random trials together, then the rest asked from what they found
+    (4, 5, [4, 1, 4, 3]),  # never a guided trial asked before the fifth random one finished
+    (1, 5, [1] * 12),  # one at a time as before
+    (12, 0, [12]),  # no random start: all at once
+    (3, 20, [3, 3, 3, 3]),  # a study shorter than its random start
+])
+def test_a_batched_study_asks_the_samplers_random_trials_before_the_ones_it_guides(per_batch, startup, sizes):
+    """Batches of a 12-trial study: while fewer than ``startup`` trials have finished, only
+    the random ones still due are asked (each batch finishes before the next is asked)."""
+    asked, finished = [], 0
+    while finished < 12:
+        asked.append(batch_size(per_batch, 12 - finished, finished, startup))
+        finished += asked[-1]
+    assert asked == sizes
 
 
 def tuning(tmp_path: Path, study: str, folder: str, kill: str | None = None) -> subprocess.CompletedProcess:
