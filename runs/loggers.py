@@ -21,16 +21,16 @@ the start (:func:`log_hparams`). With no logger (``None``) they do nothing.
 W&B: TorchRL gives each group its own step metric (``episode/step``, ...),
 which holds these env steps.
 
-The CSV logger keeps no scalar in memory (TorchRL's keeps every one it writes:
-about 1 KB per episode, for ever); a resumed run cuts its files back to the
-checkpoint's rows (:func:`csv_sizes`, :func:`cut_csv_files`), as it does metrics.csv.
+The CSV logger (:class:`runs.csv_logger.BufferedCSVLogger`) keeps no scalar in memory
+(TorchRL's keeps every one it writes: about 1 KB per episode, for ever) and writes through a
+buffer that a checkpoint flushes (:func:`csv_sizes`); a resumed run cuts its files back to
+the checkpoint's rows (:func:`cut_csv_files`), as it does metrics.csv.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import os
-from collections import defaultdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
@@ -91,30 +91,19 @@ def make_logger(kind: str | None, run_dir: Path, exp_name: str, offline: bool = 
         store = (sweep / "mlflow.db") if sweep is not None else (log_dir / "mlflow.db")
         return JobLogger(experiment=sweep.name if sweep is not None else exp_name, run_name=Path(run_dir).name,
                          store=store, run_dir=Path(run_dir), tags=tags)
-    logger = get_logger(kind, logger_name=str(log_dir), experiment_name=exp_name, **kwargs)
-    if kind == "csv":  # each value is on disk the moment it is logged: keep only counts
-        logger.experiment.scalars = defaultdict(_Count)
-    return logger
+    if kind == "csv":
+        from runs.csv_logger import BufferedCSVLogger
+
+        return BufferedCSVLogger(exp_name=exp_name, log_dir=str(log_dir))
+    return get_logger(kind, logger_name=str(log_dir), experiment_name=exp_name, **kwargs)
 
 
-class _Count:
-    """Stands in for TorchRL's per-scalar list of (step, value): counts what is appended
-    (its length numbers steps logged without one) and keeps nothing else."""
-
-    def __init__(self) -> None:
-        self.n = 0
-
-    def append(self, _item: Any) -> None:
-        self.n += 1
-
-    def __len__(self) -> int:
-        return self.n
-
-
-def csv_sizes(run_dir: Path) -> dict[str, int]:
-    """The CSV logger's scalar files below ``run_dir/logs`` and their sizes in bytes (each
-    value is flushed as it is logged; empty without that logger): what a checkpoint records,
-    so a resume can cut them back (a stat per file, however long the run)."""
+def csv_sizes(run_dir: Path, logger=None) -> dict[str, int]:
+    """The CSV logger's scalar files below ``run_dir/logs`` and their sizes in bytes, once
+    ``logger`` (the run's, if any) has flushed them (empty without that logger): what a
+    checkpoint records, so a resume can cut them back (a stat per file, however long the run)."""
+    if logger is not None:
+        logger.flush()
     return {path.relative_to(run_dir).as_posix(): path.stat().st_size
             for path in sorted((Path(run_dir) / "logs").glob("*/scalars/**/*.csv"))}
 

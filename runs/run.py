@@ -459,7 +459,7 @@ class Run:
                 "returns": torch.tensor(np.frombuffer(self.returns, np.float64)),
                 "evals": [dict(r) for r in self.evals],
                 "env_steps": self.env_steps, **self.judge.state_dict(),
-                "wall_s": self.wall_s, "last_eval": self.last_eval, "log_sizes": csv_sizes(self.run_dir),
+                "wall_s": self.wall_s, "last_eval": self.last_eval, "log_sizes": csv_sizes(self.run_dir, self.logger),
                 "train_logged": self._train_logged, "train_due": self._train_due,
                 "ret": torch.from_numpy(self.episodes.running_return.copy()),
                 "len": torch.from_numpy(self.episodes.running_length.copy())}

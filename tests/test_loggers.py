@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 
 from learners.dqn import UpdateStats
 from runs.evaluate import greedy_evaluation
-from runs.loggers import flat_config, log_hparams, make_logger, run_scalar_names
+from runs.loggers import csv_sizes, flat_config, log_hparams, make_logger, run_scalar_names
 from runs.loop import train_single
 from runs.run import Hooks, Run
 from runs.training_state import seed_everything
@@ -222,6 +222,29 @@ def test_dqn_train_stats_without_clipping_measure_the_latest_gradient():
     assert stats["grad_norm"] == pytest.approx(float(torch.linalg.vector_norm(learner.grads[0])))
     assert learner.grads[0].abs().sum() > 0
     assert stats["updates"] == 3 and stats["loss"] > 0
+
+
+def test_the_csv_logger_writes_torchrls_lines_through_a_buffer_a_checkpoint_flushes(tmp_path):
+    """The CSV logger's files hold TorchRL's CSVLogger's lines for the same calls (``step,value``,
+    a step counted where none is given), nothing of them kept in memory; the sizes a
+    checkpoint records (``csv_sizes`` with the run's logger) count every value logged so far."""
+    from torchrl.record.loggers.csv import CSVLogger
+
+    calls = [("episode/reward", 1.5, 10), ("episode/reward", -2.0, 20), ("train/loss", 0.25, None),
+             ("train/loss", 1e-9, None), ("episode/length", 12, 20)]
+    ours, theirs = make_logger("csv", tmp_path / "ours", exp_name="run"), CSVLogger("run", str(tmp_path / "theirs"))
+    for name, value, step in calls:
+        ours.log_scalar(name, value, step)
+        theirs.log_scalar(name, value, step)
+    sizes = csv_sizes(tmp_path / "ours", ours)
+    assert sizes == {f"logs/run/scalars/{name}.csv": (tmp_path / "theirs" / "run" / "scalars" / f"{name}.csv").stat().st_size
+                     for name in ("episode/length", "episode/reward", "train/loss")}
+    assert len(ours.experiment.scalars["train/loss"]) == 2 and not hasattr(ours.experiment.scalars["train/loss"], "pop")
+    ours.close()
+    for name in ("episode/reward", "train/loss", "episode/length"):
+        mine = (tmp_path / "ours" / "logs" / "run" / "scalars" / f"{name}.csv").read_text()
+        assert mine == (tmp_path / "theirs" / "run" / "scalars" / f"{name}.csv").read_text()
+    assert (tmp_path / "ours" / "logs" / "run" / "scalars" / "train" / "loss.csv").read_text() == "0,0.25\n1,1e-09\n"
 
 
 def test_flat_config_joins_keys_and_keeps_scalars():
