@@ -19,6 +19,12 @@ in the lowest layer, ``params``, so that every package may use it.)
   and falls back to it whenever one of the others says ``EnvBase``'s own path applies.
 - Hydra ``hydra._internal.core_plugins.basic_sweeper.BasicSweeper``: a sweep's job list
   is expanded as Hydra's basic sweeper expands it.
+- Hydra ``ConfigLoaderImpl._apply_overrides_to_config`` and ``get_overrides_dirname``
+  (``hydra._internal.config_loader_impl``): the step of Hydra's composition that sets a
+  job's ``key=value`` overrides on the composed config, and the job's
+  ``hydra.job.override_dirname``. A sweep's jobs that differ only in such values are
+  composed once and each copy given its own values this way
+  (:func:`sweeps.seed_batch.compose_jobs`): Hydra's whole composition took ~0.5 s a job.
 """
 
 from __future__ import annotations
@@ -75,3 +81,20 @@ def basic_sweeper():
     from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 
     return BasicSweeper
+
+
+def apply_value_overrides(overrides: list, cfg: Any) -> None:
+    """Hydra's own step that sets parsed ``key=value`` ``overrides`` on a composed ``cfg``."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+
+    ConfigLoaderImpl._apply_overrides_to_config(overrides, cfg)
+
+
+def overrides_dirname(overrides: list, cfg: Any) -> str:
+    """``hydra.job.override_dirname`` of a job's parsed (non-hydra) ``overrides``, by
+    ``cfg.hydra.job.config.override_dirname``'s settings, as Hydra's composition sets it."""
+    from hydra._internal.config_loader_impl import get_overrides_dirname
+
+    settings = cfg.hydra.job.config.override_dirname
+    return get_overrides_dirname(overrides=overrides, kv_sep=settings.kv_sep, item_sep=settings.item_sep,
+                                 exclude_keys=settings.exclude_keys)

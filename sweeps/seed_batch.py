@@ -21,9 +21,10 @@ from typing import Sequence
 
 from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
 from hydra.types import HydraContext, TaskFunction
-from omegaconf import DictConfig, open_dict
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
+from params.private_api import apply_value_overrides, overrides_dirname
 from runs.lifecycle import Job, run_jobs, same_batch
 
 log = logging.getLogger(__name__)
@@ -80,8 +81,8 @@ class SeedBatchLaunch:
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> list[JobReturn]:
         setup_globals()
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
-        self.composed = {initial_job_idx + i: self.hydra_context.config_loader.load_sweep_config(
-            self.config, list(overrides)) for i, overrides in enumerate(job_overrides)}  # each job's, once
+        composed = compose_jobs(self.hydra_context.config_loader, self.config, job_overrides)  # each job's, once
+        self.composed = {initial_job_idx + i: cfg for i, cfg in enumerate(composed)}
         groups = same_batch([_without_hydra(self.composed[initial_job_idx + i]) for i in range(len(job_overrides))])
         chunks = batches(job_overrides, initial_job_idx, self.max_seeds, groups)  # refused before any job starts
         Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
@@ -126,6 +127,65 @@ class SeedBatchLaunch:
         if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)
             raise SystemExit(128 + int(stopped[0].get("signal", 2)))
         return returns
+
+
+def compose_jobs(loader, master: DictConfig, job_overrides: Sequence[Sequence[str]]) -> list[DictConfig]:
+    """Each job's config as ``loader.load_sweep_config(master, overrides)`` composes it.
+    Jobs whose overrides differ only in plain values (``key=value`` of a scalar or a list of
+    them, not a config group) share one composition: the first is composed by Hydra, each
+    other is a copy of it given its own values by Hydra's override step
+    (:func:`params.private_api.apply_value_overrides`), its ``hydra.overrides.task`` and
+    ``override_dirname``. A sweep's jobs differ in their seed, trial and searched values, and
+    Hydra's whole composition took ~0.5 s a job."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parser = OverridesParser.create()
+    firsts: dict[tuple, tuple[DictConfig, list]] = {}  # shape -> (composed config, its parsed overrides)
+    configs = []
+    for overrides in job_overrides:
+        parsed = parser.parse_overrides(list(overrides))
+        shape = tuple(o.key_or_group if _plain(o) else o.input_line for o in parsed)
+        first = firsts.get(shape)
+        if first is None or not _same_kinds(first[1], parsed, first[0]):
+            cfg = loader.load_sweep_config(master, list(overrides))
+            firsts.setdefault(shape, (cfg.copy(), parsed))
+            configs.append(cfg)
+            continue
+        cfg = first[0].copy()
+        changed = [o for o, was in zip(parsed, first[1]) if o.input_line != was.input_line]
+        with open_dict(cfg):
+            apply_value_overrides(changed, cfg)
+            cfg.hydra.overrides.task = [o.input_line for o in parsed if not o.is_hydra_override()]
+            cfg.hydra.job.override_dirname = overrides_dirname([o for o in parsed if not o.is_hydra_override()], cfg)
+        OmegaConf.copy_cache(from_config=master, to_config=cfg)
+        configs.append(cfg)
+    return configs
+
+
+def _plain(override) -> bool:
+    """A ``key=value`` override of a scalar or a list of scalars (not a group, package,
+    addition or deletion), which a copy of a composed config can take."""
+    from hydra.core.override_parser.types import OverrideType
+
+    if override.type != OverrideType.CHANGE or override.package is not None or override.is_sweep_override():
+        return False
+    value = override.value()
+    return isinstance(value, (int, float, str, bool, type(None))) or (
+        isinstance(value, list) and all(isinstance(v, (int, float, str, bool, type(None))) for v in value))
+
+
+def _same_kinds(first: list, parsed: list, cfg: DictConfig) -> bool:
+    """Whether ``parsed``'s values can be set on a copy of ``cfg`` (``first``'s composition):
+    no override names a config group, and each changed value is of its first's kind (a list
+    for a list, a scalar for a scalar: a merge would otherwise differ from Hydra's)."""
+    groups = set(cfg.hydra.runtime.choices)
+    for o, was in zip(parsed, first):
+        if o.key_or_group in groups:
+            if o.input_line != was.input_line:
+                return False
+        elif o.input_line != was.input_line and isinstance(o.value(), list) != isinstance(was.value(), list):
+            return False
+    return True
 
 
 def _without_hydra(cfg: DictConfig) -> DictConfig:

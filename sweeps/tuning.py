@@ -460,6 +460,7 @@ class TrialLink:
         study_id = self._storage.get_study_id_from_name(study)
         self._trial_id = self._storage.get_trial_id_from_study_id_trial_number(study_id, number)
         self._pruner = self._study.pruner
+        self._never_prunes = isinstance(self._pruner, optuna.pruners.NopPruner)
         self._renewed = -math.inf  # when this job last renewed the trial's lease
         where = f"{socket.gethostname()}:{os.getpid()}"
         key = "worker" if lead else f"worker_{os.getpid()}"
@@ -490,6 +491,8 @@ class TrialLink:
                 self._storage.set_trial_user_attr(self._trial_id, "alive_at", self._renewed)
             if not (math.isfinite(value) and self._report(step, float(value), frozen)):
                 return False  # no new intermediate value: nothing new for the pruner to judge
+            if self._never_prunes:
+                return False  # (the trial's new state need not be read back for it)
             frozen = self._storage.get_trial(self._trial_id)
             if self._pruner.prune(self._study, frozen):
                 self._storage.set_trial_user_attr(self._trial_id, "pruned_at_step", step)

@@ -51,3 +51,16 @@ def test_hydra_basic_sweeper_splits_arguments():
     overrides = OverridesParser.create().parse_overrides(["a=1,2", "b=3"])
     jobs = [job for batch in sweeper.split_arguments(overrides, None) for job in batch]
     assert jobs == [["a=1", "b=3"], ["a=2", "b=3"]]
+
+
+def test_hydra_sets_value_overrides_and_names_the_override_dirname():
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.create({"a": {"b": 1, "c": [1]}, "hydra": {"job": {"config": {"override_dirname": {
+        "kv_sep": "=", "item_sep": ",", "exclude_keys": ["seed"]}}}}})
+    OmegaConf.set_struct(cfg, True)
+    overrides = OverridesParser.create().parse_overrides(["a.b=2", "a.c=[3,4]", "seed=5"])
+    private_api.apply_value_overrides(overrides[:2], cfg)
+    assert cfg.a.b == 2 and list(cfg.a.c) == [3, 4]
+    assert private_api.overrides_dirname(overrides, cfg) == "a.b=2,a.c=[3,4]"
