@@ -6,7 +6,8 @@ pruner; the env-step budget a trial's seed gets is the task's ``budget_steps``, 
 benchmark's own), one Optuna study, ``bench-<task>-<learner>``, kept in a journal file
 in the repository (``bench/studies/<task>_<learner>.log``: how each tuned file was found
 can be read there later). Each pair runs ``train.py -m hydra/sweeper=optuna`` with every
-trial x seed trained side by side (``trials_per_batch``: all of them), asking only the
+trial x seed trained side by side (``trials_per_batch``: all of them; the sampler's random
+startup trials go first, together, then the rest: :func:`sweeps.tuning.batch_size`), asking only the
 trials its study still lacks: run the same command again after a stop and each study
 takes over the trials the stop left running and goes on to its count. A study that
 finishes writes the pair's ``conf/tuned/`` file (``write_tuned``; its header: the study,

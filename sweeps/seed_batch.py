@@ -136,7 +136,7 @@ def compose_jobs(loader, master: DictConfig, job_overrides: Sequence[Sequence[st
     other is a copy of it given its own values by Hydra's override step
     (:func:`params.private_api.apply_value_overrides`), its ``hydra.overrides.task`` and
     ``override_dirname``. A sweep's jobs differ in their seed, trial and searched values, and
-    Hydra's whole composition took ~0.5 s a job."""
+    Hydra's whole composition took ~0.25 s a job, a copy ~0.04 s (one process, this machine)."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     parser = OverridesParser.create()
@@ -164,10 +164,11 @@ def compose_jobs(loader, master: DictConfig, job_overrides: Sequence[Sequence[st
 
 def _plain(override) -> bool:
     """A ``key=value`` override of a scalar or a list of scalars (not a group, package,
-    addition or deletion), which a copy of a composed config can take."""
+    addition, deletion or ``hydra.*`` setting), which a copy of a composed config can take."""
     from hydra.core.override_parser.types import OverrideType
 
-    if override.type != OverrideType.CHANGE or override.package is not None or override.is_sweep_override():
+    if (override.type != OverrideType.CHANGE or override.package is not None or override.is_sweep_override()
+            or override.is_hydra_override()):  # (a hydra.* override is kept in hydra.overrides.hydra)
         return False
     value = override.value()
     return isinstance(value, (int, float, str, bool, type(None))) or (
