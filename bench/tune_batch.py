@@ -7,7 +7,8 @@ one trial at a time (run by hand).
 
 Runs ``train.py -m hydra/sweeper=optuna`` twice on the same pair, side by side in this run:
 ``trials_per_batch=1`` (each trial's seeds one batch, as a study ran before trials batched)
-and ``trials_per_batch=<per-batch>`` (default: every trial x seed a member of one batch), each with
+and ``trials_per_batch=<per-batch>`` (default: all trials; the sampler's random startup trials
+go first as a batch of their own, :func:`sweeps.tuning.batch_size`), each with
 its own new study (SQLite under the bench's folder), the same sampler seed, no pruner, every
 trial sampled (not the current configuration first) and the same env-step budget per
 trial and seed. The default space holds member-wise settings
@@ -19,7 +20,7 @@ floor (its copy-steps priced at this machine's rollout cost at its widths, as
 One study's best value is one draw of the sampler's luck: ``--repeats R`` runs every
 variant with the sampler seeds 0 .. R-1 (the same seeds for each; ``--sampler-seeds 2 3``
 names them instead, to add repeats to an earlier run's) and ``--per-batch``
-takes several sizes (``--per-batch 12 4``: all at once, and in rounds of four); the last
+takes several sizes (``--per-batch 12 4``: 12 a batch, and 4); the last
 line then gives each variant's mean best and wall over the repeats.
 
 ``--ref <commit>``: instead, the batched study in an earlier commit (a git worktree) and
