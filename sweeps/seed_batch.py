@@ -132,7 +132,8 @@ class SeedBatchLaunch:
 def compose_jobs(loader, master: DictConfig, job_overrides: Sequence[Sequence[str]]) -> list[DictConfig]:
     """Each job's config as ``loader.load_sweep_config(master, overrides)`` composes it.
     Jobs whose overrides differ only in plain values (``key=value`` of a scalar or a list of
-    them, not a config group) share one composition: the first is composed by Hydra, each
+    them, not a config group) of the same kinds (a list where the first had a list) share one
+    composition: the first of each robot, task, learner, ... is composed by Hydra, each
     other is a copy of it given its own values by Hydra's override step
     (:func:`params.private_api.apply_value_overrides`), its ``hydra.overrides.task`` and
     ``override_dirname``. A sweep's jobs differ in their seed, trial and searched values, and
@@ -140,13 +141,15 @@ def compose_jobs(loader, master: DictConfig, job_overrides: Sequence[Sequence[st
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     parser = OverridesParser.create()
+    groups = set(master.hydra.runtime.choices)
     firsts: dict[tuple, tuple[DictConfig, list]] = {}  # shape -> (composed config, its parsed overrides)
     configs = []
     for overrides in job_overrides:
         parsed = parser.parse_overrides(list(overrides))
-        shape = tuple(o.key_or_group if _plain(o) else o.input_line for o in parsed)
+        shape = tuple((o.key_or_group, isinstance(o.value(), list)) if _plain(o) and o.key_or_group not in groups
+                      else o.input_line for o in parsed)
         first = firsts.get(shape)
-        if first is None or not _same_kinds(first[1], parsed, first[0]):
+        if first is None or not _no_group_changed(first[1], parsed, first[0]):
             cfg = loader.load_sweep_config(master, list(overrides))
             firsts.setdefault(shape, (cfg.copy(), parsed))
             configs.append(cfg)
@@ -175,18 +178,11 @@ def _plain(override) -> bool:
         isinstance(value, list) and all(isinstance(v, (int, float, str, bool, type(None))) for v in value))
 
 
-def _same_kinds(first: list, parsed: list, cfg: DictConfig) -> bool:
-    """Whether ``parsed``'s values can be set on a copy of ``cfg`` (``first``'s composition):
-    no override names a config group, and each changed value is of its first's kind (a list
-    for a list, a scalar for a scalar: a merge would otherwise differ from Hydra's)."""
+def _no_group_changed(first: list, parsed: list, cfg: DictConfig) -> bool:
+    """Whether ``parsed`` changes none of the config groups of ``cfg`` (``first``'s
+    composition, which may have groups its master had not): its values can be set on a copy."""
     groups = set(cfg.hydra.runtime.choices)
-    for o, was in zip(parsed, first):
-        if o.key_or_group in groups:
-            if o.input_line != was.input_line:
-                return False
-        elif o.input_line != was.input_line and isinstance(o.value(), list) != isinstance(was.value(), list):
-            return False
-    return True
+    return all(o.input_line == was.input_line or o.key_or_group not in groups for o, was in zip(parsed, first))
 
 
 def _without_hydra(cfg: DictConfig) -> DictConfig:

@@ -341,8 +341,9 @@ def test_a_run_updates_with_denormal_numbers_flushed_and_leaves_the_process_as_i
 
 def test_a_sweeps_jobs_are_composed_as_hydra_composes_each(monkeypatch):
     """``compose_jobs``: jobs that differ only in values (seed, trial, searched settings, a
-    list among them) are copies of one composition given their values; a job of another robot
-    or learner, or with a value of another kind (null for a list), is composed by Hydra. Every config, its ``hydra`` node too, is the one
+    list among them) are copies of one composition given their values; the first job of
+    another robot or learner, or with a value of another kind (null for a list), is composed
+    by Hydra, the next ones copied from it. Every config, its ``hydra`` node too, is the one
     Hydra's ``load_sweep_config`` makes for that job."""
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -355,8 +356,9 @@ def test_a_sweeps_jobs_are_composed_as_hydra_composes_each(monkeypatch):
     jobs = [["robot=cartpole", "learner=dqn", f"learner.lr={lr}", f"learner.hidden={hidden}", f"seed={seed}",
              f"trial={trial}"] for trial, (lr, hidden) in enumerate([(0.001, "[64,64]"), (3e-3, "[32]"), (5e-4, "null")])
             for seed in (0, 1)]
-    jobs += [["robot=cube", "learner=dqn", "learner.lr=0.001", "learner.hidden=[64,64]", "seed=0", "trial=3"],
-             ["robot=cartpole", "learner=qlearn", "learner.alpha=0.5", "learner.gamma=0.9", "seed=0", "trial=4"]]
+    jobs += [["robot=cube", "learner=dqn", "learner.lr=0.001", "learner.hidden=[64,64]", f"seed={seed}", "trial=3"]
+             for seed in (0, 1)]
+    jobs += [["robot=cartpole", "learner=qlearn", "learner.alpha=0.5", "learner.gamma=0.9", "seed=0", "trial=4"]]
     with initialize_config_dir(config_dir=str(conf_dir()), version_base=None):
         loader = GlobalHydra.instance().config_loader()
         master = loader.load_configuration("config", ["hydra/sweeper=optuna"], RunMode.MULTIRUN)
@@ -364,8 +366,8 @@ def test_a_sweeps_jobs_are_composed_as_hydra_composes_each(monkeypatch):
         hydras = loader.load_sweep_config
         monkeypatch.setattr(loader, "load_sweep_config", lambda m, o: calls.append(o) or hydras(m, o))
         ours = compose_jobs(loader, master, jobs)
-        # one composition per robot and learner; a null where the first had a list: Hydra's
-        assert calls == [jobs[0], jobs[4], jobs[5], jobs[-2], jobs[-1]]
+        # one composition per robot and learner, and one for a null where the first had a list
+        assert calls == [jobs[0], jobs[4], jobs[-3], jobs[-1]]
         theirs = [hydras(master, job) for job in jobs]
     assert [OmegaConf.to_yaml(cfg) for cfg in ours] == [OmegaConf.to_yaml(cfg) for cfg in theirs]
     assert [(cfg.learner.lr, cfg.learner.hidden, cfg.seed) for cfg in ours[:3]] == [
