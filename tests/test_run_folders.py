@@ -134,7 +134,8 @@ def test_ctrl_c_on_a_joblib_sweep_leaves_every_started_job_resumable(tmp_path):
     started = sorted(p.parent for p in sweep.glob("*/run.json"))
     assert len(started) == 2
     for job in started:
-        assert (job / "checkpoint.pt").is_file() and (job / "model.pt").is_file()
+        saved = (job / "checkpoint.pt").is_file() and (job / "model.pt").is_file()
+        assert saved, f"{sorted(p.name for p in job.iterdir())}\n{out[-3000:]}\n{err[-3000:]}"
         assert f"resume with: python train.py resume={job}" in out.splitlines()
     assert "not started: 2_cartpole_qlearn_seed2" in out
     assert f"or all of them, seeds of one setting together: python train.py resume={sweep}" in out.splitlines()
