@@ -9,7 +9,8 @@ Runs ``train.py -m hydra/sweeper=optuna`` twice on the same pair, side by side i
 ``trials_per_batch=1`` (each trial's seeds one batch, as a study ran before trials batched)
 and ``trials_per_batch=<per-batch>`` (default: all trials; the sampler's random startup trials
 go first as a batch of their own, :func:`sweeps.tuning.batch_size`), each with
-its own new study (SQLite under the bench's folder), the same sampler seed, no pruner, every
+its own new study (a journal file under the bench's folder, as the grid's studies;
+``--storage sqlite``: an SQLite database), the same sampler seed, no pruner, every
 trial sampled (not the current configuration first) and the same env-step budget per
 trial and seed. The default space holds member-wise settings
 only (a space with a shape setting splits the batch: ``--space`` to try one). Prints
@@ -69,7 +70,9 @@ def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: 
 
     from tune_grid import pruning  # the grid's studies' rungs
 
-    url = f"sqlite:///{out / 'studies.db'}"
+    from sweeps.tuning import open_storage
+
+    url = f"sqlite:///{out / 'studies.db'}" if args.storage == "sqlite" else f"journal://{out / 'studies.log'}"
     cmd = [sys.executable, "train.py", "-m", "hydra/sweeper=optuna", f"robot={args.robot}", f"learner={args.learner}",
            f"hydra.sweeper.study={tag}", f"hydra.sweeper.storage={url}", f"hydra.sweeper.search={space}",
            f"hydra.sweeper.n_trials={args.trials}", f"hydra.sweeper.trials_per_batch={per_batch}",
@@ -77,7 +80,7 @@ def study(args, tag: str, per_batch: int, space: Path, out: Path, sampler_seed: 
            *pruning(pruner, args.budget), f"hydra.sweeper.sampler_seed={sampler_seed}", "hydra.sweeper.start_from_current=false",
            f"hydra.sweep.dir={out / tag}", *args.extra]
     seconds, _, _ = timed(cmd, cwd=tree)
-    best = optuna.load_study(study_name=tag, storage=url).best_value
+    best = optuna.load_study(study_name=tag, storage=open_storage(url)).best_value
     steps = sum(json.loads(f.read_text()).get("env_steps", 0) for f in (out / tag).glob("*/summary.json"))
     return seconds, best, steps
 
@@ -104,6 +107,8 @@ def main() -> None:
     parser.add_argument("--pruners", nargs="+", help="instead: the batched study with each pruner (null, median, "
                         "successive_halving, hyperband): best value and env steps spent")
     parser.add_argument("--space", type=Path)
+    parser.add_argument("--storage", choices=("journal", "sqlite"), default="journal",
+                        help="the studies' storage: a journal file (as the grid's studies) or SQLite")
     parser.add_argument("--ref", help="instead: the batched study in this checkout against the same study in this "
                         "earlier commit (a git worktree under /tmp), alternating which goes first each repeat")
     parser.add_argument("extra", nargs="*", help="overrides for every job (after --)")
