@@ -5,6 +5,8 @@
     python -m bench.benchmark --tasks cube --learners dqn --seeds 5 [-- extra overrides]
     python -m bench.benchmark --read benchmark/<folder>   # tabulate a finished (or partial) run again
     python -m bench.benchmark --tune [--tasks ...] [--learners ...] [--jobs N]   # one study per pair (bench/tune_grid.py)
+    python -m bench.benchmark --tune --studies bench/timing/<name>   # a replay in another folder (no tuned file)
+    python -m bench.benchmark --tune --minutes [--studies ...]       # each study's minutes from its journal
 
 Each task x learner x setting (``published``: the learner's defaults, ``'~tuned'``;
 ``tuned``: its ``conf/tuned/`` files, the robot's ``<robot>_<learner>`` and the task's
@@ -107,6 +109,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--dry-run", action="store_true", help="with --tune: print each pair's command only")
     parser.add_argument("--jobs", type=int, help="with --tune: studies at once, a process of one thread each "
                                                  "(default: one per core)")
+    parser.add_argument("--studies", type=Path, help="with --tune: the studies' journal folder, from the project's "
+                        "root (default: bench/studies); another folder is a replay: no conf/tuned/ file is written")
+    parser.add_argument("--minutes", action="store_true", help="with --tune: each study's minutes from its journal "
+                        "(its trials' run time, the gaps between runs left out) and their sum; run nothing")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (after --)")
     return parser.parse_args(argv)
 
@@ -512,6 +518,36 @@ def specs_of(jobs: list[Job], all_seeds: list[dict]) -> dict[str, str]:
     return specs
 
 
+def check_studies(folder: Path | None) -> Path:
+    """``--studies``: a folder inside the project, as a path from its root (the default:
+    ``bench/studies``); :class:`BadInput` otherwise."""
+    from bench.tune_grid import STUDIES
+
+    if folder is None:
+        return STUDIES
+    full = (ROOT / folder).resolve()
+    if not full.is_relative_to(ROOT.resolve()) or (full.exists() and not full.is_dir()):
+        raise BadInput(f"--studies must be a folder inside the project (its journals are kept with it), got {folder}")
+    return full.relative_to(ROOT.resolve())
+
+
+def print_grid_minutes(studies: Path) -> None:
+    """``--tune --minutes``: per study, its sweeps' wall minutes (as the grid command recorded
+    them in the folder's runs.csv) and its trials' (from its journal), and their sums."""
+    from bench.tune_grid import RUNS, grid_minutes, run_minutes
+
+    rows, swept = grid_minutes(studies), run_minutes(studies)
+    if not rows:
+        raise BadInput(f"no study journal (<task>_<learner>.log) in {studies}")
+    print(f"{'pair':<24} trials  sweeps' min  trials' min")
+    for name, trials, minutes in rows:
+        recorded = f"{swept[name]:12.1f}" if name in swept else f"{'-':>12}"
+        print(f"{name:<24} {trials:>6} {recorded} {minutes:12.1f}")
+    print(f"{len(rows)} stud{'y' if len(rows) == 1 else 'ies'}: {sum(swept.values()) / 60:.2f} hours of sweeps ({len(swept)} recorded in "
+          f"{studies / RUNS}), {sum(m for _, _, m in rows) / 60:.2f} hours of trials (their start-to-end spans, "
+          "a trial taken over after a stop spanning the stop)")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     try:
@@ -520,7 +556,10 @@ def main(argv: list[str] | None = None) -> None:
 
             if args.jobs is not None and args.jobs < 1:
                 raise BadInput(f"--jobs must be at least 1 (studies at once), got {args.jobs}")
-            sys.exit(1 if tune(load_plan(False), args.tasks, args.learners, args.dry_run, args.jobs) else 0)
+            studies = check_studies(args.studies)
+            if args.minutes:
+                return print_grid_minutes(studies)
+            sys.exit(1 if tune(load_plan(False), args.tasks, args.learners, args.dry_run, args.jobs, studies) else 0)
         run(args)
     except BadInput as err:
         sys.exit(f"error: {err}")

@@ -18,6 +18,10 @@ sampled trial beats it on the tuning seeds. Tasks the plan runs with extra
 overrides (``cube_minus_y``) are variants of another task's config and are not tuned, nor
 are the plan's learner ``variants`` (the dqn with one switch on: the dqn's tuned file and
 the switch).
+
+``--studies <folder>`` replays the grid with its journals there and no tuned file written
+(to time it from empty journals); each sweep's wall minutes go to the folder's ``runs.csv``
+as it ends, and ``--minutes`` adds them up (:func:`run_minutes`, :func:`grid_minutes`).
 """
 
 from __future__ import annotations
@@ -74,29 +78,34 @@ def pruning(pruner: str, budget: int, first_rung: int = 9) -> list[str]:
               if pruner in ("successive_halving", "hyperband") else [])]
 
 
-def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, sweep_dir: Path) -> list[str]:
-    """The tuning sweep of one pair: ``missing`` more trials of its study, its folders in
-    ``sweep_dir``."""
+def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, sweep_dir: Path,
+            studies: Path = STUDIES, write: bool = True) -> list[str]:
+    """The tuning sweep of one pair: ``missing`` more trials of its study (its journal in
+    ``studies``), its folders in ``sweep_dir``; ``write``: its tuned file written when it ends."""
     budget = int(spec["budget_steps"])
     name = f"{task}_{learner}"
+    write = write and tuning.get("write_tuned", True)
     return [sys.executable, "train.py", "-m", "hydra/sweeper=optuna", f"robot={spec['robot']}", f"task={spec['task']}",
             f"learner={learner}", f"hydra.sweeper.study=bench-{task}-{learner}",
-            f"hydra.sweeper.storage=journal://{STUDIES / f'{name}.log'}",
+            f"hydra.sweeper.storage=journal://{studies / f'{name}.log'}",
             f"hydra.sweeper.n_trials={missing}", f"hydra.sweeper.trials_per_batch={int(tuning['trials'])}",
             f"hydra.sweeper.seeds=[{','.join(str(s) for s in tuning['seeds'])}]",
             f"hydra.sweeper.budget_steps={budget}",
             *pruning(tuning["pruner"], budget, int(tuning.get("first_rung", 9))),
-            "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(tuning.get('write_tuned', True)).lower()}",
+            "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(write).lower()}",
             f"hydra.sweep.dir={sweep_dir}"]
 
 
 def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_run: bool = False,
-         jobs: int | None = None) -> int:
+         jobs: int | None = None, studies: Path = STUDIES) -> int:
     """Tunes every pair asked for (the plan's by default), ``jobs`` studies at once (each a
     process of one thread; default: one per core); the number of pairs left unfinished.
-    With more than one at once, each sweep's console goes to ``tuning/bench/<pair>/<time>.log``."""
+    With more than one at once, each sweep's console goes to ``tuning/bench/<pair>/<time>.log``.
+    ``studies``: the journals' folder (from the project's root); any other than
+    ``bench/studies`` is a replay, e.g. to time the grid: its studies write no tuned file."""
     tuning = plan["tuning"]
-    (ROOT / STUDIES).mkdir(parents=True, exist_ok=True)
+    write = Path(studies) == STUDIES
+    (ROOT / studies).mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     pending: list[tuple[str, list[str]]] = []  # (pair, its sweep's command)
     for task in tasks or list(plan["tasks"]):
@@ -111,12 +120,13 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                 print(f"{name}: a variant of {variant['learner']} (overrides {variant['overrides']}): runs "
                       f"{variant['learner']}'s tuned file with them, not tuned")
                 continue
-            counted, running = study_counts(f"bench-{task}-{learner}", STUDIES / f"{name}.log")
+            counted, running = study_counts(f"bench-{task}-{learner}", studies / f"{name}.log")
             missing = int(tuning["trials"]) - counted - running
-            if missing <= 0 and not running and (written(spec, learner, task) or not tuning.get("write_tuned", True)):
+            if missing <= 0 and not running and (not write or written(spec, learner, task)
+                                                 or not tuning.get("write_tuned", True)):
                 print(f"{name}: study complete ({counted} trials)")
                 continue
-            cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp)
+            cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp, studies, write)
             print(f"{name}: {counted} trials done, {running} left running, {max(missing, 0)} to ask\n  "
                   + " ".join(cmd[1:]), flush=True)
             pending.append((name, cmd))
@@ -133,6 +143,7 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
 
     def ended(i: int, code: int) -> None:
         minutes = (time.monotonic() - clock[i]) / 60
+        record_run(studies, pending[i][0], minutes, code, jobs)
         print(f"{pending[i][0]}: " + (f"done in {minutes:.1f} min" if code == 0 else
                                       f"the sweep exited {code} after {minutes:.1f} min; run the same "
                                       "command again to go on"), flush=True)
@@ -140,3 +151,80 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
     print(f"{len(pending)} studies to run, {jobs} at once", flush=True)
     codes = child.call_all([cmd for _, cmd in pending], ROOT, jobs, logs, started=started, ended=ended)
     return sum(code != 0 for code in codes)
+
+
+RUNS = "runs.csv"  # in a studies folder: one row per sweep the grid command ran, as it ends
+
+
+def record_run(studies: Path, pair: str, minutes: float, code: int, jobs: int) -> None:
+    """Appends one sweep's wall minutes to ``studies``' :data:`RUNS` (kept with the journals:
+    a grid tuned over several sessions adds up its pieces there)."""
+    import csv
+
+    path = ROOT / studies / RUNS
+    new = not path.is_file()
+    with open(path, "a", newline="") as f:
+        out = csv.writer(f)
+        if new:
+            out.writerow(["pair", "ended", "minutes", "exit_code", "studies_at_once", "cpu"])
+        out.writerow([pair, time.strftime("%Y-%m-%dT%H:%M:%S"), f"{minutes:.2f}", code, jobs, cpu()])
+
+
+def cpu() -> str:
+    """This machine's processor and cores (machines of one kind differ: a record says which)."""
+    import os
+
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), "")
+    except OSError:
+        model = ""
+    return f"{model or 'unknown'} x {os.cpu_count()}"
+
+
+def run_minutes(studies: Path = STUDIES) -> dict[str, float]:
+    """Per pair, the wall minutes of the sweeps :func:`record_run` recorded in ``studies``."""
+    import csv
+
+    path = ROOT / studies / RUNS
+    minutes: dict[str, float] = {}
+    if path.is_file():
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                minutes[row["pair"]] = minutes.get(row["pair"], 0.0) + float(row["minutes"])
+    return minutes
+
+
+def machine_minutes(trials) -> float:
+    """The minutes a study's trials were running: the union of their start-to-end spans
+    (trials side by side count once, the time between two batches not at all; a trial
+    taken over after a stop spans the stop)."""
+    spans = sorted((t.datetime_start, t.datetime_complete) for t in trials
+                   if t.datetime_start is not None and t.datetime_complete is not None)
+    total, end = 0.0, None
+    for start, stop in spans:
+        if end is None or start > end:
+            total += (stop - start).total_seconds()
+            end = stop
+        elif stop > end:
+            total += (stop - end).total_seconds()
+            end = stop
+    return total / 60
+
+
+def grid_minutes(studies: Path = STUDIES) -> list[tuple[str, int, float]]:
+    """Per journal of ``studies`` (from the project's root): (pair, trials finished, the
+    minutes its trials ran, :func:`machine_minutes`); the grid's machine time is their sum
+    where its studies ran one at a time."""
+    import optuna
+
+    from sweeps.tuning import open_storage
+
+    rows = []
+    for path in sorted((ROOT / studies).glob("*.log")):
+        name = path.stem
+        storage = open_storage(f"journal://{path}")
+        for summary in optuna.get_all_study_summaries(storage):
+            trials = optuna.load_study(study_name=summary.study_name, storage=storage).trials
+            rows.append((name, sum(t.state.is_finished() for t in trials), machine_minutes(trials)))
+    return rows

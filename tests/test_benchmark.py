@@ -78,6 +78,10 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
     (["--budget", "-3"], "--budget must be a positive number of env steps, got -3"),
     (["--settings", "best"], "unknown setting 'best'; settings: published, tuned"),
     (["--tune", "--jobs", "0"], "--jobs must be at least 1 (studies at once), got 0"),
+    (["--tune", "--studies", "/etc"], "--studies must be a folder inside the project (its journals are kept "
+                                      "with it), got /etc"),
+    (["--tune", "--minutes", "--studies", "bench/no_such_folder"],
+     "no study journal (<task>_<learner>.log) in bench/no_such_folder"),
     (["--quick", "--budget", "100"], "a budget of 100 env steps cannot finish an episode of cartpole x qlearn "
                                      "(tuned): 8 copies x up to 1000 steps need 8000; give --budget 8000 or more"),
     (["--read", "/no/such/folder"], "--read /no/such/folder: no such results folder"),
@@ -321,3 +325,53 @@ def test_a_benchmark_stopped_by_ctrl_c_saves_and_goes_on(tmp_path):
     assert not sweep.with_suffix(".json").exists()  # no record: the pair is not done
     goes_on(args, job, out)
     assert len(json.loads((out / "plan.json").read_text())["commands"]) == 1  # the same command, listed once
+
+
+def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file():
+    """``--tune --studies <folder>``: each pair's study in that folder's journal, its
+    ``write_tuned`` off; the plan's own folder writes the tuned files."""
+    from bench import tune_grid
+
+    plan = benchmark.load_plan(False)
+    spec, tuning = plan["tasks"]["maze"], plan["tuning"]
+    replay = tune_grid.command("maze", spec, "dqn", tuning, 12, Path("s"), Path("bench/timing/x"), write=False)
+    own = tune_grid.command("maze", spec, "dqn", tuning, 12, Path("s"))
+    assert "hydra.sweeper.storage=journal://bench/timing/x/maze_dqn.log" in replay
+    assert "hydra.sweeper.write_tuned=false" in replay and "hydra.sweeper.write_tuned=true" in own
+    assert "hydra.sweeper.storage=journal://bench/studies/maze_dqn.log" in own
+    assert benchmark.check_studies(None) == tune_grid.STUDIES
+    assert benchmark.check_studies(Path("bench/timing/x")) == Path("bench/timing/x")
+
+
+def test_the_grids_minutes_add_up_its_sweeps_and_its_trials_run_time(tmp_path, monkeypatch, capsys):
+    """``--tune --minutes``: the sweeps' wall minutes the command recorded (several runs of a
+    pair added up) and the union of each study's trial spans (trials side by side once, the
+    time between two batches not at all)."""
+    import datetime as dt
+
+    import optuna
+
+    from bench import tune_grid
+    from sweeps.tuning import open_storage
+
+    monkeypatch.setattr(tune_grid, "ROOT", tmp_path)
+    monkeypatch.setattr(benchmark, "ROOT", tmp_path)
+    folder = Path("bench") / "timing"
+    (tmp_path / folder).mkdir(parents=True)
+    t0 = dt.datetime(2026, 11, 28, 12, 0, 0)
+    spans = [(0, 10), (0, 12), (30, 35)]  # minutes: two side by side, then one after a gap
+    study = optuna.create_study(study_name="bench-maze-dqn",
+                                storage=open_storage(f"journal://{tmp_path / folder / 'maze_dqn.log'}"))
+    for start, end in spans:
+        study.add_trial(optuna.trial.FrozenTrial(
+            number=0, state=optuna.trial.TrialState.COMPLETE, value=1.0, values=None,
+            datetime_start=t0 + dt.timedelta(minutes=start), datetime_complete=t0 + dt.timedelta(minutes=end),
+            params={}, distributions={}, user_attrs={}, system_attrs={}, intermediate_values={}, trial_id=0))
+    tune_grid.record_run(folder, "maze_dqn", 14.5, 1, 1)  # stopped
+    tune_grid.record_run(folder, "maze_dqn", 6.0, 0, 1)  # and run again to its end
+    assert tune_grid.grid_minutes(folder) == [("maze_dqn", 3, pytest.approx(17.0))]
+    assert tune_grid.run_minutes(folder) == {"maze_dqn": pytest.approx(20.5)}
+    benchmark.print_grid_minutes(folder)
+    out = capsys.readouterr().out
+    assert "maze_dqn" in out and "20.5" in out and "17.0" in out
+    assert "1 study: 0.34 hours of sweeps (1 recorded in bench/timing/runs.csv), 0.28 hours of trials" in out
