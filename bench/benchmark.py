@@ -111,8 +111,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                                                  "(default: one per core)")
     parser.add_argument("--studies", type=Path, help="with --tune: the studies' journal folder, from the project's "
                         "root (default: bench/studies); another folder is a replay: no conf/tuned/ file is written")
-    parser.add_argument("--minutes", action="store_true", help="with --tune: each study's minutes from its journal "
-                        "(its trials' run time, the gaps between runs left out) and their sum; run nothing")
+    parser.add_argument("--minutes", action="store_true", help="with --tune: each study's minutes, its sweeps' (the "
+                        "folder's runs.csv) and its trials' (their spans in its journal), and their sums; run nothing")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (after --)")
     return parser.parse_args(argv)
 

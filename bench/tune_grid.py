@@ -104,7 +104,7 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
     ``studies``: the journals' folder (from the project's root); any other than
     ``bench/studies`` is a replay, e.g. to time the grid: its studies write no tuned file."""
     tuning = plan["tuning"]
-    write = Path(studies) == STUDIES
+    write = Path(studies) == STUDIES and bool(tuning.get("write_tuned", True))
     (ROOT / studies).mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     pending: list[tuple[str, list[str]]] = []  # (pair, its sweep's command)
@@ -122,8 +122,7 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                 continue
             counted, running = study_counts(f"bench-{task}-{learner}", studies / f"{name}.log")
             missing = int(tuning["trials"]) - counted - running
-            if missing <= 0 and not running and (not write or written(spec, learner, task)
-                                                 or not tuning.get("write_tuned", True)):
+            if missing <= 0 and not running and (not write or written(spec, learner, task)):
                 print(f"{name}: study complete ({counted} trials)")
                 continue
             cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp, studies, write)
@@ -171,15 +170,14 @@ def record_run(studies: Path, pair: str, minutes: float, code: int, jobs: int) -
 
 
 def cpu() -> str:
-    """This machine's processor and cores (machines of one kind differ: a record says which)."""
-    import os
-
+    """This machine's processor and the cores this process may use (machines of one kind
+    differ: a record says which)."""
     try:
         with open("/proc/cpuinfo") as f:
             model = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), "")
     except OSError:
         model = ""
-    return f"{model or 'unknown'} x {os.cpu_count()}"
+    return f"{model or 'unknown'} x {child.cores()}"
 
 
 def run_minutes(studies: Path = STUDIES) -> dict[str, float]:
