@@ -6,8 +6,9 @@ pruner; the env-step budget a trial's seed gets is the task's ``budget_steps``, 
 benchmark's own), one Optuna study, ``bench-<task>-<learner>``, kept in a journal file
 in the repository (``bench/studies/<task>_<learner>.log``: how each tuned file was found
 can be read there later). Each pair runs ``train.py -m hydra/sweeper=optuna`` with every
-trial x seed trained side by side (``trials_per_batch``: all of them; the sampler's random
-startup trials go first, together, then the rest: :func:`sweeps.tuning.batch_size`), asking only the
+trial x seed trained side by side (``trials_per_batch``: all of them; the plan's
+``startup_trials`` random trials go first, together, then the rest, guided by them:
+:func:`sweeps.tuning.batch_size`), asking only the
 trials its study still lacks: run the same command again after a stop and each study
 takes over the trials the stop left running and goes on to its count. A study that
 finishes writes the pair's ``conf/tuned/`` file (``write_tuned``; its header: the study,
@@ -92,6 +93,7 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
             f"hydra.sweeper.seeds=[{','.join(str(s) for s in tuning['seeds'])}]",
             f"hydra.sweeper.budget_steps={budget}",
             *pruning(tuning["pruner"], budget, int(tuning.get("first_rung", 9))),
+            f"hydra.sweeper.startup_trials={int(tuning.get('startup_trials', 5))}",
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(write).lower()}",
             f"hydra.sweep.dir={sweep_dir}"]
 

@@ -339,6 +339,8 @@ def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file(
     assert "hydra.sweeper.storage=journal://bench/timing/x/maze_dqn.log" in replay
     assert "hydra.sweeper.write_tuned=false" in replay and "hydra.sweeper.write_tuned=true" in own
     assert "hydra.sweeper.storage=journal://bench/studies/maze_dqn.log" in own
+    # the plan's rounds: its random trials first, then the guided ones (startup_trials)
+    assert f"hydra.sweeper.startup_trials={tuning['startup_trials']}" in own
     assert benchmark.check_studies(None) == tune_grid.STUDIES
     assert benchmark.check_studies(Path("bench/timing/x")) == Path("bench/timing/x")
 
