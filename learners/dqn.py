@@ -505,10 +505,12 @@ class DQN:
     kind = "dqn"
     out_keys = ("action",)
     # Settings members of one batch may differ in (a tuning study's trials side by side):
-    # none changes a shape; all must have a target network or none.
+    # none changes the network's shape (each member has its own replay buffer, and an update
+    # round runs once per minibatch size among its members); all must have a target network
+    # or none.
     MEMBER_WISE = ("lr", "lr_decay", "gamma", "tau", "target_update", "epsilon", "updates", "learning_starts",
                    "grad_clip", "done_episode_reward", "reward_scale", "priority_alpha", "priority_beta",
-                   "priority_beta_updates", "priority_eps")
+                   "priority_beta_updates", "priority_eps", "buffer_size", "batch_size")
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -610,11 +612,12 @@ class DQN:
         self.schedules = [v.epsilon if b == 0 else copy.deepcopy(v.epsilon) for b, v in enumerate(own)]  # each its own
         self.trackers = [UpdateStats() for _ in range(m)]
         width = 2 * self.n_obs + 3 + (self.n_step > 1)  # n-step rows carry their steps
-        self.buffers = [RowReplayBuffer(self.buffer_size, width, self.batch_size, self.device) for _ in range(m)]
+        self.buffers = [RowReplayBuffer(v.buffer_size, width, v.batch_size, self.device) for v in own]
         if self.prioritized:
             for buffer, v in zip(self.buffers, own):
-                buffer.priorities = Priorities(self.buffer_size, v.priority_alpha, v.priority_eps, self.device)
-        self._minibatch = torch.empty(m, self.batch_size, width, device=self.device)
+                buffer.priorities = Priorities(v.buffer_size, v.priority_alpha, v.priority_eps, self.device)
+        sizes = [v.batch_size for v in own]  # a round's minibatches, per size: as many rows as members of it
+        self._minibatch = {size: torch.empty(sizes.count(size), size, width, device=self.device) for size in sizes}
         self.nsteps: list[NStep] = []  # each member's queues, made at its first step (copies known then)
 
     def _initial(self, generator: torch.Generator) -> torch.Tensor:
@@ -789,8 +792,19 @@ class DQN:
             self._round([b for b in stored if owed[b] > done], stored)
 
     def _round(self, due: list[int], stored: Mapping[int, int]) -> None:
-        """One update of each member of ``due``: its minibatch, its TD loss's gradients by
-        autograd, its clipped norm, its Adam step and its target network's."""
+        """One update of each member of ``due``: those of one minibatch size together
+        (:meth:`_update`)."""
+        sizes = {self.settings[b].batch_size for b in due}
+        if len(sizes) == 1:
+            self._update(due, stored, self._minibatch[sizes.pop()])
+            return
+        for size in sorted(sizes):
+            self._update([b for b in due if self.settings[b].batch_size == size], stored, self._minibatch[size])
+
+    def _update(self, due: list[int], stored: Mapping[int, int], minibatch: torch.Tensor) -> None:
+        """One update of each member of ``due`` (all of one minibatch size, ``minibatch`` a
+        tensor of at least their number of minibatches): its minibatch, its TD loss's
+        gradients by autograd, its clipped norm, its Adam step and its target network's."""
         k = len(due)
         drawn, weights = [], []  # prioritized replay: each member's rows and importance weights
         for j, b in enumerate(due):
@@ -798,12 +812,12 @@ class DQN:
                 v = self.settings[b]
                 beta = annealed_beta(v.priority_beta, self.steps[b], v.priority_beta_updates)
                 _, index, weight = self.buffers[b].sample_prioritized(stored[b], beta, self.generators[b],
-                                                                      out=self._minibatch[j])
+                                                                      out=minibatch[j])
                 drawn.append(index)
                 weights.append(weight)
             else:
-                self.buffers[b].sample_rows(stored[b], self.generators[b], out=self._minibatch[j])
-        batch = unpack(self._minibatch[:k])
+                self.buffers[b].sample_rows(stored[b], self.generators[b], out=minibatch[j])
+        batch = unpack(minibatch[:k])
         if k == self.members:  # every member: its own tensors, in place
             index, params, target, grads, valued = None, self.params, self.target, self.grads, self._valued
             grads.zero_()

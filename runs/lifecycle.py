@@ -379,7 +379,7 @@ def _build(slots: list[_Slot]):
             raise ConfigError(f"task={picked}: {err}") from None
         raise
     if not solo:
-        _check_memory(env, cfg, len(slots))
+        _check_memory(env, [slot.job.cfg for slot in slots])
     learner = instantiate(cfg.learner, _convert_="all")
     own = member_wise(cfg)
     alike = all({k: slot.job.cfg.learner.get(k) for k in own} == {k: cfg.learner.get(k) for k in own}
@@ -417,16 +417,22 @@ def _tensor_bytes(state) -> int:
     return 0
 
 
-def _check_memory(env: RobotTaskEnv, cfg: DictConfig, seeds: int) -> None:
-    """One line, before any training, when ``seeds`` members of ``cfg``'s learner (one
-    member's training state's tensors, measured on a learner of one) and ``env``'s physics
-    buffers would take most of the free memory."""
-    one = instantiate(cfg.learner, _convert_="all")
-    one.build(env.task, [torch.Generator()])
+def _check_memory(env: RobotTaskEnv, cfgs: Sequence[DictConfig]) -> None:
+    """One line, before any training, when the members of ``cfgs`` (each member's training
+    state's tensors, measured on a learner of one of its settings: members may differ in
+    their replay buffer's size) and ``env``'s physics buffers would take most of the free
+    memory."""
+    settings = [OmegaConf.to_container(cfg.learner, resolve=True) for cfg in cfgs]
+    per_member = {}
+    for own in {repr(s): s for s in settings}.values():
+        one = instantiate(own, _convert_="all")
+        one.build(env.task, [torch.Generator()])
+        per_member[repr(own)] = _tensor_bytes(one.training_state(0))
+        del one
+    seeds = len(cfgs)
     physics = env.physics
     per_step = physics.nstate + physics.model.nsensordata + physics.model.nu
-    need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + seeds * _tensor_bytes(one.training_state(0))
-    del one
+    need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + sum(per_member[repr(s)] for s in settings)
     free = available_bytes()
     if free is not None and need > 0.8 * free:
         raise ConfigError(f"a batch of {seeds} seeds x {copies(env.block_size)} needs about {need / 2**30:.3g} "

@@ -142,6 +142,17 @@ TRIAL_CASES = {
                                    "learner.prioritized=true"],
                         [[], ["learner.priority_alpha=0.3", "learner.priority_beta=1.0"],
                          ["learner.priority_eps=0.01", "learner.priority_beta_updates=20"]]),
+    # each member's replay buffer and minibatch size (ruippeixotog's and mbalunovic's spaces):
+    # a round updates the members of each minibatch size together
+    "dqn buffer and batch sizes": ("dqn", 2, ["learner.learning_starts=40", "learner.updates=3"],
+                                   [["learner.batch_size=32", "learner.buffer_size=500"],
+                                    ["learner.batch_size=16", "learner.buffer_size=150"],
+                                    ["learner.batch_size=32", "learner.buffer_size=2000", "learner.lr=0.003"]]),
+    "dqn prioritized, own sizes": ("dqn", 2, ["learner.learning_starts=40", "learner.updates=3",
+                                              "learner.prioritized=true", "learner.n_step=2"],
+                                   [["learner.batch_size=8", "learner.buffer_size=100"],
+                                    ["learner.batch_size=24", "learner.buffer_size=300"],
+                                    ["learner.batch_size=8", "learner.buffer_size=300"]]),
     # hard target copies every 20, 7 and 13 updates beside Polyak: all have a target network
     "mbalunovic": ("mbalunovic", 2, ["learner.batch_size=8"],
                    [["learner.target_update=20"], ["learner.target_update=7", "learner.gamma=0.9"],

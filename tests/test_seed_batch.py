@@ -317,6 +317,23 @@ def test_a_batch_that_would_not_fit_in_memory_is_one_line_before_training(tmp_pa
     assert not any((job.run_dir / "metrics.csv").exists() for job in jobs("dqn", tmp_path, "batch"))
 
 
+def test_a_batchs_memory_counts_each_members_own_replay_buffer(monkeypatch):
+    """Trials side by side may differ in their replay buffer's size: the estimate before
+    training adds up each member's own (a 2M-row buffer: ~0.08 GiB more than a 1000-row one)."""
+    from tasks.factory import build_env
+
+    monkeypatch.setattr(batch_module, "available_bytes", lambda: 1)
+    needs = []
+    for sizes in ((1000, 1000), (1000, 2_000_000)):
+        cfgs = [compose("cartpole", learner="dqn", overrides=[f"learner.buffer_size={size}"]) for size in sizes]
+        env = build_env(cfgs[0], 2 * int(cfgs[0].num_envs), [0, 1])
+        with pytest.raises(ConfigError, match="needs about") as err:
+            batch_module._check_memory(env, cfgs)
+        env.close()
+        needs.append(float(str(err.value).split("needs about ")[1].split(" GiB")[0]))
+    assert 0.05 < needs[1] - needs[0] < 0.2, needs
+
+
 def test_a_run_updates_with_denormal_numbers_flushed_and_leaves_the_process_as_it_was(tmp_path, monkeypatch):
     """Adam's first moment of a dead unit's weights sticks in denormal numbers, where the
     CPU's arithmetic is ~5x slower: a run's updates compute them as 0
