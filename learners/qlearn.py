@@ -86,13 +86,24 @@ class Discretizer:
         self._top = self._splits - 1
         self._radix = torch.as_tensor(np.concatenate([[1], np.cumprod(splits)[:-1]]).astype(np.int64))
 
-    def __call__(self, observation: torch.Tensor) -> torch.Tensor:
+    def __call__(self, observation: torch.Tensor, rows: tuple[torch.Tensor, ...] | None = None) -> torch.Tensor:
+        """Each observation's state index; ``rows``: each row's own ``(splits, top, radix)``
+        (``[rows, entries]``: members of other bins side by side, :meth:`rows_of`), each row's
+        index the one its own discretizer gives."""
         if self._prefix:  # the observation's first entries, in order: a view, no gather
             x = observation[..., : len(self._index)].to(torch.float64, copy=True)
         else:
             x = observation.index_select(-1, self._index).to(torch.float64)
-        bins = x.sub_(self._low).div_(self._width).mul_(self._splits).floor_().long()
-        return torch.minimum(bins.clamp_min_(0), self._top) @ self._radix
+        splits, top, radix = (self._splits, self._top, self._radix) if rows is None else rows
+        bins = torch.minimum(x.sub_(self._low).div_(self._width).mul_(splits).floor_().long().clamp_min_(0), top)
+        return bins @ radix if rows is None else (bins * radix).sum(-1)
+
+    @staticmethod
+    def rows_of(discretizers: Sequence[Discretizer], owner: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``(splits, top, radix)`` of each row, row ``i`` discretized by
+        ``discretizers[owner[i]]`` (all over the same bounds)."""
+        return tuple(torch.stack([getattr(d, key) for d in discretizers]).index_select(0, owner)
+                     for key in ("_splits", "_top", "_radix"))
 
     def describe(self) -> dict:
         return {
@@ -126,8 +137,9 @@ class QLearn:
 
     kind = "qlearn"
     out_keys = ("state_index", "action_value", "action")
-    # Settings members of one batch may differ in (a tuning study's trials side by side).
-    MEMBER_WISE = ("alpha", "gamma", "epsilon", "epsilon_discount", "epsilon_min", "initial_q")
+    # Settings members of one batch may differ in (a tuning study's trials side by side); a
+    # member's ``number_splits`` makes its table the first rows of its slice.
+    MEMBER_WISE = ("alpha", "gamma", "epsilon", "epsilon_discount", "epsilon_min", "initial_q", "number_splits")
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -147,13 +159,21 @@ class QLearn:
         self.generators = single(generators)
         self.members = len(self.generators)
         self.settings = member_settings(self, variants, self.members)
-        self.discretizer = Discretizer(task.tabular_bounds, self.number_splits)
-        self.n_actions, self.n_states = int(task.n_actions), self.discretizer.n_states
+        made: dict[str, Discretizer] = {}  # one per distinct number_splits
+        self.discretizers = [made.setdefault(repr(own.number_splits),
+                                             Discretizer(task.tabular_bounds, own.number_splits))
+                             for own in self.settings]
+        self.discretizer = self.discretizers[0]
+        self.n_actions = int(task.n_actions)
+        self.n_states = max(d.n_states for d in self.discretizers)  # each member's slice: its own first
+        self._own_states = [d.n_states for d in self.discretizers]
+        self._alike = len(made) == 1
         table_bytes = self.members * self.n_states * self.n_actions * 9  # float64 values + visited flags
+        largest = max(self.discretizers, key=lambda d: d.n_states)
         require(table_bytes <= TABLE_BYTES,
                 f"learner.number_splits must keep the Q-tables within {TABLE_BYTES / 2**30:g} GiB; "
-                f"{self.discretizer.splits} bins make {self.members} x {self.n_states} states x "
-                f"{self.n_actions} actions = {table_bytes / 2**30:.3g} GiB", self.number_splits)
+                f"{largest.splits} bins make {self.members} x {self.n_states} states x "
+                f"{self.n_actions} actions = {table_bytes / 2**30:.3g} GiB", largest.splits)
         shape = (self.members, self.n_states, self.n_actions)
         self.table = torch.full(shape, float(self.initial_q), dtype=torch.float64)
         for b, own in enumerate(self.settings):
@@ -164,7 +184,20 @@ class QLearn:
         self._alpha = per_member([own.alpha for own in self.settings], torch.float64)
         self._gamma = per_member([own.gamma for own in self.settings], torch.float64)
         self._offsets: torch.Tensor | None = None
+        self._rows: tuple[torch.Tensor, ...] | None = None  # every member's rows' bins, kept between steps
         self._draw_buffer: torch.Tensor | None = None
+
+    def _states(self, observation: torch.Tensor, members: Sequence[int] | None, n: int) -> torch.Tensor:
+        """The state index of each row of ``observation``, ``n`` rows a member of ``members``
+        (None: all), each by its member's own discretizer."""
+        if self._alike:
+            return self.discretizer(observation)
+        if members is None:
+            if self._rows is None or len(self._rows[0]) != self.members * n:
+                self._rows = Discretizer.rows_of(self.discretizers, torch.arange(self.members).repeat_interleave(n))
+            return self.discretizer(observation, self._rows)
+        owner = torch.as_tensor(list(members)).repeat_interleave(n)
+        return self.discretizer(observation, Discretizer.rows_of(self.discretizers, owner))
 
     def member(self, b: int) -> Member:
         return Member(self, b)
@@ -177,7 +210,7 @@ class QLearn:
         """``train/*``: ``epsilon`` and ``visited_fraction``, the share of member ``b``'s
         (state, action) pairs updated at least once. Reading changes nothing (``reset`` is
         there for the learners' common signature)."""
-        visited = self.visited[b]
+        visited = self.visited[b, :self._own_states[b]]
         return {"epsilon": self.epsilons[b], "visited_fraction": int(visited.count_nonzero()) / visited.numel()}
 
     # -- acting --------------------------------------------------------------
@@ -216,8 +249,8 @@ class QLearn:
         ``action``."""
         members = range(self.members) if members is None else list(members)
         k, a = len(members), self.n_actions
-        state = self.discretizer(td.get("observation"))
-        n = state.shape[0] // k
+        n = td.numel() // k
+        state = self._states(td.get("observation"), None if isinstance(members, range) else members, n)
         offset = self._offset(None if isinstance(members, range) else members, n)
         q = self.table.view(-1, a).index_select(0, state.reshape(-1) + offset).view(k, n, a)
         draws = self._draws(n, generators)
@@ -273,7 +306,7 @@ class QLearn:
         action = pick(td.get("action"))
         reward = pick(td.get(("next", "reward"))).to(torch.float64)
         terminated = pick(td.get(("next", "terminated")))
-        next_state = pick(self.discretizer(td.get(("next", "observation")))) + offset
+        next_state = pick(self._states(td.get(("next", "observation")), None, n)) + offset
         a = self.n_actions
         bootstrap = self.table.view(-1, a).index_select(0, next_state).amax(-1)
         if not self.bootstrap_terminal:
@@ -310,8 +343,9 @@ class QLearn:
     # -- persistence ---------------------------------------------------------
     def model_state(self, b: int) -> dict:
         """Member ``b``'s Q-table, its visited flags, epsilon and the state mapping (``model.pt``)."""
-        return {"kind": "qlearn", "table": self.table[b].clone(), "visited": self.visited[b].clone(),
-                "epsilon": self.epsilons[b], "discretizer": self.discretizer.describe(),
+        own = self._own_states[b]
+        return {"kind": "qlearn", "table": self.table[b, :own].clone(), "visited": self.visited[b, :own].clone(),
+                "epsilon": self.epsilons[b], "discretizer": self.discretizers[b].describe(),
                 "n_actions": self.n_actions}
 
     def training_state(self, b: int) -> dict:
@@ -323,15 +357,16 @@ class QLearn:
         state's origin in a :class:`StateMismatch`."""
         own = self.model_state(b)
         check_state(ckpt, own, where)  # every key there, before its values are read
-        mine = self.discretizer.describe()
+        mine = self.discretizers[b].describe()
         if ckpt["discretizer"] != mine or ckpt["n_actions"] != self.n_actions:
             raise StateMismatch(
                 f"checkpoint {where} does not fit this run: it has state {ckpt['discretizer']} "
                 f"x {ckpt['n_actions']} actions, this run has {mine} x {self.n_actions}"
             )
         check_state(ckpt, own, where, deep=("table", "visited"))
-        self.table[b].copy_(ckpt["table"])
-        self.visited[b].copy_(ckpt["visited"])
+        own = self._own_states[b]
+        self.table[b, :own].copy_(ckpt["table"])
+        self.visited[b, :own].copy_(ckpt["visited"])
 
     def load_training_state(self, b: int, state: Mapping) -> None:
         self.load_model_state(b, state, "the training checkpoint")

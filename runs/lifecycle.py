@@ -65,8 +65,10 @@ EVAL_SEED_OFFSET = 10_000  # greedy evaluations start from seed + this (never th
 VIDEO_SEED_OFFSET = 20_000  # the policy video's env
 # Settings a batched job may not have: each makes a run that is not a fresh training run.
 NOT_BATCHED = ("resume", "checkpoint")
-# Keys in which the jobs of one batch may differ, besides the learner's MEMBER_WISE settings.
-OWN_KEYS = ("seed", "resume", "trial")
+# Keys in which the jobs of one batch may differ, besides the learner's MEMBER_WISE settings:
+# what names the run, and when its own Run evaluates, saves and prints (a searched
+# ``eval_every`` no longer splits a study's trials into a batch per value).
+OWN_KEYS = ("seed", "resume", "trial", "eval_every", "checkpoint_every", "log_every")
 
 
 @dataclasses.dataclass
@@ -119,8 +121,8 @@ def batchable(cfg: DictConfig) -> bool:
 
 def check_batch(jobs: Sequence[Job]) -> None:
     """One line unless ``jobs`` are fresh (or resumed) training runs whose configs differ only
-    in an integer seed, a tuning trial and the learner's member-wise settings
-    (:func:`batch_key`), no two of them the same run."""
+    in an integer seed, a tuning trial, their own Run's schedules (:data:`OWN_KEYS`) and the
+    learner's member-wise settings (:func:`batch_key`), no two of them the same run."""
     seeds = [job.cfg.seed for job in jobs]
     if any(type(s) is not int for s in seeds):
         raise ConfigError(f"seed must be an integer in a seed batch; got {seeds}")
@@ -135,7 +137,7 @@ def check_batch(jobs: Sequence[Job]) -> None:
     for job in jobs[1:]:
         if batch_key(job.cfg) != first:
             raise ConfigError(f"jobs {jobs[0].run_dir.name} and {job.run_dir.name} differ in more than their "
-                              "seed, trial and the learner's member-wise settings: they cannot share a batch")
+                              "seed, trial, schedules and the learner's member-wise settings: they cannot share a batch")
 
 
 def member_wise(cfg: DictConfig) -> tuple[str, ...]:

@@ -117,10 +117,13 @@ def same_run_files(together: Path, alone: Path) -> None:
 @pytest.mark.parametrize("learner, settings", [
     ("qlearn", ["learner.alpha=0.3", "learner.gamma=0.9", "learner.epsilon_discount=0.99"]),
     ("dqn", ["learner.lr=0.003", "learner.tau=0.05", "learner.updates=3"]),
+    # each run's own schedules (a searched eval_every) and a DQN's own buffer and minibatch sizes
+    ("qlearn", ["learner.alpha=0.3", "eval_every=7", "checkpoint_every=9", "log_every=5"]),
+    ("dqn", ["learner.batch_size=16", "learner.buffer_size=600", "learner.lr=0.003", "eval_every=9"]),
 ])
 def test_trials_side_by_side_are_each_their_run_alone(tmp_path, learner, settings):
-    """Two trials (other member-wise settings) x two seeds, one seed in both, as one batch of
-    four members: each run is its run alone, file for file."""
+    """Two trials (other member-wise settings, schedules) x two seeds, one seed in both, as one
+    batch of four members: each run is its run alone, file for file."""
     short = ["max_env_steps=1200"] if learner == "dqn" else []  # 700 env steps of updates
     trials = jobs(learner, tmp_path, "batch_a", short), jobs(learner, tmp_path, "batch_b", [*short, *settings])
     run_jobs([*trials[0], *trials[1]])
@@ -246,7 +249,7 @@ def test_a_failed_learner_call_ends_every_seed_with_its_trace(tmp_path, monkeypa
 
 @pytest.mark.parametrize("change, message", [
     (lambda js: js[1].cfg.__setitem__("seed", js[0].cfg.seed), "appears twice"),
-    (lambda js: js[1].cfg.learner.__setitem__("number_splits", 4), "differ in more than their seed"),
+    (lambda js: js[1].cfg.learner.__setitem__("first_visit_reward", True), "differ in more than their seed"),
     (lambda js: js[1].cfg.__setitem__("mode", "eval"), "fresh or resumed runs only"),
 ])
 def test_a_batch_of_unlike_jobs_is_refused_before_any_work(tmp_path, change, message):
