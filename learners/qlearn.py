@@ -11,8 +11,9 @@ the bins combine mixed-radix, first entry fastest::
     bin_i  = clip(floor((x_i - low_i) / (high_i - low_i) * splits_i), 0, splits_i - 1)
     index  = bin_0 + splits_0 * (bin_1 + splits_1 * (bin_2 + ...))
 
-The Q-tables of all members are one ``[members, prod(splits), n_actions]`` float64
-tensor (a single run: one member); unseen pairs hold
+The Q-tables of all members are the rows of one ``[states, n_actions]`` float64 tensor,
+each member's ``prod(splits)`` rows from its start (members may have their own
+``number_splits``; a single run: one member); ``table[b]`` is member ``b``'s. Unseen pairs hold
 ``initial_q`` (0 as in the original; an optimistic value, such as the largest
 return there is, makes the learner try every action before trusting one).
 
@@ -118,7 +119,7 @@ class Discretizer:
 class QLearn:
     """Tabular Q-learning over a member axis (see the module docstring).
 
-    Each member's Q-table is a slice of one ``[members, states, actions]`` tensor; acting,
+    Each member's Q-table is a block of rows of one ``[states, actions]`` tensor; acting,
     the Q update and the epsilon decay are one call for every member."""
 
     alpha: float = param(0.1, "learning rate of the Q update", gt=0, le=1)
@@ -138,7 +139,7 @@ class QLearn:
     kind = "qlearn"
     out_keys = ("state_index", "action_value", "action")
     # Settings members of one batch may differ in (a tuning study's trials side by side); a
-    # member's ``number_splits`` makes its table the first rows of its slice.
+    # member's ``number_splits`` sizes its own block of the table.
     MEMBER_WISE = ("alpha", "gamma", "epsilon", "epsilon_discount", "epsilon_min", "initial_q", "number_splits")
 
     def __post_init__(self) -> None:
@@ -165,21 +166,26 @@ class QLearn:
                              for own in self.settings]
         self.discretizer = self.discretizers[0]
         self.n_actions = int(task.n_actions)
-        self.n_states = max(d.n_states for d in self.discretizers)  # each member's slice: its own first
-        self._own_states = [d.n_states for d in self.discretizers]
+        self.n_states = self.discretizer.n_states
+        sizes = [d.n_states for d in self.discretizers]
         self._alike = len(made) == 1
-        table_bytes = self.members * self.n_states * self.n_actions * 9  # float64 values + visited flags
+        total = sum(sizes)
         largest = max(self.discretizers, key=lambda d: d.n_states)
+        table_bytes = largest.n_states * self.n_actions * 9  # float64 values + visited flags
+        # A run's table (a member's); a batch's members together: runs.lifecycle's memory check.
         require(table_bytes <= TABLE_BYTES,
-                f"learner.number_splits must keep the Q-tables within {TABLE_BYTES / 2**30:g} GiB; "
-                f"{largest.splits} bins make {self.members} x {self.n_states} states x "
-                f"{self.n_actions} actions = {table_bytes / 2**30:.3g} GiB", largest.splits)
-        shape = (self.members, self.n_states, self.n_actions)
-        self.table = torch.full(shape, float(self.initial_q), dtype=torch.float64)
+                f"learner.number_splits must keep the Q-table within {TABLE_BYTES / 2**30:g} GiB; "
+                f"{largest.splits} bins make {largest.n_states} states x {self.n_actions} actions = "
+                f"{table_bytes / 2**30:.3g} GiB", largest.splits)
+        # Every member's table: its rows of one [states of all members, actions] tensor, from its start.
+        self._starts = [sum(sizes[:b]) for b in range(self.members)]
+        self._values = torch.full((total, self.n_actions), float(self.initial_q), dtype=torch.float64)
+        self._seen = torch.zeros((total, self.n_actions), dtype=torch.bool)
+        self.table = [self._values[start:start + size] for start, size in zip(self._starts, sizes)]
+        self.visited = [self._seen[start:start + size] for start, size in zip(self._starts, sizes)]
         for b, own in enumerate(self.settings):
             if own.initial_q != self.initial_q:
                 self.table[b].fill_(float(own.initial_q))
-        self.visited = torch.zeros(shape, dtype=torch.bool)
         self.epsilons = [float(own.epsilon) for own in self.settings]
         self._alpha = per_member([own.alpha for own in self.settings], torch.float64)
         self._gamma = per_member([own.gamma for own in self.settings], torch.float64)
@@ -210,7 +216,7 @@ class QLearn:
         """``train/*``: ``epsilon`` and ``visited_fraction``, the share of member ``b``'s
         (state, action) pairs updated at least once. Reading changes nothing (``reset`` is
         there for the learners' common signature)."""
-        visited = self.visited[b, :self._own_states[b]]
+        visited = self.visited[b]
         return {"epsilon": self.epsilons[b], "visited_fraction": int(visited.count_nonzero()) / visited.numel()}
 
     # -- acting --------------------------------------------------------------
@@ -252,7 +258,7 @@ class QLearn:
         n = td.numel() // k
         state = self._states(td.get("observation"), None if isinstance(members, range) else members, n)
         offset = self._offset(None if isinstance(members, range) else members, n)
-        q = self.table.view(-1, a).index_select(0, state.reshape(-1) + offset).view(k, n, a)
+        q = self._values.index_select(0, state.reshape(-1) + offset).view(k, n, a)
         draws = self._draws(n, generators)
         if greedy or k == 1:  # one epsilon: a Python number (the comparison is the same)
             epsilon = 0.0 if greedy else self.epsilons[members[0]]
@@ -280,11 +286,11 @@ class QLearn:
         (``members`` None: all, kept between steps; one member: one number)."""
         if members is None:
             if self._offsets is None or len(self._offsets) != self.members * n:
-                self._offsets = (torch.arange(self.members) * self.n_states).repeat_interleave(n)
+                self._offsets = torch.as_tensor(self._starts).repeat_interleave(n)
             return self._offsets
         if len(members) == 1:  # one member (its greedy policy)
-            return members[0] * self.n_states
-        return (torch.as_tensor(members) * self.n_states).repeat_interleave(n)
+            return self._starts[members[0]]
+        return torch.as_tensor([self._starts[b] for b in members]).repeat_interleave(n)
 
     # -- learning ------------------------------------------------------------
     def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
@@ -308,15 +314,15 @@ class QLearn:
         terminated = pick(td.get(("next", "terminated")))
         next_state = pick(self._states(td.get(("next", "observation")), None, n)) + offset
         a = self.n_actions
-        bootstrap = self.table.view(-1, a).index_select(0, next_state).amax(-1)
+        bootstrap = self._values.index_select(0, next_state).amax(-1)
         if not self.bootstrap_terminal:
             bootstrap.masked_fill_(terminated, 0.0)
         target = reward + each(self._gamma) * bootstrap
         pair = state * a + action  # (s, a)'s index in the flat table
-        old = self.table.view(-1).index_select(0, pair)
+        old = self._values.view(-1).index_select(0, pair)
         new = old + each(self._alpha) * (target - old)
         if self.first_visit_reward:
-            new = torch.where(self.visited.view(-1).index_select(0, pair), new, reward)
+            new = torch.where(self._seen.view(-1).index_select(0, pair), new, reward)
         self._add_mean_increments(pair, new - old, n)
 
     def _add_mean_increments(self, pair: torch.Tensor, increment: torch.Tensor, n: int) -> None:
@@ -324,7 +330,7 @@ class QLearn:
         it visited. Members' pairs never meet (each indexes its own slice); within a block,
         distinct pairs by ``unique``, their sums in the block's order. Work in the batch's
         size, not the table's."""
-        table, visited = self.table.view(-1), self.visited.view(-1)
+        table, visited = self._values.view(-1), self._seen.view(-1)
         if n > 1:
             pair, slot, count = torch.unique(pair, return_inverse=True, return_counts=True)
             total = torch.zeros(len(pair), dtype=torch.float64).index_add_(0, slot, increment)
@@ -343,8 +349,7 @@ class QLearn:
     # -- persistence ---------------------------------------------------------
     def model_state(self, b: int) -> dict:
         """Member ``b``'s Q-table, its visited flags, epsilon and the state mapping (``model.pt``)."""
-        own = self._own_states[b]
-        return {"kind": "qlearn", "table": self.table[b, :own].clone(), "visited": self.visited[b, :own].clone(),
+        return {"kind": "qlearn", "table": self.table[b].clone(), "visited": self.visited[b].clone(),
                 "epsilon": self.epsilons[b], "discretizer": self.discretizers[b].describe(),
                 "n_actions": self.n_actions}
 
@@ -364,9 +369,8 @@ class QLearn:
                 f"x {ckpt['n_actions']} actions, this run has {mine} x {self.n_actions}"
             )
         check_state(ckpt, own, where, deep=("table", "visited"))
-        own = self._own_states[b]
-        self.table[b, :own].copy_(ckpt["table"])
-        self.visited[b, :own].copy_(ckpt["visited"])
+        self.table[b].copy_(ckpt["table"])
+        self.visited[b].copy_(ckpt["visited"])
 
     def load_training_state(self, b: int, state: Mapping) -> None:
         self.load_model_state(b, state, "the training checkpoint")

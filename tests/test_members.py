@@ -134,7 +134,7 @@ TRIAL_CASES = {
                                  ["learner.epsilon=0.5", "learner.epsilon_discount=0.99", "learner.epsilon_min=0.2",
                                   "learner.initial_q=5"]]),
     # each member's own bins (the cart-pole's tuned mapping, fewer, another with an entry
-    # ignored): its table the first rows of its slice
+    # ignored): its table its own block of rows
     "qlearn bins": ("qlearn", 3, [], [
         [], ["learner.number_splits={cart_pos: 3, cart_vel: 3, pole_angle: 3, pole_vel: 3}", "learner.alpha=0.3"],
         ["learner.number_splits={cart_pos: 2, cart_vel: 7, pole_angle: 5, pole_vel: 1}", "learner.initial_q=1"]]),
