@@ -534,9 +534,9 @@ def check_studies(folder: Path | None) -> Path:
 def print_grid_minutes(studies: Path) -> None:
     """``--tune --minutes``: per study, its sweeps' wall minutes (as the grid command recorded
     them in the folder's runs.csv) and its trials' (from its journal), and their sums."""
-    from bench.tune_grid import RUNS, grid_minutes, run_minutes
+    from bench.tune_grid import GRID_RUNS, RUNS, grid_minutes, grid_run_minutes, run_minutes
 
-    rows, swept = grid_minutes(studies), run_minutes(studies)
+    rows, swept, grid = grid_minutes(studies), run_minutes(studies), grid_run_minutes(studies)
     if not rows:
         raise BadInput(f"no study journal (<task>_<learner>.log) in {studies}")
     print(f"{'pair':<24} trials  sweeps' min  trials' min")
@@ -546,6 +546,9 @@ def print_grid_minutes(studies: Path) -> None:
     print(f"{len(rows)} stud{'y' if len(rows) == 1 else 'ies'}: {sum(swept.values()) / 60:.2f} hours of sweeps ({len(swept)} recorded in "
           f"{studies / RUNS}), {sum(m for _, _, m in rows) / 60:.2f} hours of trials (their start-to-end spans, "
           "a trial taken over after a stop spanning the stop)")
+    if grid:
+        print(f"the grid command's wall time: {sum(grid) / 60:.2f} hours over {len(grid)} run{'s' * (len(grid) != 1)} "
+              f"({studies / GRID_RUNS}; the machine's time where studies ran side by side)")
 
 
 def main(argv: list[str] | None = None) -> None:

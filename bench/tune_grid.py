@@ -22,7 +22,9 @@ the switch).
 
 ``--studies <folder>`` replays the grid with its journals there and no tuned file written
 (to time it from empty journals); each sweep's wall minutes go to the folder's ``runs.csv``
-as it ends, and ``--minutes`` adds them up (:func:`run_minutes`, :func:`grid_minutes`).
+as it ends, each run of the command's wall minutes to its ``grid_runs.csv`` (the machine's
+time, where studies ran side by side), and ``--minutes`` adds them up (:func:`run_minutes`,
+:func:`grid_run_minutes`, :func:`grid_minutes`).
 """
 
 from __future__ import annotations
@@ -150,25 +152,51 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                                       "command again to go on"), flush=True)
 
     print(f"{len(pending)} studies to run, {jobs} at once", flush=True)
+    begun = time.monotonic()
     codes = child.call_all([cmd for _, cmd in pending], ROOT, jobs, logs, started=started, ended=ended)
+    record_grid(studies, [name for name, _ in pending], (time.monotonic() - begun) / 60, jobs)
     return sum(code != 0 for code in codes)
 
 
 RUNS = "runs.csv"  # in a studies folder: one row per sweep the grid command ran, as it ends
+GRID_RUNS = "grid_runs.csv"  # in a studies folder: one row per run of the grid command, as it ends
+
+
+def _append(path: Path, header: list[str], row: list) -> None:
+    import csv
+
+    new = not path.is_file()
+    with open(path, "a", newline="") as f:
+        out = csv.writer(f)
+        if new:
+            out.writerow(header)
+        out.writerow(row)
 
 
 def record_run(studies: Path, pair: str, minutes: float, code: int, jobs: int) -> None:
     """Appends one sweep's wall minutes to ``studies``' :data:`RUNS` (kept with the journals:
     a grid tuned over several sessions adds up its pieces there)."""
+    _append(ROOT / studies / RUNS, ["pair", "ended", "minutes", "exit_code", "studies_at_once", "cpu"],
+            [pair, time.strftime("%Y-%m-%dT%H:%M:%S"), f"{minutes:.2f}", code, jobs, cpu()])
+
+
+def record_grid(studies: Path, pairs: list[str], minutes: float, jobs: int) -> None:
+    """Appends one run of the grid command to ``studies``' :data:`GRID_RUNS`: its wall minutes
+    from its first sweep's start to its last's end, the machine's time (with several studies
+    at once the sweeps' minutes overlap; their sum over-counts it)."""
+    _append(ROOT / studies / GRID_RUNS, ["ended", "minutes", "studies", "studies_at_once", "pairs", "cpu"],
+            [time.strftime("%Y-%m-%dT%H:%M:%S"), f"{minutes:.2f}", len(pairs), jobs, " ".join(pairs), cpu()])
+
+
+def grid_run_minutes(studies: Path = STUDIES) -> list[float]:
+    """The wall minutes of each run of the grid command :func:`record_grid` recorded in ``studies``."""
     import csv
 
-    path = ROOT / studies / RUNS
-    new = not path.is_file()
-    with open(path, "a", newline="") as f:
-        out = csv.writer(f)
-        if new:
-            out.writerow(["pair", "ended", "minutes", "exit_code", "studies_at_once", "cpu"])
-        out.writerow([pair, time.strftime("%Y-%m-%dT%H:%M:%S"), f"{minutes:.2f}", code, jobs, cpu()])
+    path = ROOT / studies / GRID_RUNS
+    if not path.is_file():
+        return []
+    with open(path, newline="") as f:
+        return [float(row["minutes"]) for row in csv.DictReader(f)]
 
 
 def cpu() -> str:

@@ -378,6 +378,8 @@ def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_
     record = project_copy / "bench" / "studies" / "cartpole_qlearn.log"
     study = optuna.load_study(study_name="bench-cartpole-qlearn", storage=open_storage(f"journal://{record}"))
     assert len(study.trials) == 2 and all(t.state.is_finished() for t in study.trials)
+    grid_runs = (project_copy / "bench" / "studies" / "grid_runs.csv").read_text().splitlines()
+    assert len(grid_runs) == 2 and grid_runs[1].split(",")[2:5] == ["1", "1", "cartpole_qlearn"], grid_runs
     tuned = (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").read_text()
     again = grid()
     assert again.returncode == 0 and "cartpole_qlearn: study complete (2 trials)" in again.stdout, again.stdout
