@@ -95,7 +95,8 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
             f"hydra.sweeper.seeds=[{','.join(str(s) for s in tuning['seeds'])}]",
             f"hydra.sweeper.budget_steps={budget}",
             *pruning(tuning["pruner"], budget, int(tuning.get("first_rung", 9))),
-            f"hydra.sweeper.startup_trials={int(tuning.get('startup_trials', 5))}",
+            # the plan's random trials (the sweeper's own default where it names none)
+            *([f"hydra.sweeper.startup_trials={int(tuning['startup_trials'])}"] if "startup_trials" in tuning else []),
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(write).lower()}",
             f"hydra.sweep.dir={sweep_dir}"]
 

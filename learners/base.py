@@ -144,6 +144,7 @@ class Learner(Protocol):
 
     kind: str  # the learner family a saved state belongs to ("qlearn", "dqn")
     MEMBER_WISE: tuple[str, ...]  # settings members of one batch may differ in
+    SIZING: tuple[str, ...]  # of MEMBER_WISE, those that size a member's training state
     members: int  # set by build
 
     def build(self, task, generators: Sequence[torch.Generator], variants: Sequence[Any] | None = None) -> None:

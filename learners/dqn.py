@@ -511,6 +511,7 @@ class DQN:
     MEMBER_WISE = ("lr", "lr_decay", "gamma", "tau", "target_update", "epsilon", "updates", "learning_starts",
                    "grad_clip", "done_episode_reward", "reward_scale", "priority_alpha", "priority_beta",
                    "priority_beta_updates", "priority_eps", "buffer_size", "batch_size")
+    SIZING = ("buffer_size",)  # of MEMBER_WISE, those that size a member's training state
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")

@@ -141,6 +141,7 @@ class QLearn:
     # Settings members of one batch may differ in (a tuning study's trials side by side); a
     # member's ``number_splits`` sizes its own block of the table.
     MEMBER_WISE = ("alpha", "gamma", "epsilon", "epsilon_discount", "epsilon_min", "initial_q", "number_splits")
+    SIZING = ("number_splits",)  # of MEMBER_WISE, those that size a member's training state
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
@@ -202,6 +203,8 @@ class QLearn:
             if self._rows is None or len(self._rows[0]) != self.members * n:
                 self._rows = Discretizer.rows_of(self.discretizers, torch.arange(self.members).repeat_interleave(n))
             return self.discretizer(observation, self._rows)
+        if len(members) == 1:  # a member's own policy (its greedy evaluations): its own bins
+            return self.discretizers[members[0]](observation)
         owner = torch.as_tensor(list(members)).repeat_interleave(n)
         return self.discretizer(observation, Discretizer.rows_of(self.discretizers, owner))
 

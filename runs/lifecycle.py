@@ -421,20 +421,21 @@ def _tensor_bytes(state) -> int:
 
 def _check_memory(env: RobotTaskEnv, cfgs: Sequence[DictConfig]) -> None:
     """One line, before any training, when the members of ``cfgs`` (each member's training
-    state's tensors, measured on a learner of one of its settings: members may differ in
-    their replay buffer's size) and ``env``'s physics buffers would take most of the free
-    memory."""
-    settings = [OmegaConf.to_container(cfg.learner, resolve=True) for cfg in cfgs]
+    state's tensors, measured on a learner of one for each value of the settings that size
+    it, the class's ``SIZING``: members may differ in their replay buffer's size or their
+    table's bins) and ``env``'s physics buffers would take most of the free memory."""
+    sizing = getattr(get_class(str(cfgs[0].learner._target_)), "SIZING", ())
+    sizes = [repr([OmegaConf.to_container(cfg.learner, resolve=True).get(k) for k in sizing]) for cfg in cfgs]
     per_member = {}
-    for own in {repr(s): s for s in settings}.values():
-        one = instantiate(own, _convert_="all")
+    for size, cfg in {size: cfg for size, cfg in zip(sizes, cfgs)}.items():
+        one = instantiate(cfg.learner, _convert_="all")
         one.build(env.task, [torch.Generator()])
-        per_member[repr(own)] = _tensor_bytes(one.training_state(0))
+        per_member[size] = _tensor_bytes(one.training_state(0))
         del one
     seeds = len(cfgs)
     physics = env.physics
     per_step = physics.nstate + physics.model.nsensordata + physics.model.nu
-    need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + sum(per_member[repr(s)] for s in settings)
+    need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + sum(per_member[size] for size in sizes)
     free = available_bytes()
     if free is not None and need > 0.8 * free:
         raise ConfigError(f"a batch of {seeds} seeds x {copies(env.block_size)} needs about {need / 2**30:.3g} "

@@ -341,6 +341,8 @@ def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file(
     assert "hydra.sweeper.storage=journal://bench/studies/maze_dqn.log" in own
     # the plan's rounds: its random trials first, then the guided ones (startup_trials)
     assert f"hydra.sweeper.startup_trials={tuning['startup_trials']}" in own
+    unnamed = {k: v for k, v in tuning.items() if k != "startup_trials"}  # the sweeper's own default
+    assert not any("startup_trials" in arg for arg in tune_grid.command("maze", spec, "dqn", unnamed, 12, Path("s")))
     assert benchmark.check_studies(None) == tune_grid.STUDIES
     assert benchmark.check_studies(Path("bench/timing/x")) == Path("bench/timing/x")
 

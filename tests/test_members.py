@@ -73,6 +73,12 @@ def same_as_alone(cfg, n: int, steps: int, cfgs=None) -> None:
             assert torch.equal(a[b], s[0]), (seed, "action", t)
         assert tensors_equal(together.training_state(b), single.training_state(0)), seed
         assert tensors_equal(together.model_state(b), single.model_state(0)), seed
+        # its greedy policy seen alone (a run's evaluations in a batch) acts as the single's
+        observation = build_env(cfg, 16, 7).reset()
+        mine, alone = together.member(b), single.member(0)
+        with mine.greedy(), alone.greedy():
+            assert torch.equal(mine.policy(observation.clone()).get("action"),
+                               alone.policy(observation.clone()).get("action")), (seed, "greedy")
         stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
                  for x, i in ((together, b), (single, 0))]
         assert stats[0] == stats[1], seed

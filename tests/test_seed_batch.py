@@ -337,6 +337,23 @@ def test_a_batchs_memory_counts_each_members_own_replay_buffer(monkeypatch):
     assert 0.05 < needs[1] - needs[0] < 0.2, needs
 
 
+def test_a_batchs_memory_builds_one_learner_per_size_not_per_trial(monkeypatch):
+    """The estimate builds a learner of one per value of the settings that size a member
+    (``SIZING``), not per config: four trials in two learning rates and two buffer sizes
+    build two."""
+    from tasks.factory import build_env
+
+    built = []
+    real = batch_module.instantiate
+    monkeypatch.setattr(batch_module, "instantiate", lambda cfg, **kw: built.append(cfg) or real(cfg, **kw))
+    cfgs = [compose("cartpole", learner="dqn", overrides=[f"learner.buffer_size={size}", f"learner.lr={lr}"])
+            for size in (1000, 2000) for lr in (0.001, 0.0005)]
+    env = build_env(cfgs[0], 4 * int(cfgs[0].num_envs), [0, 1, 2, 3])
+    batch_module._check_memory(env, cfgs)
+    env.close()
+    assert sorted(cfg.buffer_size for cfg in built) == [1000, 2000]
+
+
 def test_a_run_updates_with_denormal_numbers_flushed_and_leaves_the_process_as_it_was(tmp_path, monkeypatch):
     """Adam's first moment of a dead unit's weights sticks in denormal numbers, where the
     CPU's arithmetic is ~5x slower: a run's updates compute them as 0
