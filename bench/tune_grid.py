@@ -104,7 +104,8 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
 def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_run: bool = False,
          jobs: int | None = None, studies: Path = STUDIES) -> int:
     """Tunes every pair asked for (the plan's by default), ``jobs`` studies at once (each a
-    process of one thread; default: one per core); the number of pairs left unfinished.
+    process of one thread; default: one per core; several at once start longest first,
+    :func:`longest_first`); the number of pairs left unfinished.
     With more than one at once, each sweep's console goes to ``tuning/bench/<pair>/<time>.log``.
     ``studies``: the journals' folder (from the project's root); any other than
     ``bench/studies`` is a replay, e.g. to time the grid: its studies write no tuned file."""
@@ -112,7 +113,7 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
     write = Path(studies) == STUDIES and bool(tuning.get("write_tuned", True))
     (ROOT / studies).mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    pending: list[tuple[str, list[str]]] = []  # (pair, its sweep's command)
+    pending: list[tuple[str, list[str], int]] = []  # (pair, its sweep's command, its trials left)
     for task in tasks or list(plan["tasks"]):
         spec = plan["tasks"][task]
         if spec.get("overrides"):
@@ -133,11 +134,15 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp, studies, write)
             print(f"{name}: {counted} trials done, {running} left running, {max(missing, 0)} to ask\n  "
                   + " ".join(cmd[1:]), flush=True)
-            pending.append((name, cmd))
+            pending.append((name, cmd, max(missing, 0) + running))
     if dry_run or not pending:
         return len(pending)
     jobs = min(jobs or child.cores(), len(pending))
-    logs = [ROOT / SWEEPS / name / f"{stamp}.log" for name, _ in pending] if jobs > 1 else [None] * len(pending)
+    if jobs > 1:
+        pending = longest_first(pending, int(tuning["trials"]))
+        print("longest first (the grid's records of each study's minutes): "
+              + ", ".join(name for name, _, _ in pending), flush=True)
+    logs = [ROOT / SWEEPS / name / f"{stamp}.log" for name, _, _ in pending] if jobs > 1 else [None] * len(pending)
     clock: dict[int, float] = {}
 
     def started(i: int) -> None:
@@ -154,9 +159,24 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
 
     print(f"{len(pending)} studies to run, {jobs} at once", flush=True)
     begun = time.monotonic()
-    codes = child.call_all([cmd for _, cmd in pending], ROOT, jobs, logs, started=started, ended=ended)
-    record_grid(studies, [name for name, _ in pending], (time.monotonic() - begun) / 60, jobs)
+    codes = child.call_all([cmd for _, cmd, _ in pending], ROOT, jobs, logs, started=started, ended=ended)
+    record_grid(studies, [name for name, _, _ in pending], (time.monotonic() - begun) / 60, jobs)
     return sum(code != 0 for code in codes)
+
+
+def longest_first(pending: list[tuple[str, list[str], int]], trials: int) -> list[tuple[str, list[str], int]]:
+    """``pending`` (pair, command, trials left) in the order that ends soonest when several
+    run at once: the longest first, each priced at its study's minutes in the grid's own
+    records (``bench/studies``, :func:`grid_minutes`) times the share of its trials left; a
+    pair without a record goes first. In the plan's order the last study can run alone on
+    one core while the others stand idle."""
+    known = {name: minutes for name, _, minutes in grid_minutes(STUDIES)}
+
+    def expected(item: tuple[str, list[str], int]) -> float:
+        name, _, left = item
+        return known[name] * left / max(trials, 1) if name in known else float("inf")
+
+    return sorted(pending, key=expected, reverse=True)
 
 
 RUNS = "runs.csv"  # in a studies folder: one row per sweep the grid command ran, as it ends

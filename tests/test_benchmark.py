@@ -347,6 +347,18 @@ def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file(
     assert benchmark.check_studies(Path("bench/timing/x")) == Path("bench/timing/x")
 
 
+def test_studies_side_by_side_start_longest_first(monkeypatch):
+    """With several studies at once the grid starts the longest first (its records' minutes
+    times the share of trials left; a pair never run first of all), so the last to end is
+    a short one."""
+    from bench import tune_grid
+
+    monkeypatch.setattr(tune_grid, "grid_minutes", lambda studies=None: [("a", 12, 10.0), ("b", 12, 30.0),
+                                                                        ("d", 12, 40.0)])
+    pending = [(name, [name], left) for name, left in (("a", 12), ("b", 12), ("c", 12), ("d", 6))]
+    assert [name for name, _, _ in tune_grid.longest_first(pending, 12)] == ["c", "b", "d", "a"]
+
+
 def test_the_grids_minutes_add_up_its_sweeps_and_its_trials_run_time(tmp_path, monkeypatch, capsys):
     """``--tune --minutes``: the sweeps' wall minutes the command recorded (several runs of a
     pair added up) and the union of each study's trial spans (trials side by side once, the
