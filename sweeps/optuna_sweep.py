@@ -153,28 +153,40 @@ class TuningSweep:
                 study.enqueue_trial(plan.current, skip_if_exists=True)
                 print("  trial 0 is the current configuration (start_from_current)", flush=True)
             else:
-                print("  the current configuration lies outside the space: every trial is sampled", flush=True)
+                print("  the current configuration lies outside the space: every trial is sampled, and it is "
+                      "valued beside the first round", flush=True)
         to_ask = self.n_trials + self._take_over(study, plan)  # trials asked again are not new ones
-        results, done = [], 0
+        # The current configuration, where no trial is it, is valued beside the first round
+        # (its jobs members of that batch), not in a batch of its own after the last.
+        current = self._current_jobs(study, plan)
+        results, done, launched = [], 0, 0
         while done < to_ask and not (sweep_dir / ".stop").exists():
             size = batch_size(self.trials_per_batch, to_ask - done, _finished(study), self.startup_trials)
             batch = [study.ask({k: p.distribution for k, p in plan.params.items()}) for _ in range(size)]
             for trial in batch:
                 claim(self._storage, self._trial_id(study, trial.number), self.seeds)
-            results.append(self._run_batch(study, batch, plan, first_job=done * len(self.seeds)))
+            results.append(self._run_batch(study, batch, plan, first_job=launched, extra=current))
+            launched += len(batch) * len(self.seeds) + len(current)
+            if current:
+                self._value_current(study, plan, results[-1][-len(current):])
+                current = []
             done += len(batch)
-        self._score_current(study, plan, first_job=done * len(self.seeds))
+        if current and not (sweep_dir / ".stop").exists():  # no round ran (a study already at its count)
+            self._value_current(study, plan, self.launcher.launch(current, initial_job_idx=launched))
         self._finish(study, plan, sweep_dir)
         return results
 
-    def _score_current(self, study, plan: Plan, first_job: int) -> None:
-        """Where the current configuration lies outside the space (so no trial is it), its
-        value on the study's seeds and budget, once per study (``current_value``): the
-        tuned file replaces it only if the best trial beats it."""
+    def _current_jobs(self, study, plan: Plan) -> list[list[str]]:
+        """Where the current configuration lies outside the space (so no trial is it) and the
+        study has not valued it yet (``current_value``), its jobs: one per seed, on the
+        study's budget."""
         if not self.start_from_current or plan.current is not None or "current_value" in study.user_attrs:
-            return
-        jobs = [[*plan.fixed, f"seed={seed}"] for seed in self.seeds]
-        returns = self.launcher.launch(jobs, initial_job_idx=first_job)
+            return []
+        return [[*plan.fixed, f"seed={seed}"] for seed in self.seeds]
+
+    def _value_current(self, study, plan: Plan, returns: list) -> None:
+        """The current configuration's value from its jobs' ``returns``, once per study
+        (``current_value``): the tuned file replaces it only if the best trial beats it."""
         summaries = _summaries([_run_dir(r) for r in returns])
         values = [success_and_speed(s, self.budget_steps) for s in summaries]
         if any(s.get("status") != "ok" for s in summaries) or any(v is None for v in values):
@@ -185,13 +197,15 @@ class TuningSweep:
         print(f"current configuration (outside the space): {plan.objective} {value:.4g} "
               f"(seeds {', '.join(f'{float(v):.4g}' for v in values)})", flush=True)
 
-    def _run_batch(self, study, batch: list, plan: Plan, first_job: int) -> list:
-        """Launches ``batch``'s trials, one job per seed each, and tells the study their values."""
+    def _run_batch(self, study, batch: list, plan: Plan, first_job: int, extra: list | None = None) -> list:
+        """Launches ``batch``'s trials, one job per seed each, and ``extra`` jobs after them (in
+        the same launch: side by side where they fit one batch), and tells the study the
+        trials' values; every job's return, the trials' first."""
         assert self.launcher is not None
         values = [{k: p.value(t.params[k]) for k, p in plan.params.items()} for t in batch]
         jobs = [[*plan.fixed, *(f"{k}={override_value(v)}" for k, v in vals.items()), f"seed={seed}",
                  f"trial={t.number}"] for t, vals in zip(batch, values) for seed in self.seeds]
-        returns = self.launcher.launch(jobs, initial_job_idx=first_job)
+        returns = self.launcher.launch(jobs + list(extra or []), initial_job_idx=first_job)
         n = len(self.seeds)
         for i, (trial, vals) in enumerate(zip(batch, values)):
             self._tell(study, trial.number, plan, vals, [_run_dir(r) for r in returns[i * n:(i + 1) * n]])

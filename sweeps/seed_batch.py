@@ -121,7 +121,8 @@ class SeedBatchLaunch:
         if jobs:  # (fewer than the chunk where a job failed its checks)
             trials = any(j.cfg.get("trial") is not None for j in jobs)
             log.info(f"Training {len(jobs)} {'runs' if trials else 'seeds'} together: " + ", ".join(
-                f"trial {j.cfg.trial} seed {j.cfg.seed}" if trials else str(j.cfg.seed) for j in jobs))
+                f"trial {j.cfg.trial} seed {j.cfg.seed}" if j.cfg.get("trial") is not None
+                else f"seed {j.cfg.seed}" if trials else str(j.cfg.seed) for j in jobs))
         summaries = _batch(jobs) if jobs else []
         stopped = [s for s in summaries if s.get("interrupted")]
         if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)

@@ -208,6 +208,8 @@ def test_a_current_configuration_outside_the_space_is_scored_and_kept_unless_bea
     proc = tuning(tmp_path, "s", "sweep")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "current configuration (outside the space): success_and_speed " in proc.stdout
+    # valued beside the first round's trial, one batch (not a batch of its own after the study)
+    assert "Training 4 runs together: trial 0 seed 0, trial 0 seed 1, seed 0, seed 1" in proc.stdout, proc.stdout
     study = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}")
     current, best = study.user_attrs["current_value"], study.best_value
     assert study.user_attrs["tuned_kept"] == (current >= best)
