@@ -158,9 +158,10 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                                       "command again to go on"), flush=True)
 
     print(f"{len(pending)} studies to run, {jobs} at once", flush=True)
+    speed = physics_speed()  # before any study starts: the machine as quiet as this command leaves it
     begun = time.monotonic()
     codes = child.call_all([cmd for _, cmd, _ in pending], ROOT, jobs, logs, started=started, ended=ended)
-    record_grid(studies, [name for name, _, _ in pending], (time.monotonic() - begun) / 60, jobs)
+    record_grid(studies, [name for name, _, _ in pending], (time.monotonic() - begun) / 60, jobs, speed)
     return sum(code != 0 for code in codes)
 
 
@@ -201,12 +202,35 @@ def record_run(studies: Path, pair: str, minutes: float, code: int, jobs: int) -
             [pair, time.strftime("%Y-%m-%dT%H:%M:%S"), f"{minutes:.2f}", code, jobs, cpu()])
 
 
-def record_grid(studies: Path, pairs: list[str], minutes: float, jobs: int) -> None:
+def record_grid(studies: Path, pairs: list[str], minutes: float, jobs: int, speed: float | None = None) -> None:
     """Appends one run of the grid command to ``studies``' :data:`GRID_RUNS`: its wall minutes
     from its first sweep's start to its last's end, the machine's time (with several studies
-    at once the sweeps' minutes overlap; their sum over-counts it)."""
-    _append(ROOT / studies / GRID_RUNS, ["ended", "minutes", "studies", "studies_at_once", "pairs", "cpu"],
-            [time.strftime("%Y-%m-%dT%H:%M:%S"), f"{minutes:.2f}", len(pairs), jobs, " ".join(pairs), cpu()])
+    at once the sweeps' minutes overlap; their sum over-counts it), and ``speed``, the
+    machine's :func:`physics_speed` when it started (machines of one kind differ: pieces run
+    on different days compare through it)."""
+    _append(ROOT / studies / GRID_RUNS,
+            ["ended", "minutes", "studies", "studies_at_once", "pairs", "cpu", "cartpole_us_per_copy_step"],
+            [time.strftime("%Y-%m-%dT%H:%M:%S"), f"{minutes:.2f}", len(pairs), jobs, " ".join(pairs), cpu(),
+             "" if speed is None else f"{speed:.3f}"])
+
+
+def physics_speed(copies: int = 64, seconds: float = 1.0) -> float:
+    """Microseconds a copy-step of the cart-pole's physics takes here (``copies`` side by side,
+    one ``mujoco.rollout`` call a step, as a batch steps them): a yardstick of the machine."""
+    sys.path.insert(0, str(ROOT))
+    from robots.physics import BatchedPhysics
+    from tasks import catalog
+
+    env = catalog.make_env("cartpole")
+    physics = BatchedPhysics(env.physics.model, copies)
+    substeps = env.task.n_substeps
+    env.close()
+    physics.step(substeps)
+    calls, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        physics.step(substeps)
+        calls += 1
+    return (time.perf_counter() - start) / (calls * copies) * 1e6
 
 
 def grid_run_minutes(studies: Path = STUDIES) -> list[float]:

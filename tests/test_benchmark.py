@@ -392,8 +392,10 @@ def test_the_grids_minutes_add_up_its_sweeps_and_its_trials_run_time(tmp_path, m
     assert "maze_dqn" in out and "20.5" in out and "17.0" in out
     assert "1 study: 0.34 hours of sweeps (1 recorded in bench/timing/runs.csv), 0.28 hours of trials" in out
     assert "wall time" not in out  # no run of the grid command recorded yet
-    tune_grid.record_grid(folder, ["maze_dqn", "wall_dqn"], 12.0, 2)  # two studies side by side
+    tune_grid.record_grid(folder, ["maze_dqn", "wall_dqn"], 12.0, 2, tune_grid.physics_speed(8, 0.05))
     tune_grid.record_grid(folder, ["maze_dqn"], 6.0, 1)
     assert tune_grid.grid_run_minutes(folder) == [pytest.approx(12.0), pytest.approx(6.0)]
+    speed = [row.split(",")[-1] for row in (tmp_path / folder / tune_grid.GRID_RUNS).read_text().splitlines()]
+    assert speed[0] == "cartpole_us_per_copy_step" and 0 < float(speed[1]) < 1e4 and speed[2] == ""
     benchmark.print_grid_minutes(folder)
     assert "the grid command's wall time: 0.30 hours over 2 runs" in capsys.readouterr().out
