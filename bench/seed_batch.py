@@ -96,27 +96,29 @@ def physics_floor(learner: str, n: str, seeds: int, folder: Path) -> float:
 def floor_of(robot: str, folder: Path, copies: int) -> float:
     """Seconds the job folders under ``folder`` need for their physics alone: their
     copy-steps, each priced at this machine's cost per copy-step of a ``mujoco.rollout``
-    call as wide as its steps are (training: ``copies``; evaluations: their copies), the
-    rollout pool's threads as the env uses them. Below this no batch can go here."""
+    call as wide as its steps are (training: ``copies``; evaluations: their copies;
+    :func:`per_copy_step`). Below this no batch can go here."""
+    train, evals, width = copy_steps(folder)
+    return train * per_copy_step(robot, copies) + evals * per_copy_step(robot, max(width, 1))
+
+
+def per_copy_step(robot: str, copies: int, seconds: float = 2.0) -> float:
+    """Seconds a copy-step of ``robot``'s physics takes here, ``copies`` side by side (one
+    ``mujoco.rollout`` call a step, as a batch steps them; the rollout pool's threads as
+    the env uses them), timed over ``seconds``."""
     sys.path.insert(0, str(ROOT))
     from robots.physics import BatchedPhysics
     from tasks import catalog
 
     env = catalog.make_env(robot)
-    model, substeps = env.physics.model, env.task.n_substeps
+    physics, substeps = BatchedPhysics(env.physics.model, copies), env.task.n_substeps
     env.close()
-    train, evals, width = copy_steps(folder)
-
-    def per_copy_step(n: int) -> float:
-        physics = BatchedPhysics(model, n)
+    physics.step(substeps)
+    calls, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
         physics.step(substeps)
-        calls, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < 2.0:
-            physics.step(substeps)
-            calls += 1
-        return (time.perf_counter() - t0) / (calls * n)
-
-    return train * per_copy_step(copies) + evals * per_copy_step(max(width, 1))
+        calls += 1
+    return (time.perf_counter() - start) / (calls * copies)
 
 
 def load() -> str:

@@ -216,21 +216,10 @@ def record_grid(studies: Path, pairs: list[str], minutes: float, jobs: int, spee
 
 def physics_speed(copies: int = 64, seconds: float = 1.0) -> float:
     """Microseconds a copy-step of the cart-pole's physics takes here (``copies`` side by side,
-    one ``mujoco.rollout`` call a step, as a batch steps them): a yardstick of the machine."""
-    sys.path.insert(0, str(ROOT))
-    from robots.physics import BatchedPhysics
-    from tasks import catalog
+    :func:`bench.seed_batch.per_copy_step`): a yardstick of the machine."""
+    from bench.seed_batch import per_copy_step
 
-    env = catalog.make_env("cartpole")
-    physics = BatchedPhysics(env.physics.model, copies)
-    substeps = env.task.n_substeps
-    env.close()
-    physics.step(substeps)
-    calls, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
-        physics.step(substeps)
-        calls += 1
-    return (time.perf_counter() - start) / (calls * copies) * 1e6
+    return per_copy_step("cartpole", copies, seconds) * 1e6
 
 
 def grid_run_minutes(studies: Path = STUDIES) -> list[float]:
