@@ -160,8 +160,12 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
     print(f"{len(pending)} studies to run, {jobs} at once", flush=True)
     speed = physics_speed()  # before any study starts: the machine as quiet as this command leaves it
     begun = time.monotonic()
-    codes = child.call_all([cmd for _, cmd, _ in pending], ROOT, jobs, logs, started=started, ended=ended)
-    record_grid(studies, [name for name, _, _ in pending], (time.monotonic() - begun) / 60, jobs, speed)
+    try:
+        codes = child.call_all([cmd for _, cmd, _ in pending], ROOT, jobs, logs, started=started, ended=ended)
+    finally:  # a piece stopped by Ctrl-C is machine time of the grid too; the pairs it started
+        if clock:
+            record_grid(studies, [pending[i][0] for i in sorted(clock)], (time.monotonic() - begun) / 60, jobs,
+                        speed)
     return sum(code != 0 for code in codes)
 
 
@@ -203,8 +207,9 @@ def record_run(studies: Path, pair: str, minutes: float, code: int, jobs: int) -
 
 
 def record_grid(studies: Path, pairs: list[str], minutes: float, jobs: int, speed: float | None = None) -> None:
-    """Appends one run of the grid command to ``studies``' :data:`GRID_RUNS`: its wall minutes
-    from its first sweep's start to its last's end, the machine's time (with several studies
+    """Appends one run of the grid command to ``studies``' :data:`GRID_RUNS`: the ``pairs`` it
+    started, its wall minutes from its first sweep's start to its last's end (or to its
+    stop, a Ctrl-C included), the machine's time (with several studies
     at once the sweeps' minutes overlap; their sum over-counts it), and ``speed``, the
     machine's :func:`physics_speed` when it started (machines of one kind differ: pieces run
     on different days compare through it)."""

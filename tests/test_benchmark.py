@@ -359,6 +359,30 @@ def test_studies_side_by_side_start_longest_first(monkeypatch):
     assert [name for name, _, _ in tune_grid.longest_first(pending, 12)] == ["c", "b", "d", "a"]
 
 
+def test_a_grid_stopped_by_ctrl_c_records_its_time_and_the_pairs_it_started(tmp_path, monkeypatch):
+    """A run of the grid command stopped part way is a piece of the grid's machine time: its
+    row in ``grid_runs.csv`` names the studies it started, not the ones it never reached."""
+    from bench import tune_grid
+
+    monkeypatch.setattr(tune_grid, "ROOT", tmp_path)
+    monkeypatch.setattr(tune_grid, "physics_speed", lambda: 50.0)
+
+    def stopped_after_two(cmds, cwd, jobs, stdouts, started, ended):
+        for i in range(2):
+            started(i)
+        ended(0, 0)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tune_grid.child, "call_all", stopped_after_two)
+    folder = Path("bench") / "timing"
+    with pytest.raises(KeyboardInterrupt):
+        tune_grid.tune(benchmark.load_plan(False), ["maze"], ["qlearn", "dqn", "n1try"], jobs=2, studies=folder)
+    rows = (tmp_path / folder / tune_grid.GRID_RUNS).read_text().splitlines()
+    assert len(rows) == 2 and rows[1].split(",")[2:5] == ["2", "2", "maze_qlearn maze_dqn"], rows
+    assert rows[1].endswith(",50.000")
+    assert (tmp_path / folder / tune_grid.RUNS).read_text().splitlines()[1].startswith("maze_qlearn,")
+
+
 def test_the_grids_minutes_add_up_its_sweeps_and_its_trials_run_time(tmp_path, monkeypatch, capsys):
     """``--tune --minutes``: the sweeps' wall minutes the command recorded (several runs of a
     pair added up) and the union of each study's trial spans (trials side by side once, the
