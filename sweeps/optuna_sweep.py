@@ -125,6 +125,10 @@ class TuningSweep:
         base = self._compose(fixed)
         check_run_config(base)
         success = _check_builds(base)
+        episode = base.task.get("max_episode_steps")
+        if episode is not None and self.budget_steps < int(episode):
+            raise ConfigError(f"hydra.sweeper.budget_steps must be at least one episode of {robot}/{task} "
+                              f"(task.max_episode_steps = {int(episode)} env steps); got {self.budget_steps}")
         check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
         return Plan(robot, task, learner, given, fixed, space_file, params, success.measure,
                     SUCCESS_AND_SPEED, current_trial(params, base))

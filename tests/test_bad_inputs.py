@@ -151,6 +151,9 @@ MADE = [  # (arguments, what the one line must say); {name} is made[name]
     (["-m", "seed=-1,-2"], "every job of the sweep failed (2); the first, 0_cartpole_qlearn_seed-1: seed must be "
                            "an integer in [0, 9223372036854775808); got -1"),
     (["-m", "hydra/sweeper=optuna", "robot=cartpole", "task=maze"], "task maze needs robot=turtlebot"),
+    (["-m", "hydra/sweeper=optuna", "robot=cartpole", "hydra.sweeper.budget_steps=5"],
+     "hydra.sweeper.budget_steps must be at least one episode of cartpole/stay_up (task.max_episode_steps = 1000 "
+     "env steps); got 5"),
     *((["-m", "hydra/sweeper=optuna", f"hydra.sweeper.{key}={value}"], f"hydra.sweeper.{key} must be {allowed}")
       for key, value, allowed in (
           ("write_tuned", "maybe", "true or false; got 'maybe'"), ("start_from_current", "1", "true or false"),

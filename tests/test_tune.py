@@ -137,7 +137,7 @@ def test_trials_that_differ_in_member_wise_settings_train_as_one_batch(tmp_path)
     url = f"sqlite:///{tmp_path / 's.db'}"
     proc = cli("-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=dqn", "num_envs=2", "eval_episodes=2",
                "hydra.sweeper.n_trials=2", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[0,1]",
-               "hydra.sweeper.budget_steps=600", "hydra.sweeper.report_every=100", "hydra.sweeper.pruner=null",
+               "hydra.sweeper.budget_steps=1000", "hydra.sweeper.report_every=100", "hydra.sweeper.pruner=null",
                f"hydra.sweeper.search={space}", f"hydra.sweeper.storage={url}",
                f"hydra.sweep.dir={tmp_path / 'sweep'}")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
@@ -363,7 +363,7 @@ def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_
     same command again finds the study complete and runs nothing."""
     shutil.copytree(ROOT / "bench", project_copy / "bench", ignore=shutil.ignore_patterns("__pycache__", "studies"))
     plan = OmegaConf.load(project_copy / "bench" / "benchmark.yaml")
-    plan.tasks.cartpole.budget_steps = 400
+    plan.tasks.cartpole.budget_steps = 1000  # one episode, the least a study takes
     plan.tuning = {"trials": 2, "seeds": [0], "pruner": "successive_halving", "first_rung": 4}
     OmegaConf.save(plan, project_copy / "bench" / "benchmark.yaml")
     # A hand pick inside qlearn's space: the study's trial 0, so the best trial is never worse
@@ -403,7 +403,7 @@ def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(projec
     proc = cli("-m", "hydra/sweeper=optuna", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
                "robot=cartpole", "learner=n1try", "eval_episodes=2", "num_envs=4",
                "hydra.sweeper.n_trials=2", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[3]",
-               "hydra.sweeper.budget_steps=400", "hydra.sweeper.report_every=100", "hydra.sweeper.write_tuned=true",
+               "hydra.sweeper.budget_steps=1000", "hydra.sweeper.report_every=100", "hydra.sweeper.write_tuned=true",
                f"hydra.sweeper.storage={url}", f"hydra.sweep.dir={tmp_path / 'sweep'}", cwd=project_copy)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     study = optuna.load_study(study_name="cartpole-stay_up-n1try", storage=url)
@@ -583,7 +583,7 @@ def storage_url(kind: str, tmp_path: Path) -> str:
 def start_sweep(url: str, study: str, sweep: Path) -> subprocess.Popen:
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     args = ["-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=qlearn", "num_envs=4", "eval_episodes=2",
-            "hydra.sweeper.n_trials=2", "hydra.sweeper.seeds=[0]", "hydra.sweeper.budget_steps=200",
+            "hydra.sweeper.n_trials=2", "hydra.sweeper.seeds=[0]", "hydra.sweeper.budget_steps=1000",
             "hydra.sweeper.pruner=null", "hydra.sweeper.start_from_current=false", f"hydra.sweeper.storage={url}",
             f"hydra.sweeper.study={study}", f"hydra.sweep.dir={sweep}"]
     return subprocess.Popen([sys.executable, "train.py", *args], cwd=ROOT, stdout=subprocess.PIPE,
