@@ -590,9 +590,11 @@ def _finish(slot: _Slot, interrupted: int | None, evaluation: dict | None = None
 def final_evaluation(session: Session, run: Run, result: dict | None = None) -> dict | None:
     """The trained policy, judged like the evaluations during training (an evaluation of this
     very policy is reused); at the budget's end it may still solve a greedily judged task.
-    None when the run was stopped or evaluates nothing. ``result``: that evaluation, made
-    already (a seed batch evaluates the seeds that end at one step together)."""
-    if session.final_episodes <= 0 or run.stop_requested:
+    None when the run was stopped, pruned by its tuning study (which asks no value of it:
+    ruippeixotog's 500-episode run phase was over a third of a cart-pole study's copy-steps)
+    or evaluates nothing. ``result``: that evaluation, made already (a seed batch evaluates
+    the seeds that end at one step together)."""
+    if session.final_episodes <= 0 or run.stop_requested or run.pruned_at is not None:
         return None
     if _evaluated_already(session, run):
         return run.last_eval
@@ -601,9 +603,10 @@ def final_evaluation(session: Session, run: Run, result: dict | None = None) -> 
 
 
 def owes_final_evaluation(session: Session, run: Run) -> bool:
-    """Whether :func:`final_evaluation` runs a new evaluation: not when the run was stopped
-    or evaluates nothing, nor when its last evaluation was of this very policy."""
-    return session.final_episodes > 0 and not run.stop_requested and not _evaluated_already(session, run)
+    """Whether :func:`final_evaluation` runs a new evaluation: not when the run was stopped,
+    pruned or evaluates nothing, nor when its last evaluation was of this very policy."""
+    return (session.final_episodes > 0 and not run.stop_requested and run.pruned_at is None
+            and not _evaluated_already(session, run))
 
 
 def _evaluated_already(session: Session, run: Run) -> bool:

@@ -17,7 +17,8 @@ reader finds a number through it, never by spelling the name itself:
 - ``train_<measure>_best100_mean``: the mean of the 100 best training episodes, wherever
   they fell (the seeds' "best 100");
 - ``greedy_<measure>``, ``greedy_return``: the final greedy evaluation's mean measure and
-  mean return (None without one);
+  mean return (a run a tuning study pruned: its last evaluation's, as it makes no final
+  one; None without one);
 - ``judged_<measure>``: the mean the verdict compared with the threshold (at the solving
   point; else the last greedy evaluation's, or the best training window's).
 
@@ -452,6 +453,17 @@ def run_summary(run) -> dict:
     }
 
 
+def _greedy_line(s: dict, greedy: str, greedy_return: str) -> str:
+    """The verdict's line on the greedy policy: its final evaluation's numbers; a run its
+    tuning study pruned makes none, so its last evaluation's, if any."""
+    if s.get("pruned_at") is None:
+        return f"  greedy policy, final evaluation ({s['evaluations']} evaluations in all): {greedy}, {greedy_return}"
+    if not s["evaluations"]:
+        return "  greedy policy: not evaluated (pruned before its first evaluation; a pruned run makes no final one)"
+    return (f"  greedy policy, its last evaluation before it was pruned ({s['evaluations']} in all; a pruned run "
+            f"makes no final one): {greedy}, {greedy_return}")
+
+
 def _num(v) -> str:
     return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else f"{v:.4g}"
 
@@ -507,8 +519,7 @@ def verdict_lines(summary: dict, run_dir: Path) -> list[str]:
         f"  training episodes' {s['description']}: {named(k.train_best_rolling, k.train_last, k.train_best100_mean)}"
         f" (the mean of the {BEST_EPISODES} best episodes: the seeds' \"best {BEST_EPISODES}\")",
         f"  training episodes' return: {named(k.train_return_mean, k.train_return_last100, with_unit=False)}",
-        f"  greedy policy, final evaluation ({s['evaluations']} evaluations in all): "
-        f"{named(k.greedy)}, {named(k.greedy_return, with_unit=False)}",
+        _greedy_line(s, named(k.greedy), named(k.greedy_return, with_unit=False)),
         *([f"  stopped early by the tuning study (pruned) at episode {s['pruned_at']}"]
           if s.get("pruned_at") is not None else []),
         f"  {s['env_steps']} env steps in {s['wall_s']:.1f}s "

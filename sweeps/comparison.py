@@ -5,7 +5,7 @@ One row per robot/task, learner and setting of the swept hyperparameters (column
 ``swept``: every override whose value differs between the sweep's jobs, the seed
 aside). The ``headline`` column names the number each seed is ranked by, the task's own
 measure as its judge sees it (:meth:`runs.summary.MeasureKeys.headline`):
-``greedy_<measure>``, the final greedy evaluation's, for greedily judged tasks,
+``greedy_<measure>``, the final greedy evaluation's (a pruned trial's: its last), for greedily judged tasks,
 ``train_<measure>_last<window>``, the mean of the last ``window`` training episodes,
 otherwise; it is summarized over the finished seeds by its interquartile mean with a 95%
 bootstrap confidence interval (``IQM [95% CI]``) and ``mean +- std``. Also: seeds solved,
@@ -46,7 +46,7 @@ CONSOLE = ("robot/task", "learner", "swept", "headline", IQM, "seeds", "finished
 WIDTH = 110
 NUMBERS = ("iqm", "ci_low", "ci_high")  # the headline as numbers, in comparison.csv only
 LEGEND = (f"headline: the number each seed is ranked by (greedy_<measure>: the final greedy evaluation's "
-          f"mean; train_<measure>_last<window>: the mean of the last <window> training episodes); {IQM}: "
+          f"mean, a pruned trial's last; train_<measure>_last<window>: the mean of the last <window> training episodes); {IQM}: "
           "its interquartile mean over the finished seeds, 95% percentile bootstrap interval (seeds "
           "resampled); rows of different tasks are never pooled")
 

@@ -1,6 +1,7 @@
 """Tuning with Optuna through Hydra (hydra/sweeper=optuna): search spaces, their checks,
 the trial jobs' reports and pruning, a study shared by two workers, the tuned file."""
 
+import math
 import os
 import re
 import shutil
@@ -558,6 +559,38 @@ def test_a_trial_that_loses_its_study_warns_once_and_trains_on(tmp_path, capsys)
     warned = [line for line in capsys.readouterr().out.splitlines() if "cannot reach the study" in line]
     assert len(warned) == 1 and "database is gone" in warned[0]
     assert run.pruned_at is None and not run.done
+
+
+def test_a_pruned_run_makes_no_final_evaluation(tmp_path):
+    """A run its tuning study pruned ends without a final greedy evaluation: the study asks
+    no value of a pruned trial (ruippeixotog's 500-episode run phase in pruned jobs was over
+    a third of the replayed cart-pole study's copy-steps)."""
+    from runs.lifecycle import Session, final_evaluation, owes_final_evaluation
+    from runs.run import Hooks, Run
+    from tasks.base import Success
+
+    class Prunes:
+        every, pruned = 10, False
+
+        def __call__(self, env_steps: int, rolling: float) -> bool:
+            return True
+
+        def solved(self, env_steps: int, value: float) -> None:
+            raise AssertionError("not solved")
+
+    def evaluator(episodes: int) -> dict:
+        raise AssertionError("a pruned run was evaluated")
+
+    run = Run(tmp_path / "run", 1, 1000, Success("length", "steps", "steps balanced", math.inf), quiet=True,
+              hooks=Hooks(progress=Prunes()))
+    session = Session(OmegaConf.create({"eval_episodes": 20}), tmp_path / "run", learner=object(), env=None,
+                      evaluator=evaluator)
+    assert owes_final_evaluation(session, run)  # an unpruned run at its end would be evaluated
+    run.episodes.n_episodes, run.episodes.env_steps = 10, 10
+    run.episodes.values.append(1.0)
+    run.end_step(None)
+    assert run.pruned_at == 10 and run.done
+    assert not owes_final_evaluation(session, run) and final_evaluation(session, run) is None
 
 
 # -- a study shared by sweeps running at once: a database server, a journal file ------------
