@@ -594,7 +594,7 @@ def final_evaluation(session: Session, run: Run, result: dict | None = None) -> 
     ruippeixotog's 500-episode run phase was over a third of a cart-pole study's copy-steps)
     or evaluates nothing. ``result``: that evaluation, made already (a seed batch evaluates
     the seeds that end at one step together)."""
-    if session.final_episodes <= 0 or run.stop_requested or run.pruned_at is not None:
+    if not _makes_final_evaluation(session, run):
         return None
     if _evaluated_already(session, run):
         return run.last_eval
@@ -605,8 +605,13 @@ def final_evaluation(session: Session, run: Run, result: dict | None = None) -> 
 def owes_final_evaluation(session: Session, run: Run) -> bool:
     """Whether :func:`final_evaluation` runs a new evaluation: not when the run was stopped,
     pruned or evaluates nothing, nor when its last evaluation was of this very policy."""
-    return (session.final_episodes > 0 and not run.stop_requested and run.pruned_at is None
-            and not _evaluated_already(session, run))
+    return _makes_final_evaluation(session, run) and not _evaluated_already(session, run)
+
+
+def _makes_final_evaluation(session: Session, run: Run) -> bool:
+    """Whether the run ends with a final evaluation at all: one evaluates something, and was
+    neither stopped nor pruned."""
+    return session.final_episodes > 0 and not run.stop_requested and run.pruned_at is None
 
 
 def _evaluated_already(session: Session, run: Run) -> bool:
