@@ -46,9 +46,9 @@ CONSOLE = ("robot/task", "learner", "swept", "headline", IQM, "seeds", "finished
 WIDTH = 110
 NUMBERS = ("iqm", "ci_low", "ci_high")  # the headline as numbers, in comparison.csv only
 LEGEND = (f"headline: the number each seed is ranked by (greedy_<measure>: the final greedy evaluation's "
-          f"mean, a pruned trial's last; train_<measure>_last<window>: the mean of the last <window> training episodes); {IQM}: "
-          "its interquartile mean over the finished seeds, 95% percentile bootstrap interval (seeds "
-          "resampled); rows of different tasks are never pooled")
+          f"mean, a pruned trial's last; train_<measure>_last<window>: the mean of the last <window> training "
+          f"episodes); {IQM}: its interquartile mean over the finished seeds, 95% percentile bootstrap interval "
+          "(seeds resampled); rows of different tasks are never pooled")
 
 
 class NotASweep(Exception):
