@@ -4,6 +4,7 @@
     python -m bench.benchmark --quick              # cart-pole x qlearn, dqn; 3 seeds; minutes
     python -m bench.benchmark --tasks cube --learners dqn --seeds 5 [-- extra overrides]
     python -m bench.benchmark --read benchmark/<folder>   # tabulate a finished (or partial) run again
+    python -m bench.benchmark --out bench/results/<name> --jobs 2   # two pairs at once, records kept in git
     python -m bench.benchmark --tune [--tasks ...] [--learners ...] [--jobs N]   # one study per pair (bench/tune_grid.py)
     python -m bench.benchmark --tune --studies bench/timing/<name>   # a replay in another folder (no tuned file)
     python -m bench.benchmark --tune --minutes [--studies ...]       # each study's minutes from its journal
@@ -16,7 +17,12 @@ of env steps and stopped when its verdict says solved. A seed *succeeds* when it
 finished policy does: the final greedy evaluation's measure meets the task's threshold
 (the training verdict alone can be met by a policy that no longer is). Results go to a
 folder (``benchmark/<time>/`` unless ``--out``): ``seeds.csv`` (one row per seed),
-``benchmark.csv`` and ``benchmark.md`` (one row per pair), and the sweeps' job folders.
+``benchmark.csv`` and ``benchmark.md`` (one row per pair), the sweeps' job folders, and per
+pair a record (``<task>/<learner>_<setting>.json``: its command, exit code, wall seconds and
+seeds' rows) from which the tables are made again when the job folders are gone. A folder
+under ``bench/results/`` is kept in the repository without its job folders and consoles
+(``.gitignore``): a benchmark run over several sessions commits its records as pairs end.
+``--jobs N`` trains N pairs at once (each one process of one thread).
 Without ``--quick`` docs/benchmark.md (between its markers) is rewritten from the table
 (``--readme`` names another file, ``--no-readme`` leaves it alone).
 """
@@ -28,6 +34,7 @@ import csv
 import json
 import math
 import platform
+import signal
 import statistics
 import subprocess
 import sys
@@ -45,6 +52,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PLAN = Path(__file__).with_name("benchmark.yaml")
 BEGIN, END = "<!-- benchmark:begin -->", "<!-- benchmark:end -->"
 SETTINGS = ("published", "tuned")
+STOPPED = 128 + signal.SIGINT  # train.py's exit code when Ctrl-C stopped it (its checkpoints saved)
 SEED_COLUMNS = ("task", "robot/task", "learner", "setting", "seed", "status", "success", "verdict",
                 "measure", "threshold", "greedy", "env_steps", "wall_s", "steps_to_solve",
                 "wall_to_solve", "error", "run_dir")
@@ -107,8 +115,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--tune", action="store_true",
                         help="tune every pair by one study each (the plan's tuning block), resuming; run nothing else")
     parser.add_argument("--dry-run", action="store_true", help="with --tune: print each pair's command only")
-    parser.add_argument("--jobs", type=int, help="with --tune: studies at once, a process of one thread each "
-                                                 "(default: one per core)")
+    parser.add_argument("--jobs", type=int, help="pairs trained at once, a process of one thread each (default: 1); "
+                                                 "with --tune: studies at once (default: one per core)")
     parser.add_argument("--studies", type=Path, help="with --tune: the studies' journal folder, from the project's "
                         "root (default: bench/studies); another folder is a replay: no conf/tuned/ file is written")
     parser.add_argument("--minutes", action="store_true", help="with --tune: each study's minutes, its sweeps' (the "
@@ -214,50 +222,80 @@ def check_budget(job: Job) -> None:
                        f"{cfg.task.max_episode_steps} steps need {need}; give --budget {need} or more")
 
 
-def run_job(job: Job, out: Path, bar: tqdm, solo: bool = False) -> dict:
-    """Trains ``job``'s seeds as one multirun into ``out/<task>/<learner>_<setting>/``; its
-    command, exit code and wall seconds go to ``<learner>_<setting>.json`` beside it, its
-    console to ``<learner>_<setting>.log``. The bar moves as each seed writes its verdict.
-    ``solo``: also times the first seed trained alone (``solo_wall_s``), to say what
-    training the seeds in one process saved. A pair stopped part way (its sweep folder
-    there, no record) continues its seeds from their checkpoints (``train.py
-    resume=<sweep>``; ``resumed`` in the record: its wall seconds count from there)."""
+def pair_command(job: Job, out: Path) -> tuple[list[str], bool]:
+    """The command that trains ``job``'s seeds as one multirun into ``out/<task>/<learner>_<setting>/``,
+    and whether it resumes: a pair stopped part way (its sweep folder there, no record)
+    continues its seeds from their checkpoints (``train.py resume=<sweep>``)."""
     sweep = out / job.folder
-    sweep.parent.mkdir(parents=True, exist_ok=True)
     resumed = is_sweep_folder(sweep)
-    cmd = ([sys.executable, "train.py", f"resume={sweep}"] if resumed else
-           [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
-            f"seed={','.join(map(str, job.seeds))}", *overrides(job)])
-    done = 0
+    if resumed:
+        return [sys.executable, "train.py", f"resume={sweep}"], True
+    return [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
+            f"seed={','.join(map(str, job.seeds))}", *overrides(job)], False
 
-    def progress() -> None:
-        nonlocal done
+
+def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool = False) -> None:
+    """Trains the pairs of ``todo``, ``jobs`` at once (each a process of one thread, the seeds
+    launcher's), each pair's seeds as one multirun (:func:`pair_command`). As a pair ends,
+    its command, exit code, start (local time) and wall seconds (from its start; ``resumed``:
+    from where it went on) go to ``<learner>_<setting>.json`` beside its sweep, with its seeds' rows
+    (:func:`pair_seeds`); its console is ``<learner>_<setting>.log``. The bar moves as each
+    seed writes its verdict; a pair that Ctrl-C stopped gets no record (the same command goes
+    on with it). ``solo`` (one pair at a time): also times the pair's first
+    seed trained alone (``solo_wall_s``), to say what training the seeds in one process saved."""
+    commands = [pair_command(job, out) for job in todo]
+    logs = [(out / job.folder).with_suffix(".log") for job in todo]
+    for log, (_, resumed) in zip(logs, commands):
+        log.parent.mkdir(parents=True, exist_ok=True)
+        if not resumed:
+            log.write_text("")
+    begun: dict[int, float] = {}
+    started_at: dict[int, str] = {}
+    done = [0] * len(todo)
+
+    def started(i: int) -> None:
+        begun[i], started_at[i] = time.perf_counter(), time.strftime("%Y-%m-%dT%H:%M:%S")
+
+    def count(i: int) -> None:
+        sweep = out / todo[i].folder
         finished = sum(1 for d in sweep.glob("*/") if (d / "summary.json").exists()
                        or (d / "error.txt").exists()) if sweep.is_dir() else 0
-        bar.update(max(0, finished - done))
-        done = max(done, finished)
+        bar.update(max(0, finished - done[i]))
+        done[i] = max(done[i], finished)
 
-    t0 = time.perf_counter()
-    with open(sweep.with_suffix(".log"), "a" if resumed else "w") as log:
-        returncode = child.call(cmd, cwd=ROOT, stdout=log, poll=progress)
-    bar.update(len(job.seeds) - done)
-    lines = sweep.with_suffix(".log").read_text(errors="replace").strip().splitlines()
-    record = {"command": cmd, "returncode": returncode, "wall_s": time.perf_counter() - t0,
-              "last_line": lines[-1] if lines else "", **({"resumed": True} if resumed else {})}
-    if solo:
-        t0 = time.perf_counter()
-        alone = subprocess.run([sys.executable, "train.py", "quiet=true", f"hydra.run.dir={sweep}_solo",
-                                f"seed={job.seeds[0]}", *overrides(job)], cwd=ROOT, capture_output=True)
-        if alone.returncode == 0:
-            record["solo_wall_s"] = time.perf_counter() - t0
-    sweep.with_suffix(".json").write_text(json.dumps(record, indent=1))
-    if returncode not in (0, 1):  # 1: some seed failed (its row says why)
-        tqdm.write(f"warning: {job.folder} exited {returncode}: {record['last_line']}")
-    return record
+    def ended(i: int, returncode: int) -> None:
+        if returncode in (STOPPED, -signal.SIGINT):  # Ctrl-C: no record, so the same command goes on with it
+            return
+        job, (cmd, resumed) = todo[i], commands[i]
+        wall = time.perf_counter() - begun[i]
+        count(i)
+        bar.update(len(job.seeds) - done[i])
+        done[i] = len(job.seeds)
+        lines = logs[i].read_text(errors="replace").strip().splitlines()
+        record = {"command": cmd, "returncode": returncode, "wall_s": wall, "started": started_at[i],
+                  "last_line": lines[-1] if lines else "", **({"resumed": True} if resumed else {})}
+        if solo:
+            t0 = time.perf_counter()
+            alone = subprocess.run([sys.executable, "train.py", "quiet=true", f"hydra.run.dir={out / job.folder}_solo",
+                                    f"seed={job.seeds[0]}", *overrides(job)], cwd=ROOT, capture_output=True)
+            if alone.returncode == 0:
+                record["solo_wall_s"] = time.perf_counter() - t0
+        write_record(job, out, record)
+        pair_seeds(job, out)
+        if returncode not in (0, 1):  # 1: some seed failed (its row says why)
+            tqdm.write(f"warning: {job.folder} exited {returncode}: {record['last_line']}")
+
+    def poll() -> None:
+        for i in begun:
+            if done[i] < len(todo[i].seeds):
+                count(i)
+
+    child.call_all([cmd for cmd, _ in commands], ROOT, jobs, logs,
+                   started=started, ended=ended, poll=poll)
 
 
 def job_record(job: Job, out: Path) -> dict:
-    """What :func:`run_job` wrote about ``job`` (empty if it never ran)."""
+    """What :func:`run_pairs` wrote about ``job`` (empty if it never ran)."""
     path = (out / job.folder).with_suffix(".json")
     try:
         return json.loads(path.read_text())
@@ -265,10 +303,16 @@ def job_record(job: Job, out: Path) -> dict:
         return {}
 
 
+def write_record(job: Job, out: Path, record: dict) -> None:
+    (out / job.folder).with_suffix(".json").write_text(json.dumps(record, indent=1))
+
+
 def seed_rows(job: Job, sweep: Path) -> list[dict]:
-    """One row per job folder of the sweep: its verdict, greedy measure and costs."""
+    """One row per job folder of the sweep: its verdict, greedy measure and costs, and its
+    greedy evaluations (``evaluations``: ``[env steps, measure]`` pairs, the figures' curves)."""
     from bench.sweep import job_summaries
     from runs.summary import succeeded
+    from sweeps.comparison_plot import run_evaluations
 
     rows = []
     for s in job_summaries(sweep) if sweep.is_dir() else []:
@@ -282,8 +326,24 @@ def seed_rows(job: Job, sweep: Path) -> list[dict]:
             "threshold": threshold, "greedy": greedy, "env_steps": s.get("env_steps"),
             "wall_s": s.get("wall_s"), "steps_to_solve": s.get("steps_to_solve"),
             "wall_to_solve": s.get("wall_to_solve"), "error": s.get("error", ""), "run_dir": s["run_dir"],
+            "evaluations": [list(point) for point in run_evaluations(s, "env_steps")] if ok else [],
         })
     return rows
+
+
+def pair_seeds(job: Job, out: Path) -> tuple[list[dict], str]:
+    """``job``'s seed rows and the tuned files its runs applied (:func:`applied_tuned`): read
+    from its job folders where they are, and kept in its record (``seeds``, ``tuned_file``)
+    for when they are not: a results folder in the repository keeps its records (a few kB a
+    pair) and leaves its job folders out, and is read back from those alone."""
+    rows = seed_rows(job, out / job.folder)
+    record = job_record(job, out)
+    if not rows:
+        return record.get("seeds", []), record.get("tuned_file", "")
+    tuned = applied_tuned(job, rows)
+    if record and (record.get("seeds") != rows or record.get("tuned_file") != tuned):
+        write_record(job, out, {**record, "tuned_file": tuned, "seeds": rows})
+    return rows, tuned
 
 
 def _median(values: list) -> float | None:
@@ -291,8 +351,9 @@ def _median(values: list) -> float | None:
     return statistics.median(values) if values else None
 
 
-def pair_row(job: Job, rows: list[dict], wall: float | None, note: str = "") -> dict:
-    """The table's row of one pair: success over seeds, the greedy measure's IQM and CI, costs."""
+def pair_row(job: Job, rows: list[dict], wall: float | None, note: str = "", tuned: str | None = None) -> dict:
+    """The table's row of one pair: success over seeds, the greedy measure's IQM and CI, costs;
+    ``tuned``: the tuned files its runs applied (default: :func:`applied_tuned`)."""
     from sweeps.stats import iqm_ci
 
     won = [r for r in rows if r["success"]]
@@ -314,7 +375,7 @@ def pair_row(job: Job, rows: list[dict], wall: float | None, note: str = "") -> 
         "steps_to_success": _median([r["steps_to_solve"] for r in won]),
         "wall_to_success": _median([r["wall_to_solve"] for r in won]),
         "batch_wall_s": wall, "budget_steps": job.budget, "note": note,
-        "tuned_file": applied_tuned(job, rows),
+        "tuned_file": applied_tuned(job, rows) if tuned is None else tuned,
     }
 
 
@@ -457,9 +518,7 @@ def run(args: argparse.Namespace) -> Path:
         (out / "plan.json").write_text(json.dumps(
             {"commands": commands, "jobs": [asdict(job) for job in jobs]}, indent=1))
         with tqdm(total=sum(len(job.seeds) for job in todo), unit="seed", desc="benchmark") as bar:
-            for job in todo:
-                bar.set_postfix_str(job.folder)
-                run_job(job, out, bar, args.solo)
+            run_pairs(todo, out, bar, args.jobs or 1, args.solo)
     pairs, all_seeds = tabulate(jobs, runnable, out)
     page = None if args.no_readme else args.readme or (None if quick_run(commands) else ROOT / "docs" / "benchmark.md")
     figures = {}
@@ -491,8 +550,8 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         if job not in runnable:
             pairs.append(pair_row(job, [], None, "no tuned file"))
             continue
+        rows, tuned = pair_seeds(job, out)
         record = job_record(job, out)
-        rows = seed_rows(job, out / job.folder)
         all_seeds += rows
         if not record:
             note = "unfinished: its multirun did not end (stopped, or still running)" if rows else "not run"
@@ -502,7 +561,7 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         if solo and rows and not note:
             note = (f"{len(rows)} seeds in one process: {record['wall_s']:.0f} s; one seed alone "
                     f"{solo:.0f} s ({record['wall_s'] / (len(rows) * solo):.2f} of {len(rows)} runs alone)")
-        pairs.append(pair_row(job, rows, record.get("wall_s"), note))
+        pairs.append(pair_row(job, rows, record.get("wall_s"), note, tuned))
     write_csv(out / "seeds.csv", SEED_COLUMNS, all_seeds)
     write_csv(out / "benchmark.csv", PAIR_COLUMNS, pairs)
     return pairs, all_seeds
@@ -554,11 +613,13 @@ def print_grid_minutes(studies: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     try:
+        if args.jobs is not None and args.jobs < 1:
+            raise BadInput(f"--jobs must be at least 1 ({'studies' if args.tune else 'pairs'} at once), got {args.jobs}")
+        if args.solo and (args.jobs or 1) > 1:
+            raise BadInput("--solo times a seed alone beside nothing else: give it --jobs 1")
         if args.tune:
             from bench.tune_grid import tune
 
-            if args.jobs is not None and args.jobs < 1:
-                raise BadInput(f"--jobs must be at least 1 (studies at once), got {args.jobs}")
             studies = check_studies(args.studies)
             if args.minutes:
                 return print_grid_minutes(studies)

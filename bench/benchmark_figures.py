@@ -1,15 +1,15 @@
 """The benchmark page's figures: per task, each learner x setting's final greedy measure (IQM
 over seeds with its 95% bootstrap interval) and its sample efficiency (the greedy evaluations
 against env steps: IQM across seeds with its interval band, :func:`sweeps.comparison_plot.greedy_points`),
-the task's threshold dashed. Drawn from the seeds' run folders (``evals.csv``); a pair whose
-folders are gone is left out of the curves.
+the task's threshold dashed. Drawn from the seeds' rows (``evaluations``: each run's
+``evals.csv``, kept in the pair's record when its folders are gone).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from sweeps.comparison_plot import greedy_points, run_evaluations
+from sweeps.comparison_plot import greedy_points
 
 
 def draw(task: str, pairs: list[dict], seeds: list[dict], path: Path) -> Path | None:
@@ -30,8 +30,7 @@ def draw(task: str, pairs: list[dict], seeds: list[dict], path: Path) -> Path | 
         label = f"{p['learner']} ({p['setting']})"
         mine = [s for s in seeds if s["task"] == task and s["learner"] == p["learner"] and s["setting"] == p["setting"]
                 and s["status"] == "ok"]
-        x, centre, low, high = greedy_points([run_evaluations({"run_dir": s["run_dir"], "measure": measure}, "env_steps")
-                                              for s in mine])
+        x, centre, low, high = greedy_points([[tuple(point) for point in s.get("evaluations", [])] for s in mine])
         if len(x):
             line, = curves.plot(x, centre, label=label, color=f"C{i % 10}", lw=1.5)
             curves.fill_between(x, low, high, color=line.get_color(), alpha=0.15)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -29,7 +30,7 @@ def _readme(tmp_path: Path) -> Path:
 def test_quick_benchmark_end_to_end(tmp_path, solo):
     out, readme = tmp_path / "results", _readme(tmp_path)
     cmd = [sys.executable, "-m", "bench.benchmark", "--quick", "--seeds", "2", "--budget", "1600",
-           "--out", str(out), "--readme", str(readme), *(["--solo"] if solo else []),
+           "--out", str(out), "--readme", str(readme), *(["--solo"] if solo else ["--jobs", "2"]),
            "--", "task.max_episode_steps=100", "eval_episodes=4"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -62,12 +63,32 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
     # --solo: what training the seeds in one process saved, against the first seed alone
     assert (table.count("2 seeds in one process: ") == 2 and "one seed alone" in table) == solo
     assert Path(str(out / "cartpole" / "dqn_tuned") + "_solo", "summary.json").is_file() == solo
-    # Read back from its folder, the run gives the same table (its command line aside).
-    again = tmp_path / "again.md"
-    again.write_text(readme.read_text().replace(table, "\nx\n"))
-    benchmark.main(["--read", str(out), "--readme", str(again)])
+    # --jobs 2: the two pairs trained at once (the second started before the first ended)
+    first, second = (json.loads((out / "cartpole" / f"{name}_tuned.json").read_text()) for name in ("qlearn", "dqn"))
+    overlap = time.mktime(time.strptime(second["started"], "%Y-%m-%dT%H:%M:%S")) < (
+        time.mktime(time.strptime(first["started"], "%Y-%m-%dT%H:%M:%S")) + first["wall_s"])
+    assert overlap != solo
+    # Read back from its folder, the run gives the same table (its command line aside), and
+    # so it does from its records alone (a results folder kept in the repository: no job folders).
+    figure = (tmp_path / "assets" / "benchmark" / "benchmark-cartpole.png").read_bytes()
     strip = lambda s: s.split("\n", 1)[1]  # noqa: E731 - the first line names the command
-    assert strip(again.read_text().split(benchmark.BEGIN)[1]) == strip(text.split(benchmark.BEGIN)[1])
+    for folders in ("kept", "removed"):
+        if folders == "removed":
+            for sweep in (out / "cartpole").iterdir():
+                if sweep.is_dir():
+                    shutil.rmtree(sweep)
+        again = tmp_path / "again" / "README.md"
+        again.parent.mkdir(exist_ok=True)
+        again.write_text(readme.read_text().replace(table, "\nx\n"))
+        benchmark.main(["--read", str(out), "--readme", str(again)])
+        assert strip(again.read_text().split(benchmark.BEGIN)[1]) == strip(text.split(benchmark.BEGIN)[1]), folders
+        assert (again.parent / "assets" / "benchmark" / "benchmark-cartpole.png").read_bytes() == figure, folders
+    with open(out / "seeds.csv") as f:
+        assert [(r["learner"], r["seed"], r["greedy"]) for r in csv.DictReader(f)] == [
+            (r["learner"], r["seed"], r["greedy"]) for r in seeds]
+    record = json.loads((out / "cartpole" / "qlearn_tuned.json").read_text())
+    assert record["tuned_file"] == "cartpole_qlearn" and len(record["seeds"]) == 2
+    assert all(len(row["evaluations"]) >= 1 for row in record["seeds"])
 
 
 @pytest.mark.parametrize("argv, says", [
@@ -78,6 +99,8 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
     (["--budget", "-3"], "--budget must be a positive number of env steps, got -3"),
     (["--settings", "best"], "unknown setting 'best'; settings: published, tuned"),
     (["--tune", "--jobs", "0"], "--jobs must be at least 1 (studies at once), got 0"),
+    (["--quick", "--jobs", "0"], "--jobs must be at least 1 (pairs at once), got 0"),
+    (["--quick", "--solo", "--jobs", "2"], "--solo times a seed alone beside nothing else: give it --jobs 1"),
     (["--tune", "--studies", "/etc"], "--studies must be a folder inside the project (its journals are kept "
                                       "with it), got /etc"),
     (["--tune", "--minutes", "--studies", "bench/no_such_folder"],
@@ -95,6 +118,21 @@ def test_bad_input_is_one_line(argv, says, tmp_path):
     message = str(exc.value)
     assert message.startswith("error: ") and says in message and "\n" not in message
     assert not (tmp_path / "o").exists()  # nothing ran
+
+
+@pytest.mark.skipif(not (ROOT / ".git").exists(), reason="not a git checkout")
+def test_a_results_folder_in_the_repository_keeps_its_records_not_its_job_folders():
+    """``--out bench/results/<name>``: git keeps the plan, the tables and each pair's record;
+    its sweeps' job folders (and a --solo run's), and the pairs' consoles, stay out."""
+    def ignored(path: str) -> bool:
+        return subprocess.run(["git", "check-ignore", "-q", "--no-index", path], cwd=ROOT).returncode == 0
+
+    base = "bench/results/main"
+    for kept in ("plan.json", "seeds.csv", "benchmark.csv", "benchmark.md", "cartpole/qlearn_tuned.json"):
+        assert not ignored(f"{base}/{kept}"), kept
+    for left in ("cartpole/qlearn_tuned/", "cartpole/qlearn_tuned/0_cartpole_qlearn_seed1000/metrics.csv",
+                 "cartpole/qlearn_tuned_solo/", "cartpole/qlearn_tuned.log"):
+        assert ignored(f"{base}/{left}"), left
 
 
 def test_missing_markers_is_one_line(tmp_path):
