@@ -304,7 +304,11 @@ def job_record(job: Job, out: Path) -> dict:
 
 
 def write_record(job: Job, out: Path, record: dict) -> None:
-    (out / job.folder).with_suffix(".json").write_text(json.dumps(record, indent=1))
+    """``job``'s record as JSON, a line per key and per seed's row (a kept record's diffs stay short)."""
+    lines = [f" {json.dumps(key)}: {json.dumps(value)}" for key, value in record.items() if key != "seeds"]
+    if "seeds" in record:
+        lines.append(' "seeds": [\n' + ",\n".join(f"  {json.dumps(row)}" for row in record["seeds"]) + "\n ]")
+    (out / job.folder).with_suffix(".json").write_text("{\n" + ",\n".join(lines) + "\n}\n")
 
 
 def seed_rows(job: Job, sweep: Path) -> list[dict]:
