@@ -246,9 +246,8 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
     commands = [pair_command(job, out) for job in todo]
     logs = [(out / job.folder).with_suffix(".log") for job in todo]
     for log, (_, resumed) in zip(logs, commands):
-        log.parent.mkdir(parents=True, exist_ok=True)
-        if not resumed:
-            log.write_text("")
+        if not resumed:  # a fresh pair's console starts empty (a resumed one's goes on)
+            log.unlink(missing_ok=True)
     begun: dict[int, float] = {}
     started_at: dict[int, str] = {}
     done = [0] * len(todo)
