@@ -246,7 +246,7 @@ def solved_when(success: Success) -> str:
     unit = f" {success.unit}" if success.unit else ""
     if success.judge == "greedy":
         return (f"the greedy policy's mean {success.description} >= {success.threshold:g}{unit} "
-                f"(evaluated every eval_every episodes)")
+                f"(evaluated every eval_every episodes or eval_every_steps env steps)")
     return (f"mean {success.description} of the last {success.window} training episodes "
             f">= {success.threshold:g}{unit} (after >= {success.min_episodes} episodes), and the "
             f"greedy policy's too")

@@ -68,7 +68,7 @@ NOT_BATCHED = ("resume", "checkpoint")
 # Keys in which the jobs of one batch may differ, besides the learner's MEMBER_WISE settings:
 # what names the run, and when its own Run evaluates, saves and prints (a searched
 # ``eval_every`` no longer splits a study's trials into a batch per value).
-OWN_KEYS = ("seed", "resume", "trial", "eval_every", "checkpoint_every", "log_every")
+OWN_KEYS = ("seed", "resume", "trial", "eval_every", "eval_every_steps", "checkpoint_every", "log_every")
 
 
 @dataclasses.dataclass
@@ -493,6 +493,7 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
               extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
               log_every=int(cfg.get("log_every", 0)), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
               eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume,
+              eval_every_steps=int(cfg.get("eval_every_steps", 0)) if cfg.eval_episodes else 0,
               max_env_steps=int(cfg.get("max_env_steps", 0)),
               stop_when_solved=bool(cfg.get("stop_when_solved", True)), hooks=hooks)
     if resume:

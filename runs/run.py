@@ -219,7 +219,8 @@ class Run:
     "Solved" follows the task's :class:`~tasks.base.Success`: with
     ``judge="training"`` the mean measure of the last ``window`` training
     episodes, with ``judge="greedy"`` the mean measure of a greedy evaluation
-    (``greedy_eval``, run every ``eval_every`` episodes); either way the run
+    (``greedy_eval``, run every ``eval_every`` episodes or ``eval_every_steps`` env
+    steps, whichever comes first); either way the run
     stops once it is met. Every evaluation is kept (``evals``, evals.csv),
     whichever judge decides.
 
@@ -235,12 +236,13 @@ class Run:
                  extra_fields: tuple[str, ...] = (), quiet: bool = False, logger=None,
                  checkpoint_every: int = 0, eval_every: int = 0, resume: bool = False,
                  verbose: bool = False, log_every: int = 0, max_env_steps: int = 0,
-                 stop_when_solved: bool = True, hooks: Hooks | None = None) -> None:
+                 stop_when_solved: bool = True, hooks: Hooks | None = None, eval_every_steps: int = 0) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.num_envs, self.max_episodes, self.success = num_envs, int(max_episodes), success
         self.extra_fields, self.quiet, self.logger = tuple(extra_fields), quiet, logger
         self.checkpoint_every, self.eval_every = int(checkpoint_every), int(eval_every)
+        self.eval_every_steps = int(eval_every_steps)
         self.max_env_steps, self.stop_when_solved = int(max_env_steps), bool(stop_when_solved)
         hooks = hooks or Hooks()
         self._save, self.greedy_eval = hooks.checkpoint, hooks.greedy_eval
@@ -308,7 +310,7 @@ class Run:
 
     def end_step(self, td: TensorDictBase) -> TensorDictBase:
         """At the step boundary before ``td``: a greedy evaluation every ``eval_every``
-        episodes, then a checkpoint every ``checkpoint_every`` (so it holds the evaluation).
+        episodes or ``eval_every_steps`` env steps, then a checkpoint every ``checkpoint_every`` (so it holds the evaluation).
         Returns ``td``, the next step's input."""
         self.last_td = td
         self.log_train()
@@ -319,9 +321,7 @@ class Run:
         if self.judge.candidate is not None and not self.stop_requested:
             self.evaluate_greedy()
             self.judge.confirmed(self.evals[-1]["value"], self.n_episodes)
-        last_eval = self.evals[-1]["episode"] if self.evals else 0
-        if (self.eval_every and self.greedy_eval is not None and not self.done
-                and self.n_episodes - last_eval >= self.eval_every):
+        if self.greedy_eval is not None and not self.done and self._evaluation_due():
             self.evaluate_greedy()
         if self.progress is not None and self.solved_at is not None and self.stop_when_solved and not self._told:
             self._told = True
@@ -336,6 +336,13 @@ class Run:
         return td
 
     # -- episodes and evaluations ---------------------------------------------
+    def _evaluation_due(self) -> bool:
+        """Whether ``eval_every`` episodes or ``eval_every_steps`` env steps (each where
+        set) have passed since the last evaluation (or the start)."""
+        last = self.evals[-1] if self.evals else {"episode": 0, "env_steps": 0}
+        return bool((self.eval_every and self.n_episodes - last["episode"] >= self.eval_every)
+                    or (self.eval_every_steps and self.env_steps - last.get("env_steps", 0) >= self.eval_every_steps))
+
     def record(self, reward: np.ndarray, done: np.ndarray, terminated: np.ndarray,
                stats: Mapping[str, float] | None = None,
                ended_info: Mapping[str, np.ndarray] | None = None) -> list[Episode]:

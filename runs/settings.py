@@ -41,6 +41,9 @@ MODES = ("train", "eval")
 MOVED = {"learner.nepisodes": "max_episodes", "learner.nsteps": "task.max_episode_steps", "win": "task.win"}
 _WHY = {"max_episodes": "the run's budget, beside max_env_steps",
         "task.max_episode_steps": "the task's time limit, the only one", "task.win": "the task's success rule"}
+# Settings added since some run folders were written, each with the value that does what
+# those runs did (an older folder's config.yaml lacks them).
+ADDED = {"eval_every_steps": 0}
 _ABSENT = object()
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
 SEED_LIMIT = 2**63
@@ -101,8 +104,13 @@ def check_no_empty_mappings(cfg: DictConfig, overrides: list[str]) -> None:
 def upgraded(saved: DictConfig) -> DictConfig:
     """An older run folder's ``config.yaml`` in today's keys (:data:`MOVED`): its episode budget
     the run's ``max_episodes``, its episode length cap folded into the task's time limit, as the
-    run's env applied it. A copy; the file and its hash are untouched."""
+    run's env applied it, and the settings added since (:data:`ADDED`) at the values that do
+    what it did. A copy; the file and its hash are untouched."""
     cfg = saved.copy()
+    with open_dict(cfg):
+        for key, value in ADDED.items():
+            if key not in cfg:
+                cfg[key] = value
     learner = cfg.get("learner")
     if not isinstance(learner, DictConfig):
         return cfg
@@ -144,6 +152,9 @@ class RunSettings:
                                le=4096)
     eval_every: int = param(100, "training episodes between greedy evaluations", ge=0,
                             note="0 = only after training")
+    eval_every_steps: int = param(0, "env steps (all copies counted) between greedy evaluations, "
+                                     "whichever of it and eval_every comes first", ge=0,
+                                  note="0 = eval_every alone decides")
     quiet: bool = param(False, "no progress bar and no summary lines (the banner and the verdict "
                                "only)")
     verbose: bool = param(False, "also one line per episode and per greedy evaluation")

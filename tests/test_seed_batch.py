@@ -120,6 +120,7 @@ def same_run_files(together: Path, alone: Path) -> None:
     # each run's own schedules (a searched eval_every) and a DQN's own buffer and minibatch sizes
     ("qlearn", ["learner.alpha=0.3", "eval_every=7", "checkpoint_every=9", "log_every=5"]),
     ("dqn", ["learner.batch_size=16", "learner.buffer_size=600", "learner.lr=0.003", "eval_every=9"]),
+    ("qlearn", ["learner.alpha=0.3", "eval_every=0", "eval_every_steps=150"]),  # evaluations by env steps
 ])
 def test_trials_side_by_side_are_each_their_run_alone(tmp_path, learner, settings):
     """Two trials (other member-wise settings, schedules) x two seeds, one seed in both, as one

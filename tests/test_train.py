@@ -166,6 +166,26 @@ def test_greedy_evaluations_do_not_change_training(tmp_path):
     assert verdict(a.stdout)["greedy_return"] == f"{float(evals[-1]['return']):.4g}"
 
 
+def test_evaluations_every_so_many_env_steps(tmp_path):
+    """``eval_every_steps``: an evaluation at the first step boundary each time that many env
+    steps (all copies) have passed since the last, alone (``eval_every=0``) or with
+    ``eval_every``'s episodes, whichever comes first; training is the same either way."""
+    common = ("learner=qlearn", "num_envs=1", "max_episodes=40", "eval_episodes=3", "seed=2")
+    a = train(tmp_path, *common, "eval_every=0", "eval_every_steps=150", name="a")
+    b = train(tmp_path, *common, "eval_every=0", name="b")
+    c = train(tmp_path, *common, "eval_every=10", "eval_every_steps=150", name="c")
+    assert a.returncode == b.returncode == c.returncode == 0, a.stderr[-1500:]
+    assert (tmp_path / "a" / "metrics.csv").read_bytes() == (tmp_path / "b" / "metrics.csv").read_bytes()
+    steps = lambda name: [int(r["env_steps"]) for r in csv.DictReader(open(tmp_path / name / "evals.csv"))]  # noqa: E731
+    [final] = steps("b")  # without a schedule, only the evaluation after training
+    assert steps("a")[:-1] == list(range(150, final, 150)) and steps("a")[-1] == final
+    episodes = [int(r["episode"]) for r in csv.DictReader(open(tmp_path / "c" / "evals.csv"))]
+    # both schedules count from the last evaluation, whichever made it
+    assert all(0 < e2 - e1 <= 10 for e1, e2 in zip([0, *episodes], episodes))
+    assert all(0 < s2 - s1 <= 150 + 1 for s1, s2 in zip([0, *steps("c")], steps("c")))
+    assert len(episodes) > len(steps("a")) and len(episodes) > 5
+
+
 def test_a_diverging_model_keeps_training_and_says_so(tmp_path):
     """Effort control with a 1e9 N push per action: MuJoCo flags the state unstable."""
     proc = train(tmp_path, "task.control_type=effort", "task.pos_step=1e9", "max_episodes=40",

@@ -263,6 +263,7 @@ RANGES = {
     "task.win.threshold": ("cartpole", "qlearn", "task",  # inf: never solved, whole budget
                            lambda x: not isinstance(x, (bool, str, type(None))) and not math.isnan(x)),
     "eval_every": ("cartpole", "qlearn", "none", integer_in(0)),
+    "eval_every_steps": ("cartpole", "qlearn", "none", integer_in(0)),
     "torch_threads": ("cartpole", "qlearn", "none", integer_in(1, 256)),
     "robot.velocity_gain": ("cartpole", "qlearn", "task", real(lambda x: x > 0)),
     "robot.force_limit": ("cartpole", "qlearn", "task", real(lambda x: x >= 0)),
