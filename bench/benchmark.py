@@ -4,7 +4,7 @@
     python -m bench.benchmark --quick              # cart-pole x qlearn, dqn; 3 seeds; minutes
     python -m bench.benchmark --tasks cube --learners dqn --seeds 5 [-- extra overrides]
     python -m bench.benchmark --read benchmark/<folder>   # tabulate a finished (or partial) run again
-    python -m bench.benchmark --out bench/results/<name> --jobs 2   # two pairs at once, records kept in git
+    python -m bench.benchmark --out bench/results/<name> --jobs 2  # two pairs at once, records in git
     python -m bench.benchmark --tune [--tasks ...] [--learners ...] [--jobs N]   # one study per pair (bench/tune_grid.py)
     python -m bench.benchmark --tune --studies bench/timing/<name>   # a replay in another folder (no tuned file)
     python -m bench.benchmark --tune --minutes [--studies ...]       # each study's minutes from its journal
@@ -617,7 +617,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     try:
         if args.jobs is not None and args.jobs < 1:
-            raise BadInput(f"--jobs must be at least 1 ({'studies' if args.tune else 'pairs'} at once), got {args.jobs}")
+            what = "studies" if args.tune else "pairs"
+            raise BadInput(f"--jobs must be at least 1 ({what} at once), got {args.jobs}")
         if args.solo and (args.jobs or 1) > 1:
             raise BadInput("--solo times a seed alone beside nothing else: give it --jobs 1")
         if args.tune:

@@ -310,8 +310,8 @@ class Run:
 
     def end_step(self, td: TensorDictBase) -> TensorDictBase:
         """At the step boundary before ``td``: a greedy evaluation every ``eval_every``
-        episodes or ``eval_every_steps`` env steps, then a checkpoint every ``checkpoint_every`` (so it holds the evaluation).
-        Returns ``td``, the next step's input."""
+        episodes or ``eval_every_steps`` env steps, then a checkpoint every
+        ``checkpoint_every`` (so it holds the evaluation). Returns ``td``, the next step's input."""
         self.last_td = td
         self.log_train()
         if self.progress is not None and self.progress.every and self.env_steps >= self._next_progress:
@@ -339,9 +339,10 @@ class Run:
     def _evaluation_due(self) -> bool:
         """Whether ``eval_every`` episodes or ``eval_every_steps`` env steps (each where
         set) have passed since the last evaluation (or the start)."""
-        last = self.evals[-1] if self.evals else {"episode": 0, "env_steps": 0}
-        return bool((self.eval_every and self.n_episodes - last["episode"] >= self.eval_every)
-                    or (self.eval_every_steps and self.env_steps - last.get("env_steps", 0) >= self.eval_every_steps))
+        last = self.evals[-1] if self.evals else {}
+        episodes, steps = self.n_episodes - last.get("episode", 0), self.env_steps - last.get("env_steps", 0)
+        return bool((self.eval_every and episodes >= self.eval_every)
+                    or (self.eval_every_steps and steps >= self.eval_every_steps))
 
     def record(self, reward: np.ndarray, done: np.ndarray, terminated: np.ndarray,
                stats: Mapping[str, float] | None = None,

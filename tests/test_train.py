@@ -176,7 +176,9 @@ def test_evaluations_every_so_many_env_steps(tmp_path):
     c = train(tmp_path, *common, "eval_every=10", "eval_every_steps=150", name="c")
     assert a.returncode == b.returncode == c.returncode == 0, a.stderr[-1500:]
     assert (tmp_path / "a" / "metrics.csv").read_bytes() == (tmp_path / "b" / "metrics.csv").read_bytes()
-    steps = lambda name: [int(r["env_steps"]) for r in csv.DictReader(open(tmp_path / name / "evals.csv"))]  # noqa: E731
+    def steps(name: str) -> list[int]:
+        return [int(r["env_steps"]) for r in csv.DictReader(open(tmp_path / name / "evals.csv"))]
+
     [final] = steps("b")  # without a schedule, only the evaluation after training
     assert steps("a")[:-1] == list(range(150, final, 150)) and steps("a")[-1] == final
     episodes = [int(r["episode"]) for r in csv.DictReader(open(tmp_path / "c" / "evals.csv"))]
