@@ -267,7 +267,6 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
             return
         job, (cmd, resumed) = todo[i], commands[i]
         wall = time.perf_counter() - begun[i]
-        count(i)
         bar.update(len(job.seeds) - done[i])
         done[i] = len(job.seeds)
         lines = logs[i].read_text(errors="replace").strip().splitlines()
