@@ -256,9 +256,7 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
         begun[i], started_at[i] = time.perf_counter(), time.strftime("%Y-%m-%dT%H:%M:%S")
 
     def count(i: int) -> None:
-        sweep = out / todo[i].folder
-        finished = sum(1 for d in sweep.glob("*/") if (d / "summary.json").exists()
-                       or (d / "error.txt").exists()) if sweep.is_dir() else 0
+        finished = seeds_ended(out / todo[i].folder)
         bar.update(max(0, finished - done[i]))
         done[i] = max(done[i], finished)
 
@@ -290,6 +288,13 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
 
     child.call_all([cmd for cmd, _ in commands], ROOT, jobs, logs,
                    started=started, ended=ended, poll=poll)
+
+
+def seeds_ended(sweep: Path) -> int:
+    """How many of the sweep's seeds ended: finished (a summary.json that does not say
+    interrupted) or failed (error.txt); a seed Ctrl-C stopped is still to run."""
+    from runs.folder import is_finished
+    return sum(1 for d in sweep.glob("*/") if is_finished(d) or (d / "error.txt").exists()) if sweep.is_dir() else 0
 
 
 def job_record(job: Job, out: Path) -> dict:

@@ -365,6 +365,18 @@ def test_a_benchmark_stopped_by_ctrl_c_saves_and_goes_on(tmp_path):
     assert len(json.loads((out / "plan.json").read_text())["commands"]) == 1  # the same command, listed once
 
 
+def test_the_bar_counts_a_seed_ctrl_c_stopped_as_still_to_run(tmp_path):
+    """A seed ended when it finished or failed; one whose summary.json says interrupted (or
+    that has none yet) is still to run, so a stopped benchmark's bar does not count it."""
+    for name, files in {"0": {"summary.json": '{"solved": true}'}, "1": {"summary.json": '{"interrupted": true}'},
+                        "2": {"error.txt": "boom"}, "3": {"checkpoint.pt": ""}}.items():
+        (tmp_path / name).mkdir()
+        for file, text in files.items():
+            (tmp_path / name / file).write_text(text)
+    assert benchmark.seeds_ended(tmp_path) == 2
+    assert benchmark.seeds_ended(tmp_path / "absent") == 0
+
+
 def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file():
     """``--tune --studies <folder>``: each pair's study in that folder's journal, its
     ``write_tuned`` off; the plan's own folder writes the tuned files."""
