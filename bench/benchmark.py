@@ -203,6 +203,24 @@ def applied_tuned(job: Job, rows: list[dict]) -> str:
     return " + ".join(tuned_files(job))
 
 
+def kept_hand_picks(tuned: str) -> list[str]:
+    """The files of a tuned label (``a + b``) that their study kept: a hand pick that valued
+    at least as well as the study's best trial on the tuning seeds (its header says so)."""
+    from sweeps.tuning import KEPT
+    from tasks.catalog import config_file
+
+    kept = []
+    for name in filter(None, tuned.split(" + ")):
+        path = config_file("tuned", name)
+        try:
+            head = path.read_text(errors="replace").splitlines()[:2] if path else []
+        except OSError:
+            head = []
+        if any(line.startswith(f"# {KEPT}") for line in head):
+            kept.append(name)
+    return kept
+
+
 def check_budget(job: Job) -> None:
     """:class:`BadInput` when the budget cannot let every copy finish one full-length episode."""
     from params import ConfigError
@@ -568,6 +586,10 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         if solo and rows and not note:
             note = (f"{len(rows)} seeds in one process: {record['wall_s']:.0f} s; one seed alone "
                     f"{solo:.0f} s ({record['wall_s'] / (len(rows) * solo):.2f} of {len(rows)} runs alone)")
+        kept = kept_hand_picks(tuned) if rows and not note else []
+        if kept:
+            note = ("a hand pick its study kept (valued at least as well as the study's best trial on the tuning "
+                    f"seeds): {', '.join(kept)}")
         pairs.append(pair_row(job, rows, record.get("wall_s"), note, tuned))
     write_csv(out / "seeds.csv", SEED_COLUMNS, all_seeds)
     write_csv(out / "benchmark.csv", PAIR_COLUMNS, pairs)

@@ -377,6 +377,21 @@ def test_the_bar_counts_a_seed_ctrl_c_stopped_as_still_to_run(tmp_path):
     assert benchmark.seeds_ended(tmp_path / "absent") == 0
 
 
+def test_the_table_names_the_hand_picks_a_study_kept(tmp_path, monkeypatch):
+    """A tuned file whose header says its study kept it (the hand pick valued at least as well
+    as the study's best trial) is named; a file a study wrote, or none, is not."""
+    from sweeps.tuning import KEPT
+    from tasks import catalog
+
+    (tmp_path / "hand.yaml").write_text(f"# @package _global_\n# {KEPT} (t): study s: at least as good\nx: 1\n")
+    (tmp_path / "found.yaml").write_text("# @package _global_\n# Tuned by Optuna (t): study s\nx: 2\n")
+    monkeypatch.setattr(catalog, "config_file", lambda group, name: (tmp_path / f"{name}.yaml")
+                        if group == "tuned" and (tmp_path / f"{name}.yaml").is_file() else None)
+    assert benchmark.kept_hand_picks("found + hand") == ["hand"]
+    assert benchmark.kept_hand_picks("found") == benchmark.kept_hand_picks("") == []
+    assert benchmark.kept_hand_picks("gone") == []
+
+
 def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file():
     """``--tune --studies <folder>``: each pair's study in that folder's journal, its
     ``write_tuned`` off; the plan's own folder writes the tuned files."""
