@@ -102,7 +102,10 @@ def stop_sweep(signum, frame) -> None:
 
 
 def sweep_stopped() -> bool:
-    """Inside a job: whether its sweep was asked to stop before the job began."""
+    """Inside a job: whether its sweep was asked to stop before the job began (in the
+    launching process, even before the sweep's folder existed to hold ``.stop``)."""
+    if SWEEP["signal"] is not None:
+        return True
     folder = sweep_dir()
     return folder is not None and (folder / ".stop").exists()
 

@@ -398,6 +398,21 @@ def test_a_stopped_sweep_compares_what_finished(tmp_path, capsys):
     assert rows[0]["IQM [95% CI]"] == "7 [1 seed: no CI]"
 
 
+def test_a_ctrl_c_before_the_sweep_folder_exists_still_skips_the_jobs_not_started(tmp_path, monkeypatch, capsys):
+    """A Ctrl-C as the sweep starts, before Hydra made its folder (no ``.stop`` can be
+    written yet): the jobs this process has not begun still see the sweep stopped."""
+    import signal
+
+    from sweeps import state
+
+    monkeypatch.setitem(state.SWEEP, "dir", tmp_path / "sweep")
+    monkeypatch.setitem(state.SWEEP, "signal", None)
+    assert not state.sweep_stopped()
+    state.stop_sweep(signal.SIGINT, None)
+    assert not (tmp_path / "sweep").exists() and "jobs not started are skipped" in capsys.readouterr().err
+    assert state.sweep_stopped()
+
+
 def test_a_real_two_learner_three_seed_sweep_ends_with_its_comparison(tmp_path, capsys):
     """train.py -m over two learners and three seeds prints the comparison last; compare.py
     re-runs it to the same comparison.csv (the intervals are seeded)."""
