@@ -385,13 +385,15 @@ def pair_row(job: Job, rows: list[dict], wall: float | None, note: str = "", tun
     centre, low, high = iqm_ci([r["greedy"] for r in rows if r["status"] == "ok"])
     measure = next((r["measure"] for r in rows if r["measure"]), "")
     errors = [r["error"] for r in rows if r["status"] != "ok" and r["error"]]
-    if errors and not note:
-        note = f"{len(errors)} seed(s) did not finish; the first: {errors[0]}"
+    notes = [note] if note else []
+    if errors:
+        notes.append(f"{len(errors)} seed(s) did not finish; the first: {errors[0]}")
     unjudged = sum(r["steps_to_solve"] is None for r in won)
-    if unjudged and not note:  # a success whose run's verdict never said solved has no time to success
-        note = (f"{unjudged} of {len(won)} successes (the final greedy evaluation) were never judged solved by the "
-                "task's rule during training, so have no time to success" + (
-                    "; the medians are of the others" if unjudged < len(won) else ""))
+    if unjudged:  # a success whose run's verdict never said solved has no time to success
+        notes.append(f"{unjudged} of {len(won)} successes (the final greedy evaluation) were never judged solved by "
+                     "the task's rule during training, so have no time to success" + (
+                         "; the medians are of the others" if unjudged < len(won) else ""))
+    note = "; ".join(notes)
     return {
         "task": job.task, "learner": job.learner, "setting": job.setting, "seeds": len(rows),
         "success": len(won), "verdict_solved": sum(r["verdict"] for r in rows),
@@ -436,8 +438,9 @@ def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str], figures: 
     lines = [plan_text, "", COLUMNS, ""]
     for task in dict.fromkeys(p["task"] for p in pairs):
         mine = [p for p in pairs if p["task"] == task]
+        measure = next((p["measure"] for p in mine if p["measure"]), "measure")  # a pair not run yet has none
         lines += [f"**{task}** ({specs[task]}; budget {mine[0]['budget_steps']:,} env steps per seed)", "",
-                  "| learner | setting | success | greedy_" + (mine[0]["measure"] or "measure")
+                  f"| learner | setting | success | greedy_{measure}"
                   + " IQM [95% CI] | steps to success | s to success | s, all seeds |",
                   "|---|---|---|---|---|---|---|"]
         if figures and task in figures:  # before the table: the figure, then its numbers
@@ -586,10 +589,10 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         if solo and rows and not note:
             note = (f"{len(rows)} seeds in one process: {record['wall_s']:.0f} s; one seed alone "
                     f"{solo:.0f} s ({record['wall_s'] / (len(rows) * solo):.2f} of {len(rows)} runs alone)")
-        kept = kept_hand_picks(tuned) if rows and not note else []
+        kept = kept_hand_picks(tuned) if rows else []
         if kept:
-            note = ("a hand pick its study kept (valued at least as well as the study's best trial on the tuning "
-                    f"seeds): {', '.join(kept)}")
+            note = "; ".join(filter(None, [note, "a hand pick its study kept (valued at least as well as the "
+                                           f"study's best trial on the tuning seeds): {', '.join(kept)}"]))
         pairs.append(pair_row(job, rows, record.get("wall_s"), note, tuned))
     write_csv(out / "seeds.csv", SEED_COLUMNS, all_seeds)
     write_csv(out / "benchmark.csv", PAIR_COLUMNS, pairs)

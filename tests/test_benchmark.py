@@ -392,6 +392,24 @@ def test_the_table_names_the_hand_picks_a_study_kept(tmp_path, monkeypatch):
     assert benchmark.kept_hand_picks("gone") == []
 
 
+def test_a_pairs_notes_are_all_kept_and_a_task_not_run_first_still_names_its_measure():
+    """A pair's note from the run (a kept hand pick) does not hide the row's own (a success never
+    judged solved); a task whose first pair has no seeds yet takes its measure from a later pair."""
+    job = benchmark.Job("cube", "cube", "move", "qlearn", "tuned", 1000, (1000, 1001))
+    seed = {"success": True, "greedy": 1.2, "status": "ok", "measure": "distance", "error": "",
+            "steps_to_solve": None, "wall_to_solve": None, "verdict": False}
+    row = benchmark.pair_row(job, [seed, {**seed, "steps_to_solve": 500, "wall_to_solve": 9.0}], 10.0,
+                             "a hand pick its study kept: cube_qlearn", "cube_qlearn")
+    assert row["note"].startswith("a hand pick its study kept: cube_qlearn; 1 of 2 successes")
+    assert row["steps_to_success"] == 500
+    empty = benchmark.pair_row(job, [], None, "not run", "")
+    assert empty["note"] == "not run" and empty["measure"] == ""
+    dqn = benchmark.pair_row(benchmark.Job("cube", "cube", "move", "dqn", "tuned", 1000, (1000,)), [seed], 5.0, "", "")
+    text = benchmark.markdown([empty, dqn], "plan", {"cube": "cube/move"})
+    assert "greedy_distance IQM" in text and "greedy_measure" not in text
+    assert "- qlearn (tuned): not run" in text
+
+
 def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file():
     """``--tune --studies <folder>``: each pair's study in that folder's journal, its
     ``write_tuned`` off; the plan's own folder writes the tuned files."""
