@@ -464,12 +464,24 @@ def markers(block: str | None) -> tuple[str, str]:
     return (BEGIN, END) if not block else (f"<!-- benchmark:{block}:begin -->", f"<!-- benchmark:{block}:end -->")
 
 
-def rewrite_readme(readme: Path, body: str, block: str | None = None) -> None:
-    """Replaces what lies between the benchmark markers of ``readme`` with ``body``."""
-    text = readme.read_text()
+def page_text(readme: Path, block: str | None = None) -> str:
+    """The text of the page ``readme``, checked to hold the markers of ``block``'s table
+    (:class:`BadInput` if it is missing, unreadable or without them)."""
+    try:
+        text = readme.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise BadInput(f"--readme {readme}: cannot read it ({err.strerror or err}); give a markdown page that "
+                       "holds the benchmark markers, or --no-readme") from None
     begin, end = markers(block)
     if begin not in text or end not in text:
         raise BadInput(f"{readme} has no {begin} ... {end} markers to put the table between")
+    return text
+
+
+def rewrite_readme(readme: Path, body: str, block: str | None = None) -> None:
+    """Replaces what lies between the benchmark markers of ``readme`` with ``body``."""
+    text = page_text(readme, block)
+    begin, end = markers(block)
     head, rest = text.split(begin, 1)
     _, tail = rest.split(end, 1)
     readme.write_text(f"{head}{begin}\n{body}{end}{tail}")
@@ -537,6 +549,10 @@ def run(args: argparse.Namespace) -> Path:
             old, commands = read_plan(out)
             jobs = merge(old, jobs, out)
     runnable = [job for job in jobs if job.setting == "published" or has_tuned_file(job)]
+    listed = commands if args.read else [*commands, command]
+    page = None if args.no_readme else args.readme or (None if quick_run(listed) else ROOT / "docs" / "benchmark.md")
+    if page is not None:  # before any pair runs: a page that cannot take the table is told now
+        page_text(page, args.block)
     if not args.read:
         todo = [job for job in runnable if not finished(job, out)]
         for job in todo:
@@ -548,7 +564,6 @@ def run(args: argparse.Namespace) -> Path:
         with tqdm(total=sum(len(job.seeds) for job in todo), unit="seed", desc="benchmark") as bar:
             run_pairs(todo, out, bar, args.jobs or 1, args.solo)
     pairs, all_seeds = tabulate(jobs, runnable, out)
-    page = None if args.no_readme else args.readme or (None if quick_run(commands) else ROOT / "docs" / "benchmark.md")
     figures = {}
     if page is not None:  # the page's figures, beside it
         from bench.benchmark_figures import draw

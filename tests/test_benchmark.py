@@ -142,6 +142,20 @@ def test_missing_markers_is_one_line(tmp_path):
         benchmark.rewrite_readme(readme, "table\n")
 
 
+@pytest.mark.parametrize("page", ["missing.md", "no_markers.md"])
+def test_a_page_that_cannot_take_the_table_is_refused_before_any_pair_runs(tmp_path, page):
+    """``--readme`` naming a missing page, or one without the markers: one line, before the
+    benchmark trains anything (its results folder not even made)."""
+    (tmp_path / "no_markers.md").write_text("# no markers\n")
+    out = tmp_path / "results"
+    with pytest.raises(SystemExit) as stop:
+        benchmark.main(["--quick", "--seeds", "1", "--out", str(out), "--readme", str(tmp_path / page)])
+    message = str(stop.value.code)
+    assert message.startswith("error: ") and "\n" not in message
+    assert ("cannot read it" if page == "missing.md" else "has no <!-- benchmark:begin -->") in message
+    assert not out.exists()
+
+
 def test_a_results_folder_takes_more_jobs_and_keeps_finished_ones(tmp_path):
     """``--out`` of an earlier benchmark: new pairs join its plan, a finished pair is never
     rerun nor replaced by other settings, an unfinished one is replaced."""
