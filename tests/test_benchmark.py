@@ -424,6 +424,22 @@ def test_a_pairs_notes_are_all_kept_and_a_task_not_run_first_still_names_its_mea
     assert "- qlearn (tuned): not run" in text
 
 
+def test_a_learner_keeps_one_colour_in_a_tasks_figure():
+    """Twelve rows on one figure: a learner's published and tuned rows share its colour (dashed
+    and solid), and no two learners share one (the colour cycle had repeated after ten rows)."""
+    from bench.benchmark_figures import styles
+
+    learners = ["qlearn", "dqn", "n1try", "mbalunovic", "ruippeixotog", "rainbow"]
+    pairs = [{"task": "wall", "learner": name, "setting": setting} for name in learners
+             for setting in ("published", "tuned")] + [{"task": "maze", "learner": "x", "setting": "tuned"}]
+    style = styles("wall", pairs)
+    assert len(style) == 12 and ("x", "tuned") not in style
+    for name in learners:
+        assert style[name, "published"][0] == style[name, "tuned"][0]
+        assert (style[name, "published"][1], style[name, "tuned"][1]) == ("--", "-")
+    assert len({style[name, "tuned"][0] for name in learners}) == 6
+
+
 def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file():
     """``--tune --studies <folder>``: each pair's study in that folder's journal, its
     ``write_tuned`` off; the plan's own folder writes the tuned files."""
