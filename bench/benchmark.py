@@ -604,6 +604,8 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         if solo and rows and not note:
             note = (f"{len(rows)} seeds in one process: {record['wall_s']:.0f} s; one seed alone "
                     f"{solo:.0f} s ({record['wall_s'] / (len(rows) * solo):.2f} of {len(rows)} runs alone)")
+        if record.get("resumed") and rows:  # the seeds' clocks span every piece; the record's only the last
+            note = "; ".join(filter(None, [note, "resumed after a stop: its s, all seeds is the last piece's only"]))
         kept = kept_hand_picks(tuned) if rows else []
         if kept:
             note = "; ".join(filter(None, [note, "a hand pick its study kept (valued at least as well as the "

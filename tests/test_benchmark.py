@@ -424,6 +424,22 @@ def test_a_pairs_notes_are_all_kept_and_a_task_not_run_first_still_names_its_mea
     assert "- qlearn (tuned): not run" in text
 
 
+def test_a_pair_resumed_after_a_stop_says_its_wall_time_is_the_last_pieces(tmp_path):
+    """A pair that Ctrl-C stopped and the same command resumed records only the last piece's
+    wall seconds (its seeds' clocks span every piece): its row says so; a pair run in one go
+    says nothing of it."""
+    seed = {"success": True, "greedy": 1.2, "status": "ok", "measure": "distance", "error": "",
+            "steps_to_solve": 500, "wall_to_solve": 600.0, "verdict": True}
+    jobs = [benchmark.Job("cube", "cube", "move", name, "published", 1000, (1000,)) for name in ("qlearn", "dqn")]
+    (tmp_path / "cube").mkdir()
+    for job, resumed in zip(jobs, (True, False)):
+        benchmark.write_record(job, tmp_path, {"returncode": 0, "wall_s": 300.0, "tuned_file": "", "seeds": [seed],
+                                               **({"resumed": True} if resumed else {})})
+    pairs, _ = benchmark.tabulate(jobs, jobs, tmp_path)
+    assert pairs[0]["note"] == "resumed after a stop: its s, all seeds is the last piece's only"
+    assert pairs[1]["note"] == ""
+
+
 def test_a_learner_keeps_one_colour_in_a_tasks_figure():
     """Twelve rows on one figure: a learner's published and tuned rows share its colour (dashed
     and solid), and no two learners share one (the colour cycle had repeated after ten rows)."""
