@@ -440,6 +440,25 @@ def test_a_pair_resumed_after_a_stop_says_its_wall_time_is_the_last_pieces(tmp_p
     assert pairs[1]["note"] == ""
 
 
+def test_the_pages_main_table_is_what_the_committed_records_say(tmp_path):
+    """docs/benchmark.md's main table, row for row and note for note, is the one the records
+    in bench/results/main make (read from a copy without job folders, as a clean clone has)."""
+    source, records = ROOT / "bench" / "results" / "main", tmp_path / "main"
+    shutil.copytree(source, records, ignore=lambda folder, names: [  # the tasks' folders, not the pairs'
+        n for n in names if Path(folder) != source and (Path(folder) / n).is_dir()])
+    jobs, commands = benchmark.read_plan(records)
+    runnable = [job for job in jobs if job.setting == "published" or benchmark.has_tuned_file(job)]
+    pairs, seeds = benchmark.tabulate(jobs, runnable, records)
+    assert len(pairs) == 60 and all(p["seeds"] == 10 for p in pairs)
+    made = benchmark.markdown(pairs, "", benchmark.specs_of(jobs, seeds))
+    page = (ROOT / "docs" / "benchmark.md").read_text().split(benchmark.BEGIN)[1].split(benchmark.END)[0]
+
+    def rows(text: str) -> list[str]:
+        return [line for line in text.splitlines() if line.startswith(("|", "- ", "**"))]
+
+    assert rows(page) == rows(made)
+
+
 def test_a_learner_keeps_one_colour_in_a_tasks_figure():
     """Twelve rows on one figure: a learner's published and tuned rows share its colour (dashed
     and solid), and no two learners share one (the colour cycle had repeated after ten rows)."""
