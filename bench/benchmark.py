@@ -470,8 +470,9 @@ def page_text(readme: Path, block: str | None = None) -> str:
     try:
         text = readme.read_text()
     except (OSError, UnicodeDecodeError) as err:
-        raise BadInput(f"--readme {readme}: cannot read it ({err.strerror or err}); give a markdown page that "
-                       "holds the benchmark markers, or --no-readme") from None
+        why = getattr(err, "strerror", None) or err  # a decoding error has no strerror
+        raise BadInput(f"--readme {readme}: cannot read it ({why}); give a markdown page that holds the benchmark "
+                       "markers, or --no-readme") from None
     begin, end = markers(block)
     if begin not in text or end not in text:
         raise BadInput(f"{readme} has no {begin} ... {end} markers to put the table between")

@@ -142,17 +142,18 @@ def test_missing_markers_is_one_line(tmp_path):
         benchmark.rewrite_readme(readme, "table\n")
 
 
-@pytest.mark.parametrize("page", ["missing.md", "no_markers.md"])
+@pytest.mark.parametrize("page", ["missing.md", "no_markers.md", "binary.md"])
 def test_a_page_that_cannot_take_the_table_is_refused_before_any_pair_runs(tmp_path, page):
-    """``--readme`` naming a missing page, or one without the markers: one line, before the
-    benchmark trains anything (its results folder not even made)."""
+    """``--readme`` naming a missing page, one that is not text, or one without the markers:
+    one line, before the benchmark trains anything (its results folder not even made)."""
     (tmp_path / "no_markers.md").write_text("# no markers\n")
+    (tmp_path / "binary.md").write_bytes(b"\x89PNG\xff\xfe")
     out = tmp_path / "results"
     with pytest.raises(SystemExit) as stop:
         benchmark.main(["--quick", "--seeds", "1", "--out", str(out), "--readme", str(tmp_path / page)])
     message = str(stop.value.code)
     assert message.startswith("error: ") and "\n" not in message
-    assert ("cannot read it" if page == "missing.md" else "has no <!-- benchmark:begin -->") in message
+    assert ("has no <!-- benchmark:begin -->" if page == "no_markers.md" else "cannot read it") in message
     assert not out.exists()
 
 
