@@ -222,6 +222,7 @@ def cli() -> None:
     run_dirs = [a.split("=", 1)[1] for a in sys.argv[1:] if a.startswith("hydra.run.dir=")]
     _MADE = MadeFolders(run_dirs[-1] if run_dirs else None, Path.cwd())
     if sweep:
+        SWEEP["signal"] = None  # a new sweep: an earlier one's stop in this process (a test's) is not its own
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, stop_sweep)
         let_siblings_save()

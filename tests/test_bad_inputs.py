@@ -210,6 +210,27 @@ def test_a_sweep_where_some_jobs_failed_says_how_many(tmp_path, monkeypatch, cap
                    "seed must be an integer in [0, 9223372036854775808); got -1: the sweep exits 1"], err
 
 
+def test_an_earlier_sweeps_stop_does_not_skip_the_next_sweeps_jobs(tmp_path, monkeypatch, capsys):
+    """Two sweeps in one process: the first stopped by Ctrl-C (its signal kept for its exit
+    status) does not make the second skip its jobs."""
+    import signal
+
+    from sweeps.state import SWEEP
+
+    GlobalHydra.instance().clear()
+    monkeypatch.setattr(train, "_IN_JOB", False)
+    monkeypatch.setitem(SWEEP, "signal", signal.SIGINT)  # what the stopped first sweep left
+    sweep = tmp_path / "sweep"
+    monkeypatch.setattr(sys, "argv", ["train.py", "-m", "seed=3,4", "max_episodes=2", "eval_episodes=0",
+                                      "quiet=true", f"hydra.sweep.dir={sweep}",
+                                      "hydra/job_logging=none", "hydra/hydra_logging=none"])
+    try:
+        train.cli()
+    except SystemExit as stop:
+        assert stop.code in (0, None), capsys.readouterr().err
+    assert len(list(sweep.glob("*/summary.json"))) == 2
+
+
 @pytest.mark.parametrize("argv", [[], ["a", "b"], ["--bogus", "x"]])
 def test_compare_usage_mistakes_are_one_line(argv, capsys):
     import compare
