@@ -597,21 +597,22 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         rows, tuned = pair_seeds(job, out)
         record = job_record(job, out)
         all_seeds += rows
+        notes = []
         if not record:
-            note = "unfinished: its multirun did not end (stopped, or still running)" if rows else "not run"
-        else:
-            note = "" if rows else f"exit {record.get('returncode')}: {record.get('last_line', '')}"
+            notes.append("unfinished: its multirun did not end (stopped, or still running)" if rows else "not run")
+        elif not rows:
+            notes.append(f"exit {record.get('returncode')}: {record.get('last_line', '')}")
         solo = record.get("solo_wall_s")
-        if solo and rows and not note:
-            note = (f"{len(rows)} seeds in one process: {record['wall_s']:.0f} s; one seed alone "
-                    f"{solo:.0f} s ({record['wall_s'] / (len(rows) * solo):.2f} of {len(rows)} runs alone)")
+        if solo and rows and not notes:
+            notes.append(f"{len(rows)} seeds in one process: {record['wall_s']:.0f} s; one seed alone "
+                         f"{solo:.0f} s ({record['wall_s'] / (len(rows) * solo):.2f} of {len(rows)} runs alone)")
         if record.get("resumed") and rows:  # the seeds' clocks span every piece; the record's only the last
-            note = "; ".join(filter(None, [note, "resumed after a stop: its s, all seeds is the last piece's only"]))
+            notes.append("resumed after a stop: its s, all seeds is the last piece's only")
         kept = kept_hand_picks(tuned) if rows else []
         if kept:
-            note = "; ".join(filter(None, [note, "a hand pick its study kept (valued at least as well as the "
-                                           f"study's best trial on the tuning seeds): {', '.join(kept)}"]))
-        pairs.append(pair_row(job, rows, record.get("wall_s"), note, tuned))
+            notes.append("a hand pick its study kept (valued at least as well as the study's best trial on the "
+                         f"tuning seeds): {', '.join(kept)}")
+        pairs.append(pair_row(job, rows, record.get("wall_s"), "; ".join(notes), tuned))
     write_csv(out / "seeds.csv", SEED_COLUMNS, all_seeds)
     write_csv(out / "benchmark.csv", PAIR_COLUMNS, pairs)
     return pairs, all_seeds
