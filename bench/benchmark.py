@@ -203,22 +203,37 @@ def applied_tuned(job: Job, rows: list[dict]) -> str:
     return " + ".join(tuned_files(job))
 
 
+def _headers(tuned: str) -> dict[str, list[str]]:
+    """The header (leading comment lines) of each file of a tuned label (``a + b``)."""
+    from tasks.catalog import config_file
+
+    heads = {}
+    for name in filter(None, tuned.split(" + ")):
+        path = config_file("tuned", name)
+        try:
+            lines = path.read_text(errors="replace").splitlines() if path else []
+        except OSError:
+            lines = []
+        heads[name] = [line for line in lines[:next((i for i, x in enumerate(lines) if not x.startswith("#")),
+                                                    len(lines))]]
+    return heads
+
+
 def kept_hand_picks(tuned: str) -> list[str]:
     """The files of a tuned label (``a + b``) that their study kept: a hand pick that valued
     at least as well as the study's best trial on the tuning seeds (its header says so)."""
     from sweeps.tuning import KEPT
-    from tasks.catalog import config_file
 
-    kept = []
-    for name in filter(None, tuned.split(" + ")):
-        path = config_file("tuned", name)
-        try:
-            head = path.read_text(errors="replace").splitlines()[:2] if path else []
-        except OSError:
-            head = []
-        if any(line.startswith(f"# {KEPT}") for line in head):
-            kept.append(name)
-    return kept
+    return [name for name, head in _headers(tuned).items() if any(line.startswith(f"# {KEPT}") for line in head[:2])]
+
+
+def own_values_kept(tuned: str) -> list[str]:
+    """The files of a tuned label whose study wrote the learner's own values of the searched
+    settings (valued above every trial on the tuning seeds; its header says so)."""
+    from sweeps.tuning import OWN_VALUES
+
+    return [name for name, head in _headers(tuned).items()
+            if any(line.startswith(f"# written instead: {OWN_VALUES}") for line in head)]
 
 
 def check_budget(job: Job) -> None:
@@ -612,6 +627,10 @@ def tabulate(jobs: list[Job], runnable: list[Job], out: Path) -> tuple[list[dict
         if kept:
             notes.append("a hand pick its study kept (valued at least as well as the study's best trial on the "
                          f"tuning seeds): {', '.join(kept)}")
+        own = own_values_kept(tuned) if rows else []
+        if own:
+            notes.append("the learner's own values of the searched settings, which its study valued above every "
+                         f"trial on the tuning seeds: {', '.join(own)}")
         pairs.append(pair_row(job, rows, record.get("wall_s"), "; ".join(notes), tuned))
     write_csv(out / "seeds.csv", SEED_COLUMNS, all_seeds)
     write_csv(out / "benchmark.csv", PAIR_COLUMNS, pairs)

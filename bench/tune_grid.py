@@ -60,6 +60,22 @@ def study_counts(name: str, path: Path) -> tuple[int, int]:
     return len(counted), sum(t.state == state.RUNNING for t in study.trials)
 
 
+def defaults_valued(name: str, path: Path) -> bool:
+    """Whether study ``name`` in the journal ``path`` has valued the learner's own values of
+    the searched settings (``value_defaults``; or found it had begun with them)."""
+    import optuna
+
+    from sweeps.tuning import open_storage
+
+    if not (ROOT / path).is_file():
+        return False
+    try:
+        study = optuna.load_study(study_name=name, storage=open_storage(f"journal://{ROOT / path}"))
+    except KeyError:
+        return False
+    return "defaults_value" in study.user_attrs
+
+
 def written(spec: dict, learner: str, task: str) -> bool:
     """Whether the pair's tuned file is its study's (its header names the study): a study
     that finished without writing it (write_tuned off) gets a sweep of no new trials that
@@ -97,6 +113,8 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
             *pruning(tuning["pruner"], budget, int(tuning.get("first_rung", 9))),
             # the plan's random trials (the sweeper's own default where it names none)
             *([f"hydra.sweeper.startup_trials={int(tuning['startup_trials'])}"] if "startup_trials" in tuning else []),
+            # the learner's own values of the searched settings valued too (the published ones)
+            *(["hydra.sweeper.value_defaults=true"] if tuning.get("value_defaults") else []),
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(write).lower()}",
             f"hydra.sweep.dir={sweep_dir}"]
 
@@ -128,7 +146,9 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                 continue
             counted, running = study_counts(f"bench-{task}-{learner}", studies / f"{name}.log")
             missing = int(tuning["trials"]) - counted - running
-            if missing <= 0 and not running and (not write or written(spec, learner, task)):
+            valued = not tuning.get("value_defaults") or defaults_valued(f"bench-{task}-{learner}",
+                                                                         studies / f"{name}.log")
+            if missing <= 0 and not running and (not write or written(spec, learner, task)) and valued:
                 print(f"{name}: study complete ({counted} trials)")
                 continue
             cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp, studies, write)

@@ -24,13 +24,13 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
-from tasks.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name
+from tasks.catalog import GROUPS, TASK_TUNED, conf_dir, default_task, tuned_name, with_tuned_layers
 from runs.settings import check_run_config
 from runs.summary import SUCCESS_AND_SPEED, final_measure, success_and_speed, summarize_run
 from sweeps.resume import continuable, resume_runs
-from sweeps.tuning import (KEPT, Plan, abandoned, batch_size, check_space, check_sweeper_settings, claim, current_trial,
-                           job_folders_of, kept_text, load_space, make_pruner, now_utc, open_storage, override_value,
-                           replace_tuned, shown_url, tuned_text)
+from sweeps.tuning import (KEPT, OWN_VALUES, Plan, abandoned, batch_size, check_space, check_sweeper_settings, claim,
+                           current_trial, job_folders_of, kept_text, load_space, make_pruner, now_utc, open_storage,
+                           override_value, replace_tuned, searched_values, settings_of, shown_url, tuned_text)
 from tasks.base import Success
 from tasks.factory import build_task
 
@@ -45,13 +45,15 @@ class TuningSweep:
                  seeds: Sequence[int] = (0, 1), search: str | None = None, budget_steps: int = 50_000,
                  report_every: int = 5000, pruner: str | dict | None = None, pruners: dict | None = None,
                  startup_trials: int = 5,
-                 sampler_seed: int | None = None, write_tuned: bool = False, start_from_current: bool = True) -> None:
+                 sampler_seed: int | None = None, write_tuned: bool = False, start_from_current: bool = True,
+                 value_defaults: bool = False) -> None:
         # As given: :meth:`_check_settings` checks each and keeps it in its type (1.5 trials is
         # refused, not rounded; ``write_tuned=maybe`` is refused, not taken as true).
         self.settings = dict(study=study, storage=storage, n_trials=n_trials, trials_per_batch=trials_per_batch,
                              seeds=seeds, search=search, budget_steps=budget_steps, report_every=report_every,
                              pruner=pruner, pruners=pruners, startup_trials=startup_trials, sampler_seed=sampler_seed,
-                             write_tuned=write_tuned, start_from_current=start_from_current)
+                             write_tuned=write_tuned, start_from_current=start_from_current,
+                             value_defaults=value_defaults)
         self.study_name, self.storage_url = str(study), str(storage)
         self.search, self.pruner, self.sampler_seed = search, pruner, sampler_seed
         self.config: DictConfig | None = None
@@ -74,6 +76,7 @@ class TuningSweep:
         self.report_every, self.pruner = checked["report_every"], checked["pruner"]
         self.startup_trials, self.sampler_seed = checked["startup_trials"], checked["sampler_seed"]
         self.write_tuned, self.start_from_current = checked["write_tuned"], checked["start_from_current"]
+        self.value_defaults = checked["value_defaults"]
 
     def _fixed(self, arguments: list[str]) -> list[str]:
         """The command line's overrides, given to every job; sweeps and the sweeper's own keys refused."""
@@ -130,8 +133,12 @@ class TuningSweep:
             raise ConfigError(f"hydra.sweeper.budget_steps must be at least one episode of {robot}/{task} "
                               f"(task.max_episode_steps = {int(episode)} env steps); got {self.budget_steps}")
         check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
+        defaults = None
+        if self.value_defaults:  # the learner's own values, where the tuned files change them
+            own = searched_values(params, self._compose(with_tuned_layers([*fixed, "~tuned"])))
+            defaults = own if own != searched_values(params, base) else None
         return Plan(robot, task, learner, given, fixed, space_file, params, success.measure,
-                    SUCCESS_AND_SPEED, current_trial(params, base))
+                    SUCCESS_AND_SPEED, current_trial(params, base), defaults)
 
     # -- the study ----------------------------------------------------------------
     def sweep(self, arguments: list[str]) -> Any:
@@ -159,47 +166,64 @@ class TuningSweep:
             else:
                 print("  the current configuration lies outside the space: every trial is sampled, and it is "
                       "valued beside the first round", flush=True)
+        told = _told(study)
         to_ask = self.n_trials + self._take_over(study, plan)  # trials asked again are not new ones
-        # The current configuration, where no trial is it, is valued beside the first round
-        # (its jobs members of that batch), not in a batch of its own after the last.
-        current = self._current_jobs(study, plan)
+        # Configurations valued apart from the trials (the current one where no trial is it,
+        # the learner's own values) go beside the first round (their jobs members of that
+        # batch), not in a batch of their own after the last.
+        apart = self._apart_jobs(study, plan)
+        extra = [job for _, jobs in apart for job in jobs]
         results, done, launched = [], 0, 0
         while done < to_ask and not (sweep_dir / ".stop").exists():
             size = batch_size(self.trials_per_batch, to_ask - done, _finished(study), self.startup_trials)
             batch = [study.ask({k: p.distribution for k, p in plan.params.items()}) for _ in range(size)]
             for trial in batch:
                 claim(self._storage, self._trial_id(study, trial.number), self.seeds)
-            results.append(self._run_batch(study, batch, plan, first_job=launched, extra=current))
-            launched += len(batch) * len(self.seeds) + len(current)
-            if current:
-                self._value_current(study, plan, results[-1][-len(current):])
-                current = []
+            results.append(self._run_batch(study, batch, plan, first_job=launched, extra=extra))
+            launched += len(batch) * len(self.seeds) + len(extra)
+            if extra:
+                self._value_apart(study, plan, apart, results[-1][-len(extra):])
+                apart, extra = [], []
             done += len(batch)
-        if current and not (sweep_dir / ".stop").exists():  # no round ran (a study already at its count)
-            self._value_current(study, plan, self.launcher.launch(current, initial_job_idx=launched))
-        self._finish(study, plan, sweep_dir)
+        if extra and not (sweep_dir / ".stop").exists():  # no round ran (a study already at its count)
+            self._value_apart(study, plan, apart, self.launcher.launch(extra, initial_job_idx=launched))
+        self._finish(study, plan, sweep_dir, told=_told(study) != told)
         return results
 
-    def _current_jobs(self, study, plan: Plan) -> list[list[str]]:
-        """Where the current configuration lies outside the space (so no trial is it) and the
-        study has not valued it yet (``current_value``), its jobs: one per seed, on the
-        study's budget."""
-        if not self.start_from_current or plan.current is not None or "current_value" in study.user_attrs:
-            return []
-        return [[*plan.fixed, f"seed={seed}"] for seed in self.seeds]
+    def _apart_jobs(self, study, plan: Plan) -> list[tuple[str, list[list[str]]]]:
+        """The configurations the study values apart from its trials, once each, and their
+        jobs (one per seed, on the study's budget): the current one where the space does not
+        hold it (``current_value``), and with ``value_defaults`` the learner's own values of
+        the searched settings where the tuned files change them (``defaults_value``)."""
+        apart = []
+        if self.start_from_current and plan.current is None and "current_value" not in study.user_attrs:
+            apart.append(("current_value", [[*plan.fixed, f"seed={seed}"] for seed in self.seeds]))
+        if self.value_defaults and "defaults_value" not in study.user_attrs:
+            if plan.defaults is None:  # the study began with them: nothing to value apart
+                study.set_user_attr("defaults_value", None)
+            else:
+                own = [f"{k}={override_value(v)}" for k, v in plan.defaults.items()]
+                apart.append(("defaults_value", [[*plan.fixed, *own, f"seed={seed}"] for seed in self.seeds]))
+        return apart
 
-    def _value_current(self, study, plan: Plan, returns: list) -> None:
-        """The current configuration's value from its jobs' ``returns``, once per study
-        (``current_value``): the tuned file replaces it only if the best trial beats it."""
-        summaries = _summaries([_run_dir(r) for r in returns])
-        values = [success_and_speed(s, self.budget_steps) for s in summaries]
-        if any(s.get("status") != "ok" for s in summaries) or any(v is None for v in values):
-            print("the current configuration has no value: its jobs did not all finish", flush=True)
-            return
-        value = statistics.fmean(float(v) for v in values)
-        study.set_user_attr("current_value", value)
-        print(f"current configuration (outside the space): {plan.objective} {value:.4g} "
-              f"(seeds {', '.join(f'{float(v):.4g}' for v in values)})", flush=True)
+    def _value_apart(self, study, plan: Plan, apart: list[tuple[str, list[list[str]]]], returns: list) -> None:
+        """Each configuration valued apart (:meth:`_apart_jobs`): its value, the mean over its
+        jobs' ``returns`` of the objective, kept in the study's ``user_attrs`` under its name.
+        The tuned file takes the best trial's values only where they beat it."""
+        shown = {"current_value": "current configuration (outside the space)", "defaults_value": OWN_VALUES}
+        for name, jobs in apart:
+            mine, returns = returns[:len(jobs)], returns[len(jobs):]
+            summaries = _summaries([_run_dir(r) for r in mine])
+            values = [success_and_speed(s, self.budget_steps) for s in summaries]
+            if any(s.get("status") != "ok" for s in summaries) or any(v is None for v in values):
+                print(f"the {shown[name]} has no value: its jobs did not all finish", flush=True)
+                continue
+            value = statistics.fmean(float(v) for v in values)
+            if name == "defaults_value":  # what was valued, as later sweeps cannot tell it from the files
+                study.set_user_attr("defaults", plan.defaults)
+            study.set_user_attr(name, value)
+            print(f"{shown[name]}: {plan.objective} {value:.4g} "
+                  f"(seeds {', '.join(f'{float(v):.4g}' for v in values)})", flush=True)
 
     def _run_batch(self, study, batch: list, plan: Plan, first_job: int, extra: list | None = None) -> list:
         """Launches ``batch``'s trials, one job per seed each, and ``extra`` jobs after them (in
@@ -314,8 +338,10 @@ class TuningSweep:
         per_seed = ", ".join(_seed_text(v, j) for v, j in zip(objective, jobs))
         print(f"trial {number}: {plan.objective} {value:.4g} (seeds {per_seed}) {shown}", flush=True)
 
-    def _finish(self, study, plan: Plan, sweep_dir: Path) -> None:
-        """The study's counts, its best trial, and the tuned file."""
+    def _finish(self, study, plan: Plan, sweep_dir: Path, told: bool = True) -> None:
+        """The study's counts, its best trial, and the tuned file (``told``: whether this
+        sweep told the study any trial; a sweep that did not leaves a file that is already
+        the study's, with the same settings, as it is)."""
         import optuna
 
         robot, learner, params = plan.robot, plan.learner, plan.params
@@ -329,8 +355,11 @@ class TuningSweep:
         best = study.best_trial
         values = {k: p.value(best.params[k]) for k, p in params.items() if k in best.params}
         current = study.user_attrs.get("current_value")
+        mine, mine_values = study.user_attrs.get("defaults_value"), study.user_attrs.get("defaults")
+        # The learner's own values win only above the best trial and the settings the study began with.
+        mine_won = mine is not None and bool(mine_values) and mine > best.value and (current is None or mine > current)
         own = plan.current is not None and best.params == plan.current  # the best trial is the file's settings
-        kept = own or (current is not None and current >= best.value)  # the hand pick is at least as good
+        kept = not mine_won and (own or (current is not None and current >= best.value))  # the hand pick
         header = [
             f"Tuned by Optuna ({now_utc()}): study {self.study_name} in {shown_url(self.storage_url)}",
             f"best trial {best.number}: {plan.objective} {best.value:.4g} (mean over seeds {self.seeds}), of "
@@ -358,19 +387,31 @@ class TuningSweep:
         if began_with is None and plan.current is not None:
             began_with = next((t.value for t in study.trials
                                if t.state == state.COMPLETE and t.params == plan.current), None)
+        if mine_won:
+            header.append(f"written instead: {OWN_VALUES}, {plan.objective} {mine:.4g} on the same seeds and "
+                          "budget, above every trial")
         if began_with is not None and not kept:
             header.append(f"replacing the settings the study began with: {plan.objective} {began_with:.4g} on the "
                           "same seeds and budget")
+        print(f"best trial {best.number}: {plan.objective} {best.value:.4g} " + " ".join(
+            f"{k}={override_value(v)}" for k, v in values.items()))
+        if mine_won:
+            values = dict(mine_values)
+            print(f"{OWN_VALUES} ({plan.objective} {mine:.4g}) beat every trial: the tuned file takes them")
         text = tuned_text(values, base_values, header)
         out = sweep_dir / f"tuned_{name}"
         out.write_text(text)
-        print(f"best trial {best.number}: {plan.objective} {best.value:.4g} " + " ".join(
-            f"{k}={override_value(v)}" for k, v in values.items()))
         print(f"tuned file: {out}")
         # As the study began with it (its trials ran with that), not as it may be now.
         began = ran_text if ran_file is not None and ran_file.resolve() == base_file.resolve() else None
         kept = kept and bool(began or base_file.is_file())  # without a file, the best trial's values are written
         study.set_user_attr("tuned_kept", kept)
+        if not told and self.write_tuned and base_file.is_file():  # nothing new: the study's file stays
+            on_disk = base_file.read_text(errors="replace")
+            if f"study {self.study_name} in" in on_disk and settings_of(on_disk) == settings_of(
+                    (began or on_disk) if kept else text):
+                print(f"this sweep told no trial and {base_file.name} is already the study's: it stays as it is")
+                return
         why = None
         if kept:
             why = (f"the best trial is the current configuration (trial {best.number})" if own else
@@ -397,6 +438,11 @@ class TuningSweep:
             print(f"the next `python train.py {picks}` uses it")
         else:
             print(f"to use it: cp {out} {base_file} (or tune with hydra.sweeper.write_tuned=true)")
+
+
+def _told(study) -> int:
+    """The study's trials told a state (complete, pruned or failed)."""
+    return sum(t.state.is_finished() for t in study.get_trials(deepcopy=False))
 
 
 def _finished(study) -> int:

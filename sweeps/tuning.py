@@ -58,6 +58,9 @@ class Plan:
     measure: str
     objective: str  # the number each job is valued by, as summary.json names it (the study's metric)
     current: dict | None = None  # the run's own values as a trial, where the space holds them
+    # The learner's own values of the searched settings (its config without tuned files:
+    # the published ones), where they differ from the run's own (``value_defaults``).
+    defaults: dict | None = None
 
 
 LEASE_S = 600  # seconds without word from another machine's trial before it counts as abandoned
@@ -125,7 +128,7 @@ def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
             raise refuse(name, f"an integer >= {low} and <= {high:.0e}" if high >= 10**6 else
                          f"an integer >= {low} and <= {high}")
         out[name] = int(settings[name])
-    for name in ("write_tuned", "start_from_current"):
+    for name in ("write_tuned", "start_from_current", "value_defaults"):
         if not isinstance(settings[name], bool):
             raise refuse(name, "true or false")
     for name in ("study", "storage"):
@@ -352,6 +355,16 @@ def check_space(params: Mapping[str, Param], config: Any, where: str,
                                   f"refuses: {err}") from None
 
 
+def searched_values(params: Mapping[str, Param], config: Any) -> dict[str, Any] | None:
+    """The values ``config`` has for the searched keys of ``params`` (plain Python), or None
+    where it lacks one."""
+    out = {}
+    for key in params:
+        value = OmegaConf.select(config, key)
+        out[key] = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
+    return out if all(v is not None for v in out.values()) else None
+
+
 def current_trial(params: Mapping[str, Param], config: Any) -> dict[str, Any] | None:
     """Optuna's params for the values ``config`` already has, if the space holds them all."""
     samples = {}
@@ -559,6 +572,7 @@ def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header
     return "\n".join(lines) + "\n" + OmegaConf.to_yaml(conf)
 
 
+OWN_VALUES = "the learner's own values of the searched settings"  # in the header of a file they won
 KEPT = "Kept by Optuna"  # the first header line of a file a study kept ...
 KEPT_END = "end of the study's header; the file's own notes follow"  # ... and its last
 
@@ -588,13 +602,13 @@ def replace_tuned(path: Path, text: str, keep_in: Path) -> str:
         backup.write_text(old_text)
         kept = f" (the previous one kept as {backup})"
     path.write_text(text)
-    before, after = (_settings_of(t) for t in (old_text, text))
+    before, after = (settings_of(t) for t in (old_text, text))
     changes = [f"{k} {before.get(k, '(none)')} -> {after.get(k, '(none)')}"
                for k in sorted(set(before) | set(after)) if before.get(k, "(none)") != after.get(k, "(none)")]
     return f"wrote {path}{kept}: " + ("; ".join(changes) if changes else "no setting changed")
 
 
-def _settings_of(text: str | None) -> dict[str, Any]:
+def settings_of(text: str | None) -> dict[str, Any]:
     """A tuned file's settings by dotted key (none for no file, or one that does not parse)."""
     if text is None:
         return {}

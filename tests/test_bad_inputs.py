@@ -157,6 +157,7 @@ MADE = [  # (arguments, what the one line must say); {name} is made[name]
     *((["-m", "hydra/sweeper=optuna", f"hydra.sweeper.{key}={value}"], f"hydra.sweeper.{key} must be {allowed}")
       for key, value, allowed in (
           ("write_tuned", "maybe", "true or false; got 'maybe'"), ("start_from_current", "1", "true or false"),
+          ("value_defaults", "yes", "true or false"),
           ("n_trials", "1.5", "an integer >= 0"), ("budget_steps", "1e308", "an integer >= 1"),
           ("startup_trials", "-1", "an integer >= 0"), ("study", "''", "a non-empty name"),
           ("seeds", "[-1]", "distinct seeds"), ("pruners.median.n_warmup_steps", "-5", "an integer >= 0"),

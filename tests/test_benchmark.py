@@ -405,6 +405,23 @@ def test_the_table_names_the_hand_picks_a_study_kept(tmp_path, monkeypatch):
     assert benchmark.kept_hand_picks("found + hand") == ["hand"]
     assert benchmark.kept_hand_picks("found") == benchmark.kept_hand_picks("") == []
     assert benchmark.kept_hand_picks("gone") == []
+    assert benchmark.own_values_kept("found + hand") == []
+
+
+def test_the_table_names_a_file_that_holds_the_learners_own_values(tmp_path, monkeypatch):
+    """A tuned file whose study valued the learner's own values of the searched settings
+    above every trial (its header's ``written instead`` line) is named; the line further down,
+    below the settings, is not a header."""
+    from sweeps.tuning import OWN_VALUES
+    from tasks import catalog
+
+    line = f"# written instead: {OWN_VALUES}, success_and_speed 0.19 on the same seeds and budget"
+    (tmp_path / "own.yaml").write_text(f"# @package _global_\n# Tuned by Optuna (t): study s\n{line}\nx: 1\n")
+    (tmp_path / "later.yaml").write_text(f"# @package _global_\n# Tuned by Optuna (t): study s\nx: 2\n{line}\n")
+    monkeypatch.setattr(catalog, "config_file", lambda group, name: (tmp_path / f"{name}.yaml")
+                        if group == "tuned" and (tmp_path / f"{name}.yaml").is_file() else None)
+    assert benchmark.own_values_kept("later + own") == ["own"]
+    assert benchmark.own_values_kept("gone") == benchmark.kept_hand_picks("own") == []
 
 
 def test_a_pairs_notes_are_all_kept_and_a_task_not_run_first_still_names_its_measure():

@@ -167,17 +167,18 @@ def test_a_batched_study_asks_the_samplers_random_trials_before_the_ones_it_guid
     assert asked == sizes
 
 
-def tuning(tmp_path: Path, study: str, folder: str, kill: str | None = None) -> subprocess.CompletedProcess:
+def tuning(tmp_path: Path, study: str, folder: str, kill: str | None = None, *extra: str,
+           cwd: Path = ROOT) -> subprocess.CompletedProcess:
     """A small qlearn study on the cart-pole (one trial, two seeds), killed where ``kill`` says
-    (tests/kill_at.py)."""
+    (tests/kill_at.py); ``extra`` overrides after the others."""
     args = ["-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=qlearn", "num_envs=2", "eval_episodes=2",
             "checkpoint_every=10", "hydra.sweeper.n_trials=1", "hydra.sweeper.seeds=[0,1]",
             "hydra.sweeper.budget_steps=1500", "hydra.sweeper.pruner=null", "hydra.sweeper.sampler_seed=0",
             f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}", f"hydra.sweeper.study={study}",
-            f"hydra.sweep.dir={tmp_path / folder}"]
+            f"hydra.sweep.dir={tmp_path / folder}", *extra]
     script = ["tests/kill_at.py", kill] if kill else ["train.py"]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    return subprocess.run([sys.executable, *script, *args], cwd=ROOT, capture_output=True, text=True,
+    return subprocess.run([sys.executable, *script, *args], cwd=cwd, capture_output=True, text=True,
                           timeout=600, env=env)
 
 
@@ -220,6 +221,53 @@ def test_a_current_configuration_outside_the_space_is_scored_and_kept_unless_bea
     assert (replacing in written) == (current < best), written
     again = tuning(tmp_path, "s", "again")  # scored once per study
     assert again.returncode == 0 and "current configuration (outside" not in again.stdout
+
+
+def test_the_learners_own_values_are_valued_once_beside_the_first_round(tmp_path):
+    """``value_defaults``: the learner's own values of the searched settings (qlearn's
+    defaults, which the cart-pole's tuned file changes) are valued on the study's seeds and
+    budget in the first round's batch, once per study; the file takes them only where they
+    beat every trial and the configuration the study began with."""
+    proc = tuning(tmp_path, "s", "sweep", None, "hydra.sweeper.value_defaults=true")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    # trial 0's two seeds, the current configuration's (outside the space), the learner's own
+    assert "Training 6 runs together: trial 0 seed 0, trial 0 seed 1, seed 0, seed 1, seed 0, seed 1" in proc.stdout
+    assert "the learner's own values of the searched settings: success_and_speed " in proc.stdout, proc.stdout
+    jobs = sorted((tmp_path / "sweep").glob("[0-9]*_cartpole_qlearn_seed*"), key=lambda d: int(d.name.split("_")[0]))
+    assert [OmegaConf.load(d / "config.yaml").learner.alpha for d in jobs[4:]] == [0.1, 0.1]  # qlearn.yaml's
+    study = optuna.load_study(study_name="s", storage=f"sqlite:///{tmp_path / 's.db'}")
+    mine, current, best = study.user_attrs["defaults_value"], study.user_attrs["current_value"], study.best_value
+    written = (tmp_path / "sweep" / "tuned_cartpole_qlearn.yaml").read_text()
+    assert ("# written instead: the learner's own values" in written) == (mine > max(best, current)), written
+    again = tuning(tmp_path, "s", "again", None, "hydra.sweeper.value_defaults=true")
+    assert again.returncode == 0 and "the learner's own values of the searched settings:" not in again.stdout
+
+
+def test_the_learners_own_values_above_every_trial_are_the_tuned_file(project_copy, tmp_path):
+    """Where the learner's own values beat every trial (qlearn.yaml's, valued above any
+    success_and_speed: set in the study, which takes them as valued), the tuned file holds
+    them, and says so;
+    a later sweep that tells no trial leaves that file as it is, byte for byte."""
+    own = OmegaConf.load(ROOT / "conf" / "learner" / "qlearn.yaml")
+    space = load_space(conf_dir() / "search" / "qlearn.yaml")
+    study = optuna.create_study(study_name="d", storage=f"sqlite:///{tmp_path / 's.db'}", direction="maximize")
+    study.set_user_attr("defaults", {key: OmegaConf.select(own, key.removeprefix("learner.")) for key in space})
+    study.set_user_attr("defaults_value", 5.0)
+    proc = tuning(tmp_path, "d", "sweep", None, "hydra.sweeper.value_defaults=true", "hydra.sweeper.write_tuned=true",
+                  cwd=project_copy)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "the learner's own values of the searched settings (success_and_speed 5) beat every trial" in proc.stdout
+    path = project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml"
+    text = path.read_text()
+    assert "# written instead: the learner's own values of the searched settings, success_and_speed 5 " in text
+    tuned = OmegaConf.create(text)
+    for key in space:
+        assert OmegaConf.select(tuned, key) == OmegaConf.select(own, key.removeprefix("learner.")), key
+    again = tuning(tmp_path, "d", "again", None, "hydra.sweeper.value_defaults=true", "hydra.sweeper.write_tuned=true",
+                   "hydra.sweeper.n_trials=0", cwd=project_copy)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    assert "this sweep told no trial and cartpole_qlearn.yaml is already the study's: it stays as it is" in again.stdout
+    assert path.read_text() == text
 
 
 def test_a_replacement_file_says_what_it_replaced(tmp_path):
@@ -396,6 +444,15 @@ def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_
         return [line for line in text.splitlines() if not line.startswith("#")]
 
     assert settings(rewritten) == settings(tuned) and "study bench-cartpole-qlearn in" in rewritten
+    plan.tuning.value_defaults = True  # a finished study values the learner's own values with a sweep of no trials
+    OmegaConf.save(plan, project_copy / "bench" / "benchmark.yaml")
+    valued = grid()
+    assert valued.returncode == 0 and "0 to ask" in valued.stdout, valued.stdout[-2000:] + valued.stderr[-2000:]
+    study = optuna.load_study(study_name="bench-cartpole-qlearn", storage=open_storage(f"journal://{record}"))
+    assert "defaults_value" in study.user_attrs and len(study.trials) == 2
+    after = (project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml").read_text()
+    assert after == rewritten or "# written instead: the learner's own values" in after, after
+    assert "cartpole_qlearn: study complete (2 trials)" in grid().stdout
 
 
 def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(project_copy, tmp_path):
