@@ -133,12 +133,14 @@ class TuningSweep:
             raise ConfigError(f"hydra.sweeper.budget_steps must be at least one episode of {robot}/{task} "
                               f"(task.max_episode_steps = {int(episode)} env steps); got {self.budget_steps}")
         check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
-        defaults = None
+        defaults, why = None, ""
         if self.value_defaults:  # the learner's own values, where the tuned files change them
             own = searched_values(params, self._compose(with_tuned_layers([*fixed, "~tuned"])))
-            defaults = own if own != searched_values(params, base) else None
+            defaults = own if own is not None and own != searched_values(params, base) else None
+            why = ("its config lacks a searched setting" if own is None else
+                   "they are the settings the study began with" if defaults is None else "")
         return Plan(robot, task, learner, given, fixed, space_file, params, success.measure,
-                    SUCCESS_AND_SPEED, current_trial(params, base), defaults)
+                    SUCCESS_AND_SPEED, current_trial(params, base), defaults, why)
 
     # -- the study ----------------------------------------------------------------
     def sweep(self, arguments: list[str]) -> Any:
@@ -199,8 +201,9 @@ class TuningSweep:
         if self.start_from_current and plan.current is None and "current_value" not in study.user_attrs:
             apart.append(("current_value", [[*plan.fixed, f"seed={seed}"] for seed in self.seeds]))
         if self.value_defaults and "defaults_value" not in study.user_attrs:
-            if plan.defaults is None:  # the study began with them: nothing to value apart
+            if plan.defaults is None:  # nothing to value apart
                 study.set_user_attr("defaults_value", None)
+                print(f"  {OWN_VALUES}: not valued apart ({plan.why_no_defaults})", flush=True)
             else:
                 own = [f"{k}={override_value(v)}" for k, v in plan.defaults.items()]
                 apart.append(("defaults_value", [[*plan.fixed, *own, f"seed={seed}"] for seed in self.seeds]))

@@ -61,6 +61,7 @@ class Plan:
     # The learner's own values of the searched settings (its config without tuned files:
     # the published ones), where they differ from the run's own (``value_defaults``).
     defaults: dict | None = None
+    why_no_defaults: str = ""  # why ``defaults`` is None with ``value_defaults`` on
 
 
 LEASE_S = 600  # seconds without word from another machine's trial before it counts as abandoned
@@ -356,13 +357,15 @@ def check_space(params: Mapping[str, Param], config: Any, where: str,
 
 
 def searched_values(params: Mapping[str, Param], config: Any) -> dict[str, Any] | None:
-    """The values ``config`` has for the searched keys of ``params`` (plain Python), or None
-    where it lacks one."""
-    out = {}
+    """The values ``config`` has for the searched keys of ``params`` (plain Python; null is
+    a value, e.g. the dqn's ``done_episode_reward``), or None where it lacks a key."""
+    out, missing = {}, object()
     for key in params:
-        value = OmegaConf.select(config, key)
+        value = OmegaConf.select(config, key, default=missing)
+        if value is missing:
+            return None
         out[key] = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
-    return out if all(v is not None for v in out.values()) else None
+    return out
 
 
 def current_trial(params: Mapping[str, Param], config: Any) -> dict[str, Any] | None:

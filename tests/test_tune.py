@@ -579,6 +579,18 @@ def test_trial_outside_a_tuning_sweep_is_one_line(tmp_path):
     assert len(lines) == 1 and "trial=3 is set by hydra/sweeper=optuna" in lines[0], proc.stderr
 
 
+def test_the_learners_own_values_of_the_wall_dqns_space_include_a_null_one():
+    """The learner's own values of the searched settings: the dqn's ``done_episode_reward`` is
+    null (the task's reward kept), a value like any other; a key the config lacks gives none."""
+    from sweeps.tuning import searched_values
+
+    space = load_space(conf_dir() / "search" / "turtlebot_wall_dqn.yaml")
+    own = searched_values(space, compose("turtlebot", "wall", "dqn", ["~tuned"]))
+    assert own is not None and own["learner.done_episode_reward"] is None and own["learner.gamma"] == 0.99
+    assert searched_values({**space, "learner.no_such_key": space["learner.gamma"]},
+                           compose("turtlebot", "wall", "dqn", ["~tuned"])) is None
+
+
 def test_a_new_study_starts_from_the_current_configuration_where_the_space_holds_it():
     space = load_space(conf_dir() / "search" / "dqn.yaml")
     defaults = current_trial(space, compose(overrides=["learner=dqn", "~tuned"]))
