@@ -62,9 +62,12 @@ def study_counts(name: str, path: Path) -> tuple[int, int]:
 
 def defaults_valued(name: str, path: Path) -> bool:
     """Whether study ``name`` in the journal ``path`` has valued the learner's own values of
-    the searched settings (``value_defaults``; or found it had begun with them)."""
+    the searched settings (``value_defaults``; or found it had begun with them), or cannot:
+    a study of an earlier objective (the maze's first five: greedy laps), which the sweeper
+    does not continue on other terms."""
     import optuna
 
+    from runs.summary import SUCCESS_AND_SPEED
     from sweeps.tuning import open_storage
 
     if not (ROOT / path).is_file():
@@ -73,7 +76,7 @@ def defaults_valued(name: str, path: Path) -> bool:
         study = optuna.load_study(study_name=name, storage=open_storage(f"journal://{ROOT / path}"))
     except KeyError:
         return False
-    return "defaults_value" in study.user_attrs
+    return "defaults_value" in study.user_attrs or study.metric_names not in (None, [SUCCESS_AND_SPEED])
 
 
 def written(spec: dict, learner: str, task: str) -> bool:

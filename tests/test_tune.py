@@ -455,6 +455,23 @@ def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_
     assert "cartpole_qlearn: study complete (2 trials)" in grid().stdout
 
 
+@pytest.mark.filterwarnings("ignore::optuna.exceptions.ExperimentalWarning")  # set_metric_names
+def test_a_study_of_an_earlier_objective_is_not_asked_to_value_the_learners_own_values(tmp_path):
+    """The grid's maze studies of greedy laps cannot be continued on success_and_speed: they
+    count as done for ``value_defaults``; a study of the sweeper's objective counts once it has
+    valued them."""
+    from bench.tune_grid import ROOT as GRID_ROOT, defaults_valued
+
+    record = tmp_path / "s.log"
+    for name, metric in (("laps", "greedy_laps"), ("now", "success_and_speed")):
+        study = optuna.create_study(study_name=name, storage=open_storage(f"journal://{record}"), direction="maximize")
+        study.set_metric_names([metric])
+    relative = Path(os.path.relpath(record, GRID_ROOT))
+    assert defaults_valued("laps", relative) and not defaults_valued("now", relative)
+    study.set_user_attr("defaults_value", None)  # found it had begun with them
+    assert defaults_valued("now", relative) and not defaults_valued("gone", relative)
+
+
 def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(project_copy, tmp_path):
     url = f"sqlite:///{tmp_path / 'studies.db'}"
     (project_copy / "conf" / "tuned" / "cartpole_n1try.yaml").unlink(missing_ok=True)  # a pair without a file
