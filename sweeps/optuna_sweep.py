@@ -408,13 +408,13 @@ class TuningSweep:
         # As the study began with it (its trials ran with that), not as it may be now.
         began = ran_text if ran_file is not None and ran_file.resolve() == base_file.resolve() else None
         kept = kept and bool(began or base_file.is_file())  # without a file, the best trial's values are written
-        study.set_user_attr("tuned_kept", kept)
         if not told and self.write_tuned and base_file.is_file():  # nothing new: the study's file stays
-            on_disk = base_file.read_text(errors="replace")
-            if f"study {self.study_name} in" in on_disk and settings_of(on_disk) == settings_of(
-                    (began or on_disk) if kept else text):
+            on_disk = base_file.read_text(errors="replace")  # (edits made since included)
+            news = mine_won and settings_of(on_disk) != settings_of(text)  # the learner's own values won
+            if f"study {self.study_name} in" in on_disk and not news:
                 print(f"this sweep told no trial and {base_file.name} is already the study's: it stays as it is")
                 return
+        study.set_user_attr("tuned_kept", kept)
         why = None
         if kept:
             why = (f"the best trial is the current configuration (trial {best.number})" if own else

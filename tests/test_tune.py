@@ -270,6 +270,25 @@ def test_the_learners_own_values_above_every_trial_are_the_tuned_file(project_co
     assert path.read_text() == text
 
 
+def test_a_sweep_that_tells_no_trial_leaves_the_studys_file_and_its_later_edits_alone(project_copy, tmp_path):
+    """A finished study's file edited since (a setting and a note added by hand): a sweep of
+    no trials that values the learner's own values below the best trial (set in the study:
+    valued already) leaves it as it is, byte for byte."""
+    first = tuning(tmp_path, "e", "sweep", None, "hydra.sweeper.write_tuned=true", cwd=project_copy)
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    path = project_copy / "conf" / "tuned" / "cartpole_qlearn.yaml"
+    edited = path.read_text() + "video_steps: 400  # added after the study, with this note\n"
+    path.write_text(edited)
+    study = optuna.load_study(study_name="e", storage=f"sqlite:///{tmp_path / 's.db'}")
+    study.set_user_attr("defaults", {"learner.alpha": 0.1})
+    study.set_user_attr("defaults_value", -1.0)
+    again = tuning(tmp_path, "e", "again", None, "hydra.sweeper.value_defaults=true", "hydra.sweeper.write_tuned=true",
+                   "hydra.sweeper.n_trials=0", cwd=project_copy)
+    assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
+    assert "this sweep told no trial and cartpole_qlearn.yaml is already the study's: it stays as it is" in again.stdout
+    assert path.read_text() == edited
+
+
 def test_a_replacement_file_says_what_it_replaced(tmp_path):
     """A study whose starting settings were valued below every trial writes a file that
     replaces them, and its header says with what value (the line the benchmark's tuned files
