@@ -122,7 +122,8 @@ def test_the_banner_names_a_tuned_file_only_where_one_exists(tmp_path, monkeypat
 
 
 
-CARTPOLE_DQN = {"robot": "cartpole", "task": "stay_up", "learner": "dqn", "tuned": "cartpole_dqn", "tuned_task": None}
+# The cube's dqn file changes the run (the cart-pole's holds the dqn's own values since 2026-11-29).
+CUBE_DQN = {"robot": "cube", "task": "one_disk_walk", "learner": "dqn", "tuned": "cube_dqn", "tuned_task": None}
 
 
 @pytest.mark.parametrize("overrides", [
@@ -138,9 +139,9 @@ def test_what_the_tuned_file_changed_is_the_command_against_itself_without_it(ov
 
     learner = next((o.split("=")[1] for o in overrides if o.startswith("learner=")), "dqn")
     rest = [o for o in overrides if not o.startswith("learner=")]
-    choices = {**CARTPOLE_DQN, "learner": learner, "tuned": f"cartpole_{learner}"}
-    cfg = compose("cartpole", None, learner, rest)
-    before = dotted(OmegaConf.to_container(compose("cartpole", None, learner, [*rest, "~tuned"]), resolve=True))
+    choices = {**CUBE_DQN, "learner": learner, "tuned": f"cube_{learner}"}
+    cfg = compose("cube", None, learner, rest)
+    before = dotted(OmegaConf.to_container(compose("cube", None, learner, [*rest, "~tuned"]), resolve=True))
     after = dotted(OmegaConf.to_container(cfg, resolve=True))
     expected = [f"{key} {before.get(key)} -> {value}" for key, value in after.items() if before.get(key) != value]
     assert expected and tuned_changes(cfg, choices, overrides) == expected
@@ -158,7 +159,7 @@ def test_jobs_that_differ_in_values_only_share_one_composition_without_the_tuned
     seen = set()
     for seed, lr in [(0, 0.01), (1, 0.01), (0, 0.002), (1, 0.002)]:
         overrides = [f"learner.lr={lr}", f"seed={seed}", f"trial={int(lr * 1000)}"]
-        changes = console.tuned_changes(compose("cartpole", None, "dqn", overrides), CARTPOLE_DQN, overrides)
+        changes = console.tuned_changes(compose("cube", None, "dqn", overrides), CUBE_DQN, overrides)
         assert changes and not any(line.startswith(("learner.lr ", "seed ", "trial ")) for line in changes)
         seen.add(tuple(changes))
     assert len(calls) == 1 and len(seen) == 1
