@@ -15,7 +15,10 @@ finishes writes the pair's ``conf/tuned/`` file (``write_tuned``; its header: th
 budget, trials, seeds and best value). Its first trial is the current configuration
 (the hand-picked tuned file where the space holds its values; where it does not, the
 study values it on the same seeds and budget), so a hand pick is kept wherever no
-sampled trial beats it on the tuning seeds. Tasks the plan runs with extra
+sampled trial beats it on the tuning seeds. With the plan's ``value_defaults`` each study
+also values the learner's own values of what it searches (its published ones), and the
+file holds them where they beat every trial; a finished study that has not valued them
+gets a sweep of no trials that does (the maze's first five, of greedy laps, are not asked). Tasks the plan runs with extra
 overrides (``cube_minus_y``) are variants of another task's config and are not tuned, nor
 are the plan's learner ``variants`` (the dqn with one switch on: the dqn's tuned file and
 the switch).

@@ -13,7 +13,9 @@ differ. Jobs report their rolling measure every ``report_every`` env steps, and 
 ``pruner`` (median, successive halving or Hyperband; settings in ``pruners``) stops
 hopeless trials. The study lives in ``storage`` (an SQLite file by default, any SQL
 database by URL, or a journal file), so sweeps started on several machines share it, and
-the next sweep of a study takes over the trials a stopped one left running. The best trial ends as a tuned file:
+the next sweep of a study takes over the trials a stopped one left running. With ``value_defaults``
+the learner's own values of the searched settings are valued too, once per study. The best
+(a trial, or those values where they beat every trial) ends as a tuned file:
 ``tuned_<robot>_<learner>.yaml`` in the sweep folder, and with ``write_tuned=true``
 ``conf/tuned/<robot>_<learner>.yaml``, which the next plain run uses (for a task other
 than the robot's default: ``<robot>_<task>_<learner>``, applied on top of the robot's).
