@@ -214,8 +214,7 @@ def _headers(tuned: str) -> dict[str, list[str]]:
             lines = path.read_text(errors="replace").splitlines() if path else []
         except OSError:
             lines = []
-        heads[name] = [line for line in lines[:next((i for i, x in enumerate(lines) if not x.startswith("#")),
-                                                    len(lines))]]
+        heads[name] = lines[:next((i for i, line in enumerate(lines) if not line.startswith("#")), len(lines))]
     return heads
 
 
