@@ -18,10 +18,10 @@ study values it on the same seeds and budget), so a hand pick is kept wherever n
 sampled trial beats it on the tuning seeds. With the plan's ``value_defaults`` each study
 also values the learner's own values of what it searches (its published ones), and the
 file holds them where they beat every trial; a finished study that has not valued them
-gets a sweep of no trials that does (the maze's first five, of greedy laps, are not asked). Tasks the plan runs with extra
-overrides (``cube_minus_y``) are variants of another task's config and are not tuned, nor
-are the plan's learner ``variants`` (the dqn with one switch on: the dqn's tuned file and
-the switch).
+gets a sweep of no trials that does (the maze's first five, of greedy laps, are not
+asked). Tasks the plan runs with extra overrides (``cube_minus_y``) are variants of
+another task's config and are not tuned, nor are the plan's learner ``variants`` (the dqn
+with one switch on: the dqn's tuned file and the switch).
 
 ``--studies <folder>`` replays the grid with its journals there and no tuned file written
 (to time it from empty journals); each sweep's wall minutes go to the folder's ``runs.csv``
@@ -43,18 +43,27 @@ STUDIES = Path("bench") / "studies"  # from ROOT (the URL in each tuned file's h
 SWEEPS = Path("tuning") / "bench"  # from ROOT: each pair's sweep folders (and consoles, several at once)
 
 
-def study_counts(name: str, path: Path) -> tuple[int, int]:
-    """(trials the study holds that count: finished, pruned, failed but not asked again;
-    trials running) of study ``name`` in the journal file ``path`` ((0, 0) if none)."""
+def journal_study(name: str, path: Path):
+    """Study ``name`` in the journal file ``path`` (from the project's root), or None where
+    there is no such file or study."""
     import optuna
 
     if not (ROOT / path).is_file():
-        return 0, 0
+        return None
     from sweeps.tuning import open_storage
 
     try:
-        study = optuna.load_study(study_name=name, storage=open_storage(f"journal://{ROOT / path}"))
+        return optuna.load_study(study_name=name, storage=open_storage(f"journal://{ROOT / path}"))
     except KeyError:
+        return None
+
+
+def study_counts(study) -> tuple[int, int]:
+    """(trials ``study`` holds that count: finished, pruned, failed but not asked again;
+    trials running); (0, 0) for no study."""
+    import optuna
+
+    if study is None:
         return 0, 0
     state = optuna.trial.TrialState
     retried = {t.user_attrs.get("retry_of") for t in study.trials}
@@ -63,21 +72,14 @@ def study_counts(name: str, path: Path) -> tuple[int, int]:
     return len(counted), sum(t.state == state.RUNNING for t in study.trials)
 
 
-def defaults_valued(name: str, path: Path) -> bool:
-    """Whether study ``name`` in the journal ``path`` has valued the learner's own values of
-    the searched settings (``value_defaults``; or found it had begun with them), or cannot:
-    a study of an earlier objective (the maze's first five: greedy laps), which the sweeper
-    does not continue on other terms."""
-    import optuna
-
+def defaults_valued(study) -> bool:
+    """Whether ``study`` has valued the learner's own values of the searched settings
+    (``value_defaults``; or found it had begun with them), or cannot: a study of an earlier
+    objective (the maze's first five: greedy laps), which the sweeper does not continue on
+    other terms. False for no study."""
     from runs.summary import SUCCESS_AND_SPEED
-    from sweeps.tuning import open_storage
 
-    if not (ROOT / path).is_file():
-        return False
-    try:
-        study = optuna.load_study(study_name=name, storage=open_storage(f"journal://{ROOT / path}"))
-    except KeyError:
+    if study is None:
         return False
     return "defaults_value" in study.user_attrs or study.metric_names not in (None, [SUCCESS_AND_SPEED])
 
@@ -86,11 +88,12 @@ def written(spec: dict, learner: str, task: str) -> bool:
     """Whether the pair's tuned file is its study's (its header names the study): a study
     that finished without writing it (write_tuned off) gets a sweep of no new trials that
     writes it."""
+    from sweeps.tuning import names_study
     from tasks.catalog import default_task, tuned_file
 
     per_task = spec["task"] != default_task(spec["robot"])
     path = tuned_file(spec["robot"], learner, spec["task"] if per_task else None)
-    return path.is_file() and f"study bench-{task}-{learner} in" in path.read_text()
+    return path.is_file() and names_study(path.read_text(), f"bench-{task}-{learner}")
 
 
 def pruning(pruner: str, budget: int, first_rung: int = 9) -> list[str]:
@@ -150,10 +153,10 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
                 print(f"{name}: a variant of {variant['learner']} (overrides {variant['overrides']}): runs "
                       f"{variant['learner']}'s tuned file with them, not tuned")
                 continue
-            counted, running = study_counts(f"bench-{task}-{learner}", studies / f"{name}.log")
+            study = journal_study(f"bench-{task}-{learner}", studies / f"{name}.log")
+            counted, running = study_counts(study)
             missing = int(tuning["trials"]) - counted - running
-            valued = not tuning.get("value_defaults") or defaults_valued(f"bench-{task}-{learner}",
-                                                                         studies / f"{name}.log")
+            valued = not tuning.get("value_defaults") or defaults_valued(study)
             if missing <= 0 and not running and (not write or written(spec, learner, task)) and valued:
                 print(f"{name}: study complete ({counted} trials)")
                 continue

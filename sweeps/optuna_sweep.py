@@ -29,8 +29,9 @@ from runs.settings import check_run_config
 from runs.summary import SUCCESS_AND_SPEED, final_measure, success_and_speed, summarize_run
 from sweeps.resume import continuable, resume_runs
 from sweeps.tuning import (KEPT, OWN_VALUES, Plan, abandoned, batch_size, check_space, check_sweeper_settings, claim,
-                           current_trial, job_folders_of, kept_text, load_space, make_pruner, now_utc, open_storage,
-                           override_value, replace_tuned, searched_values, settings_of, shown_url, tuned_text)
+                           current_trial, job_folders_of, kept_text, load_space, make_pruner, names_study, now_utc,
+                           open_storage, override_value, replace_tuned, searched_values, settings_of, shown_url,
+                           tuned_text)
 from tasks.base import Success
 from tasks.factory import build_task
 
@@ -411,7 +412,7 @@ class TuningSweep:
         if not told and self.write_tuned and base_file.is_file():  # nothing new: the study's file stays
             on_disk = base_file.read_text(errors="replace")  # (edits made since included)
             news = mine_won and settings_of(on_disk) != settings_of(text)  # the learner's own values won
-            if f"study {self.study_name} in" in on_disk and not news:
+            if names_study(on_disk, self.study_name) and not news:
                 print(f"this sweep told no trial and {base_file.name} is already the study's: it stays as it is")
                 return
         study.set_user_attr("tuned_kept", kept)

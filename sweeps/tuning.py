@@ -370,10 +370,10 @@ def searched_values(params: Mapping[str, Param], config: Any) -> dict[str, Any] 
 
 def current_trial(params: Mapping[str, Param], config: Any) -> dict[str, Any] | None:
     """Optuna's params for the values ``config`` already has, if the space holds them all."""
-    samples = {}
-    for key, param in params.items():
-        value = OmegaConf.select(config, key)
-        samples[key] = param.sample_of(OmegaConf.to_container(value) if OmegaConf.is_config(value) else value)
+    values = searched_values(params, config)
+    if values is None:
+        return None
+    samples = {key: param.sample_of(values[key]) for key, param in params.items()}
     return samples if all(s is not None for s in samples.values()) else None
 
 
@@ -573,6 +573,11 @@ def tuned_text(values: Mapping[str, Any], base: Mapping[str, Any] | None, header
         OmegaConf.update(conf, key, value, force_add=True)
     lines = ["# @package _global_", *(f"# {line}".rstrip() for line in header)]
     return "\n".join(lines) + "\n" + OmegaConf.to_yaml(conf)
+
+
+def names_study(text: str, study: str) -> bool:
+    """Whether a tuned file's ``text`` is study ``study``'s (its header names it)."""
+    return f"study {study} in" in text
 
 
 OWN_VALUES = "the learner's own values of the searched settings"  # in the header of a file they won

@@ -479,16 +479,18 @@ def test_a_study_of_an_earlier_objective_is_not_asked_to_value_the_learners_own_
     """The grid's maze studies of greedy laps cannot be continued on success_and_speed: they
     count as done for ``value_defaults``; a study of the sweeper's objective counts once it has
     valued them."""
-    from bench.tune_grid import ROOT as GRID_ROOT, defaults_valued
+    from bench.tune_grid import ROOT as GRID_ROOT, defaults_valued, journal_study
 
     record = tmp_path / "s.log"
     for name, metric in (("laps", "greedy_laps"), ("now", "success_and_speed")):
         study = optuna.create_study(study_name=name, storage=open_storage(f"journal://{record}"), direction="maximize")
         study.set_metric_names([metric])
     relative = Path(os.path.relpath(record, GRID_ROOT))
-    assert defaults_valued("laps", relative) and not defaults_valued("now", relative)
+    laps, now = (journal_study(name, relative) for name in ("laps", "now"))
+    assert defaults_valued(laps) and not defaults_valued(now)
     study.set_user_attr("defaults_value", None)  # found it had begun with them
-    assert defaults_valued("now", relative) and not defaults_valued("gone", relative)
+    assert defaults_valued(journal_study("now", relative)) and journal_study("gone", relative) is None
+    assert not defaults_valued(None)
 
 
 def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(project_copy, tmp_path):
