@@ -161,6 +161,21 @@ class Learner(Protocol):
             ConfigError: if a variant differs in another setting, or the task does not fit the learner.
         """
 
+    def renew(self, b: int, generator: torch.Generator, variant: Any | None = None) -> None:
+        """Member ``b`` made anew, as :meth:`build` makes a member of ``generator`` and
+        ``variant``: a batch's freed member given another trial x seed. The other members are
+        left as they are.
+
+        Args:
+            b: the member's index.
+            generator: its new random stream (seeded as a run of its seed seeds it).
+            variant: its own learner made from its config, unbuilt, differing from this one in
+                ``MEMBER_WISE`` settings only; None: this learner's settings.
+
+        Raises:
+            ConfigError: if the variant differs in another setting.
+        """
+
     def begin(self) -> None:
         """Before the first step of a training session (a fresh run or a resumed one)."""
 

@@ -44,6 +44,7 @@ only keeps its tensors for them (:class:`UpdateStats`: no host sync).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import math
 import time
@@ -612,7 +613,7 @@ class DQN:
         self.owed = [0] * m  # whole updates owed, run by settle
         self.schedules = [v.epsilon if b == 0 else copy.deepcopy(v.epsilon) for b, v in enumerate(own)]  # each its own
         self.trackers = [UpdateStats() for _ in range(m)]
-        width = 2 * self.n_obs + 3 + (self.n_step > 1)  # n-step rows carry their steps
+        width = self._row_width()
         self.buffers = [RowReplayBuffer(v.buffer_size, width, v.batch_size, self.device) for v in own]
         if self.prioritized:
             for buffer, v in zip(self.buffers, own):
@@ -620,6 +621,40 @@ class DQN:
         sizes = [v.batch_size for v in own]  # a round's minibatches, per size: as many rows as members of it
         self._minibatch = {size: torch.empty(sizes.count(size), size, width, device=self.device) for size in sizes}
         self.nsteps: list[NStep] = []  # each member's queues, made at its first step (copies known then)
+
+    def _row_width(self) -> int:
+        """A replay buffer row's numbers (:func:`pack`); n-step rows carry their steps."""
+        return 2 * self.n_obs + 3 + (self.n_step > 1)
+
+    @torch.no_grad()
+    def renew(self, b: int, generator: torch.Generator, variant: DQN | None = None) -> None:
+        """Member ``b`` made anew from ``generator`` and ``variant`` (None: this learner's
+        settings), as :meth:`build` makes a member: a batch's freed member given another trial
+        x seed. The other members are left as they are."""
+        own = self if variant is None else member_settings(self, [variant], 1)[0]
+        require(bool(own.target_update or own.tau) == self.has_target,
+                "learner.tau and learner.target_update: members of one batch must all have a target "
+                "network or none", (own.tau, own.target_update))
+        self.generators[b], self.settings[b] = generator, own
+        self.params[b] = self._initial(generator)
+        if self.has_target:
+            self.target[b] = self.params[b]
+        for moments in (self.exp_avg, self.exp_avg_sq, self.grads):
+            moments[b].zero_()
+        self.steps[b], self.credit[b], self.owed[b] = 0, 0.0, 0
+        self.schedules[b] = dataclasses.replace(own.epsilon)  # at its start, whatever own's has done
+        self.trackers[b] = UpdateStats()
+        width = self._row_width()
+        self.buffers[b] = RowReplayBuffer(own.buffer_size, width, own.batch_size, self.device)
+        if self.prioritized:
+            self.buffers[b].priorities = Priorities(own.buffer_size, own.priority_alpha, own.priority_eps, self.device)
+        sizes = [v.batch_size for v in self.settings]
+        for size in set(sizes):
+            if size not in self._minibatch or len(self._minibatch[size]) < sizes.count(size):
+                self._minibatch[size] = torch.empty(sizes.count(size), size, width, device=self.device)
+        if self.nsteps:
+            copies = len(self.nsteps[b].count)
+            self.nsteps[b] = NStep(self.n_step, copies, self.n_obs, own.gamma)
 
     def _initial(self, generator: torch.Generator) -> torch.Tensor:
         """Fresh parameters of the template's layers drawn from ``generator`` (their own

@@ -161,12 +161,29 @@ class QLearn:
         self.generators = single(generators)
         self.members = len(self.generators)
         self.settings = member_settings(self, variants, self.members)
+        self._bounds, self.n_actions = task.tabular_bounds, int(task.n_actions)
+        self._lay_out()
+        self.epsilons = [float(own.epsilon) for own in self.settings]
+
+    def renew(self, b: int, generator: torch.Generator, variant: QLearn | None = None) -> None:
+        """Member ``b`` made anew from ``generator`` and ``variant`` (None: this learner's
+        settings), as :meth:`build` makes a member: a batch's freed member given another trial
+        x seed. The other members' tables are kept as they are (the table is laid out again
+        where ``variant`` has other bins)."""
+        own = self if variant is None else member_settings(self, [variant], 1)[0]
+        kept = {i: (self.table[i], self.visited[i]) for i in range(self.members) if i != b}
+        self.generators[b], self.settings[b] = generator, own
+        self._lay_out(kept)
+        self.epsilons[b] = float(own.epsilon)
+
+    def _lay_out(self, kept: Mapping[int, tuple[torch.Tensor, torch.Tensor]] | None = None) -> None:
+        """Every member's discretizer and its rows of one table, fresh (at its ``initial_q``,
+        unvisited) but the members of ``kept`` (index: their table and visited flags, copied
+        in); the members' learning rates and discounts."""
         made: dict[str, Discretizer] = {}  # one per distinct number_splits
-        self.discretizers = [made.setdefault(repr(own.number_splits),
-                                             Discretizer(task.tabular_bounds, own.number_splits))
+        self.discretizers = [made.setdefault(repr(own.number_splits), Discretizer(self._bounds, own.number_splits))
                              for own in self.settings]
         self.discretizer = self.discretizers[0]
-        self.n_actions = int(task.n_actions)
         self.n_states = self.discretizer.n_states
         sizes = [d.n_states for d in self.discretizers]
         self._alike = len(made) == 1
@@ -184,10 +201,13 @@ class QLearn:
         self._seen = torch.zeros((total, self.n_actions), dtype=torch.bool)
         self.table = [self._values[start:start + size] for start, size in zip(self._starts, sizes)]
         self.visited = [self._seen[start:start + size] for start, size in zip(self._starts, sizes)]
+        kept = kept or {}
         for b, own in enumerate(self.settings):
-            if own.initial_q != self.initial_q:
+            if b in kept:
+                self.table[b].copy_(kept[b][0])
+                self.visited[b].copy_(kept[b][1])
+            elif own.initial_q != self.initial_q:
                 self.table[b].fill_(float(own.initial_q))
-        self.epsilons = [float(own.epsilon) for own in self.settings]
         self._alpha = per_member([own.alpha for own in self.settings], torch.float64)
         self._gamma = per_member([own.gamma for own in self.settings], torch.float64)
         self._offsets: torch.Tensor | None = None

@@ -120,10 +120,13 @@ class BatchedPhysics:
         self._held |= np.asarray(mask, dtype=bool)
         self._stepping = np.flatnonzero(~self._held) if self._held.any() else None
 
-    def release(self) -> None:
-        """Every copy steps again (see :meth:`hold`)."""
-        self._held[:] = False
-        self._stepping = None
+    def release(self, mask: np.ndarray | None = None) -> None:
+        """The ``mask`` copies (None: every copy) step again (see :meth:`hold`)."""
+        if mask is None:
+            self._held[:] = False
+        else:
+            self._held &= ~np.asarray(mask, dtype=bool)
+        self._stepping = np.flatnonzero(~self._held) if self._held.any() else None
 
     @property
     def timestep(self) -> float:

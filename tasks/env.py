@@ -166,6 +166,25 @@ class RobotTaskEnv(EnvBase):
         mask[self.block(b)] = True if within is None else within[self.block(b)]
         return mask
 
+    def renew_block(self, b: int, seed: int) -> torch.Tensor:
+        """Seed block ``b`` started anew as seed ``seed`` (a batch's freed member given another
+        trial x seed): its generator, its copies' first episodes, step counters and divergence
+        count as an env of ``block_size`` copies with that seed starts them; its copies step
+        again (:meth:`~robots.physics.BatchedPhysics.release`). The other blocks are left as
+        they are. Returns the block's first observations (float32 ``[block_size, n_obs]``)."""
+        if not 0 <= b < self.n_blocks:
+            raise ValueError(f"this env has {self.n_blocks} seed blocks; got block {b}")
+        self._rngs[b] = np.random.default_rng(int(seed))
+        self._rng = self._rngs[0]
+        mask = self.block_mask(b)
+        self.physics.release(mask)
+        for value in self.ended_info.values():  # as a new env's: none ended yet
+            value[mask] = 0.0
+        self.divergences -= int(self.block_divergences[b])
+        self.block_divergences[b] = 0
+        obs = self._start_episodes(mask, keep_ended_info=False)
+        return torch.from_numpy(obs[self.block(b)].astype(np.float32))
+
     def seed_block(self, b: int) -> SeedBlock:
         """Seed block ``b`` seen as an env of its own (see :class:`SeedBlock`)."""
         return SeedBlock(self, b)

@@ -191,6 +191,69 @@ def test_members_that_differ_in_a_shape_are_refused_in_one_line(name, a, b, says
     assert "\n" not in str(err.value)
 
 
+# A batch's freed member given another trial x seed (Learner.renew): member 1 of SEEDS made anew
+# as seed RENEWED, with the case's new settings (None: the learner's), halfway through.
+RENEWED = 11
+RENEW_CASES = {
+    "qlearn": ("qlearn", 3, [], None, None),
+    # other bins than the member it replaces: the table laid out again, the others' rows kept
+    "qlearn, other bins": ("qlearn", 3, [], TRIAL_CASES["qlearn bins"][3],
+                           ["learner.number_splits={cart_pos: 4, cart_vel: 2, pole_angle: 6, pole_vel: 3}",
+                            "learner.alpha=0.2", "learner.initial_q=2"]),
+    "dqn per step, 1 copy": (*DQN_CASES["dqn per step, 1 copy"], None, None),
+    "dqn every switch": (*DQN_CASES["dqn every switch"], None, None),
+    # a minibatch size no member had: a round of its own
+    "dqn, own sizes": (*TRIAL_CASES["dqn prioritized, own sizes"][:4],
+                       ["learner.batch_size=16", "learner.buffer_size=200", "learner.lr=0.002"]),
+    "mbalunovic": (*TRIAL_CASES["mbalunovic"][:4], ["learner.target_update=5", "learner.gamma=0.8"]),
+}
+
+
+@pytest.mark.parametrize("case", RENEW_CASES)
+def test_a_renewed_member_learns_bit_for_bit_as_a_fresh_one(case):
+    """Member 1, renewed after 60 steps, acts and learns for 80 more as a learner of its new
+    seed and settings alone on the same rows; members 0 and 2 as their seeds alone, untouched."""
+    name, n, shared, own, new = RENEW_CASES[case]
+    cfgs = None if own is None else [config(name, [*shared, *extra]) for extra in own]
+    cfg = config(name, shared) if cfgs is None else cfgs[0]
+    renewed_cfg = cfg if new is None else config(name, [*shared, *new])
+    before, after, k = 60, 80, len(SEEDS)
+    together = made(cfg, SEEDS, cfgs)
+    env = build_env(cfg, n * k, list(SEEDS))
+    together.begin()
+    td, alone, rows = env.reset(), None, slice(n, 2 * n)
+    for t in range(before + after):
+        if t == before:
+            variant = None if new is None else instantiate(renewed_cfg.learner, _convert_="all")
+            together.renew(1, seed_everything(RENEWED), variant)
+            alone = made(renewed_cfg, (RENEWED,))
+            alone.begin()
+        observed = td
+        td = together.act(td)
+        if alone is not None:
+            assert torch.equal(alone.act(observed[rows].clone()).get("action"), td.get("action")[rows]), t
+        td, nxt = env.step_and_maybe_reset(td)
+        together.observe(td)
+        done = td.get(("next", "done")).reshape(k, n).sum(1)
+        together.end_episodes({b: int(count) for b, count in enumerate(done) if count})
+        if alone is not None:
+            alone.observe(td[rows].clone())
+            if done[1]:
+                alone.end_episodes({0: int(done[1])})
+        td = nxt
+    env.close()
+    assert tensors_equal(together.training_state(1), alone.training_state(0))
+    assert tensors_equal(together.model_state(1), alone.model_state(0))
+    stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
+             for x, i in ((together, 1), (alone, 0))]
+    assert stats[0] == stats[1]
+    if together.kind == "dqn":
+        assert together.steps[1] > 0  # it learned after its renewal
+    for b in (0, 2):
+        single, _ = trained(cfg if cfgs is None else cfgs[b], (SEEDS[b],), n, before + after)
+        assert tensors_equal(together.training_state(b), single.training_state(0)), SEEDS[b]
+
+
 def snapshot(learner, b: int) -> dict:
     state = learner.training_state(b)
     return {k: v for k, v in state.items() if k != "buffer"} | {"updates": learner.trackers[b].count}

@@ -43,6 +43,48 @@ def test_each_block_steps_exactly_as_its_seed_alone(robot):
     assert restarts > 0, "no episode ended: the restarts were not compared"
 
 
+@pytest.mark.parametrize("robot", robot_names())
+def test_a_renewed_block_steps_exactly_as_its_new_seed_alone(robot):
+    """Block 1 held (its run done), then renewed as seed 5: from there it steps as a new env
+    of seed 5; blocks 0 and 2 as their seeds alone throughout."""
+    n, limit, renewed = 2, 25, 5
+    before, held, after = 30, 7, 60
+    cfg = compose(robot, overrides=[f"task.max_episode_steps={limit}"])
+    batch = build_env(cfg, n * len(SEEDS), list(SEEDS))
+    alone = {0: build_env(cfg, n, SEEDS[0]), 2: build_env(cfg, n, SEEDS[2])}
+    rng = np.random.default_rng(0)
+    td_b, tds = batch.reset(), {b: env.reset() for b, env in alone.items()}
+    restarts = 0
+    try:
+        for t in range(before + held + after):
+            if t == before:
+                batch.physics.hold(batch.block_mask(1))
+            if t == before + held:
+                first = batch.renew_block(1, renewed)
+                alone[1] = build_env(cfg, n, renewed)
+                tds[1] = alone[1].reset()
+                assert torch.equal(first, tds[1]["observation"])
+                assert batch.seed_block(1).divergences == 0
+                td_b.get("observation")[batch.block(1)] = first
+            actions = rng.integers(batch.task.n_actions, size=n * len(SEEDS))
+            td_b.set("action", torch.as_tensor(actions))
+            td_b, next_b = batch.step_and_maybe_reset(td_b)
+            for b, env in alone.items():
+                tds[b].set("action", torch.as_tensor(actions[batch.block(b)]))
+                td, tds[b] = env.step_and_maybe_reset(tds[b])
+                for key in ("observation", "reward", "done", "terminated"):
+                    assert torch.equal(td_b["next", key][batch.block(b)], td["next", key]), (t, b, key)
+                assert torch.equal(next_b["observation"][batch.block(b)], tds[b]["observation"]), (t, b)
+            if t >= before + held:
+                restarts += int(td_b["next", "done"][batch.block(1)].sum())
+            td_b = next_b
+    finally:
+        batch.close()
+        for env in alone.values():
+            env.close()
+    assert restarts > 0, "the renewed block's episodes never ended: their restarts were not compared"
+
+
 def test_seed_blocks_must_divide_the_copies():
     with pytest.raises(ValueError, match="multiple of the number of seed blocks"):
         build_env(compose("cartpole"), 5, [0, 1])
