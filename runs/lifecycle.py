@@ -43,7 +43,7 @@ import numpy as np
 import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 
 from learners.base import Member
 from params import ConfigError
@@ -69,6 +69,8 @@ NOT_BATCHED = ("resume", "checkpoint")
 # what names the run, and when its own Run evaluates, saves and prints (a searched
 # ``eval_every`` no longer splits a study's trials into a batch per value).
 OWN_KEYS = ("seed", "resume", "trial", "eval_every", "eval_every_steps", "checkpoint_every", "log_every")
+# ``run_jobs``'s source of jobs for freed members: (the jobs that ended, members free) -> new jobs.
+More = Callable[[Sequence["Job"], int], Sequence["Job"]]
 
 
 @dataclasses.dataclass
@@ -328,10 +330,13 @@ def denormals_flushed() -> Iterator[None]:
         torch.set_flush_denormal(False)
 
 
-def run_jobs(jobs: Sequence[Job], solo: bool = False) -> list[dict]:
+def run_jobs(jobs: Sequence[Job], solo: bool = False, more: More | None = None) -> list[dict]:
     """Makes every run of ``jobs`` (a batch: checked by :func:`check_batch`) in one env;
     returns each seed's summary, in order (a failed seed's says ``failed``). ``solo``: one
-    job, a single run."""
+    job, a single run. ``more(ended, free)``: called at each step where runs ended (their
+    jobs ``ended``) with the number of members then free; the fresh jobs it returns (at most
+    ``free``, each fitting this batch) train in the freed members from their first step,
+    each as its run alone, their summaries after the first ones' in the order they start."""
     if not solo:
         check_batch(jobs)
     torch.set_num_threads(int(jobs[0].cfg.torch_threads))
@@ -348,29 +353,29 @@ def run_jobs(jobs: Sequence[Job], solo: bool = False) -> list[dict]:
         if jobs[0].cfg.mode == "eval":
             _evaluate(slots[0])
         else:
-            _train(learner, slots, env, finals)
+            refill = None if more is None or solo else _Refill(more, learner, env, slots, stack)
+            _train(learner, slots, env, finals, refill)
     return [slot.summary for slot in slots]
 
 
 def _consoles(slots: list[_Slot], stack: ExitStack) -> None:
     """A batch's seeds: each folder locked, each console its train.log and the terminal."""
     for slot in slots:
-        slot.job.run_dir.mkdir(parents=True, exist_ok=True)
-        stack.enter_context(run_lock(slot.job.run_dir))
-        log = stack.enter_context(open(slot.job.run_dir / "train.log", "a", encoding="utf-8"))
-        slot.console = Tee(_Prefixed(sys.stdout, f"[seed {slot.seed}] "), log)
+        _console(slot, stack)
+
+
+def _console(slot: _Slot, stack: ExitStack) -> None:
+    slot.job.run_dir.mkdir(parents=True, exist_ok=True)
+    stack.enter_context(run_lock(slot.job.run_dir))
+    log = stack.enter_context(open(slot.job.run_dir / "train.log", "a", encoding="utf-8"))
+    slot.console = Tee(_Prefixed(sys.stdout, f"[seed {slot.seed}] "), log)
 
 
 def _build(slots: list[_Slot]):
     """The learner of all seeds (each member's streams seeded as its run alone seeds them),
     the one env of all seeds and each seed's parts; ``checkpoint=``'s model loaded into a
     fresh run. Writes nothing."""
-    generators = []
-    for slot in slots:
-        generators.append(seed_everything(slot.seed))
-        stream = torch.Generator()
-        stream.set_state(torch.get_rng_state())
-        slot.streams = (stream, np.random.get_state(), random.getstate())
+    generators = [_seeded(slot) for slot in slots]
     cfg, solo = slots[0].job.cfg, slots[0].solo
     seeds = slots[0].seed if solo else [slot.seed for slot in slots]
     try:
@@ -383,9 +388,7 @@ def _build(slots: list[_Slot]):
     if not solo:
         _check_memory(env, [slot.job.cfg for slot in slots])
     learner = instantiate(cfg.learner, _convert_="all")
-    own = member_wise(cfg)
-    alike = all({k: slot.job.cfg.learner.get(k) for k in own} == {k: cfg.learner.get(k) for k in own}
-                for slot in slots)
+    alike = all(not _own_settings(slot.job.cfg, cfg) for slot in slots)
     variants = None if alike else [instantiate(slot.job.cfg.learner, _convert_="all") for slot in slots]
     learner.build(env.task, generators, variants)
     for slot in slots:
@@ -394,10 +397,31 @@ def _build(slots: list[_Slot]):
             load_model(model_path(slot.job.cfg.checkpoint), member)
         elif slot.job.cfg.mode == "eval":
             raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
-        evaluator = GreedyEvaluator(slot.job.cfg, member, slot.seed + EVAL_SEED_OFFSET)
-        slot.session = Session(slot.job.cfg, slot.job.run_dir, member, env if solo else env.seed_block(slot.index),
-                               evaluator)
+        _session(slot, member, env if solo else env.seed_block(slot.index))
     return learner, env
+
+
+def _seeded(slot: _Slot) -> torch.Generator:
+    """Seeds the process's streams as the seed's run alone seeds them and keeps them in the
+    slot (its global streams); the member's own stream."""
+    generator = seed_everything(slot.seed)
+    stream = torch.Generator()
+    stream.set_state(torch.get_rng_state())
+    slot.streams = (stream, np.random.get_state(), random.getstate())
+    return generator
+
+
+def _own_settings(cfg: DictConfig, learner_cfg: DictConfig) -> bool:
+    """Whether ``cfg``'s learner differs from ``learner_cfg``'s (the batch's learner) in a
+    member-wise setting: its member then takes a variant of its own."""
+    own = member_wise(cfg)
+    return {k: cfg.learner.get(k) for k in own} != {k: learner_cfg.learner.get(k) for k in own}
+
+
+def _session(slot: _Slot, member: Member, env) -> None:
+    """The slot's session: its member, its block of the env and its greedy evaluator."""
+    evaluator = GreedyEvaluator(slot.job.cfg, member, slot.seed + EVAL_SEED_OFFSET)
+    slot.session = Session(slot.job.cfg, slot.job.run_dir, member, env, evaluator)
 
 
 def available_bytes() -> int | None:
@@ -449,19 +473,89 @@ def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
     fresh = slots[0].job.cfg.mode == "train" and not all(slot.job.resume for slot in slots)
     first = env.reset() if fresh else None  # a resumed seed starts from its checkpoint
     for slot in slots:
-        job, session = slot.job, slot.session
-        with slot.active(full=True):
-            if not job.resume:
-                start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
-            for line in banner_lines(job.cfg, dict(job.choices), job.changes, session.success,
-                                     job.run_dir):
-                print(line)
-            write_success(session)
-            if job.cfg.mode != "train":
+        _begin(slot, None if first is None else first if slot.solo else first[env.block(slot.index)])
+
+
+def _begin(slot: _Slot, first: TensorDictBase | None) -> None:
+    """The seed's folder, banner and run; a fresh one's first step acts on ``first``."""
+    job, session = slot.job, slot.session
+    with slot.active(full=True):
+        if not job.resume:
+            start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
+        for line in banner_lines(job.cfg, dict(job.choices), job.changes, session.success,
+                                 job.run_dir):
+            print(line)
+        write_success(session)
+        if job.cfg.mode != "train":
+            return
+        slot.run = make_run(session, resume=job.resume, progress=job.progress, save=slot.save)
+        if not job.resume:
+            slot.run.continue_from(first)
+
+
+class _Refill:
+    """Gives the members freed at a step the fresh jobs ``more`` hands in (see
+    :func:`run_jobs`): each member made anew (``Learner.renew``) and its seed block started
+    anew as the job's seed (``RobotTaskEnv.renew_block``), so the job trains as its run
+    alone from its first step. A job that does not fit the batch ends at once, its
+    ``error.txt`` saying why; none is taken after a stop was asked."""
+
+    def __init__(self, more: More, learner, env: RobotTaskEnv, slots: list[_Slot], stack: ExitStack) -> None:
+        self.more, self.learner, self.env, self.slots, self.stack = more, learner, env, slots, stack
+        self.cfg = slots[0].job.cfg
+        self.stopped: dict = {"signal": None}
+
+    def __call__(self, td: TensorDictBase, ended: list[_Slot], live: list[_Slot]) -> tuple[TensorDictBase, list]:
+        """The next step's input with the new jobs' first observations in their blocks, and
+        the new jobs' slots (to train from this step on)."""
+        busy = {slot.index for slot in live}
+        free = [b for b in range(self.learner.members) if b not in busy]
+        jobs = list(self.more([slot.job for slot in ended], len(free))) if self.stopped["signal"] is None else []
+        if len(jobs) > len(free):
+            raise ValueError(f"{len(jobs)} jobs for {len(free)} free members")
+        added = []
+        for job, b in zip(jobs, free):
+            slot = _Slot(job, b)
+            self.slots.append(slot)
+            _console(slot, self.stack)
+            refused = self._refused(job)
+            if refused:
+                with slot.active():
+                    slot._failed(f"error: {refused}")
+                slot.summary = {"failed": f"error: {refused}"}
                 continue
-            slot.run = make_run(session, resume=job.resume, progress=job.progress, save=slot.save)
-            if not job.resume:
-                slot.run.continue_from(first if slot.solo else first[env.block(slot.index)])
+            if not added:
+                td = td.clone()  # its tensors are the step's own, which the runs have booked
+            generator = _seeded(slot)
+            self.learner.renew(b, generator, instantiate(job.cfg.learner, _convert_="all")
+                               if _own_settings(job.cfg, self.cfg) else None)
+            observation = self.env.renew_block(b, slot.seed)
+            _session(slot, self.learner.member(b), self.env.seed_block(b))
+            rows = self.env.block(b)
+            _begin(slot, _first(observation))
+            first = slot.run.start(slot.env)
+            for key, value in td.items():
+                value[rows] = first.get(key) if key in first.keys() else 0
+            added.append(slot)
+        return td, added
+
+    def _refused(self, job: Job) -> str | None:
+        """Why ``job`` cannot train in this batch (None: it can)."""
+        if job.resume or not batchable(job.cfg):
+            return f"a freed member trains a fresh training run only; {job.run_dir.name} is not one"
+        if batch_key(job.cfg) != batch_key(self.cfg):
+            return (f"job {job.run_dir.name} differs from the batch's in more than its seed, trial, schedules and "
+                    "the learner's member-wise settings: it cannot take a freed member")
+        if any(repr(_own(slot.job.cfg)) == repr(_own(job.cfg)) for slot in self.slots if slot.job is not job):
+            return f"seed {job.cfg.seed} of these settings is trained already in this batch"
+        return None
+
+
+def _first(observation: torch.Tensor) -> TensorDictBase:
+    """A fresh block's first step input: its first observations, its done flags false (a reset's)."""
+    false = torch.zeros(len(observation), 1, dtype=torch.bool)
+    return TensorDict({"observation": observation, "done": false, "terminated": false.clone(),
+                       "truncated": false.clone()}, batch_size=[len(observation)])
 
 
 def write_success(session: Session) -> None:
@@ -510,13 +604,24 @@ def _evaluate(slot: _Slot) -> None:
     report(session, slot.summary, result)
 
 
-def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluations) -> None:
+def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluations,
+           refill: _Refill | None = None) -> None:
     """Steps every seed's copies together until each run is done (:func:`runs.loop.train`);
     a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
-    done. A single run stopped by an exception still saves its model and closes its files."""
-    with stop_on_signals(*(slot.run for slot in slots)) as stopped:
+    done; ``refill`` gives freed members new jobs. A single run stopped by an exception still
+    saves its model and closes its files."""
+    runs = [slot.run for slot in slots]
+    with stop_on_signals(runs) as stopped:
+        if refill is not None:
+            refill.stopped = stopped
+
+            def grow(td, ended, live):
+                td, added = refill(td, ended, live)
+                runs.extend(slot.run for slot in added)
+                return td, added
         try:
-            train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals))
+            train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals),
+                  None if refill is None else grow)
         except BaseException:
             for slot in slots:
                 if slot.solo and not slot.closed:
@@ -671,9 +776,10 @@ def report(session: Session, summary: dict, result: dict | None) -> None:
 
 
 @contextmanager
-def stop_on_signals(*records: Run) -> Iterator[dict]:
-    """Ctrl-C / SIGTERM ask each of ``records`` to stop after the current step; a second
-    Ctrl-C aborts. Yields ``{"signal": None}``, where the stopping signal's number is put."""
+def stop_on_signals(records: list[Run]) -> Iterator[dict]:
+    """Ctrl-C / SIGTERM ask each of ``records`` (those in it at the time) to stop after the
+    current step; a second Ctrl-C aborts. Yields ``{"signal": None}``, where the stopping
+    signal's number is put."""
     stopped: dict = {"signal": None}
     if threading.current_thread() is not threading.main_thread():
         yield stopped  # signal handlers live in the main thread only (e.g. joblib workers)

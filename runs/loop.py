@@ -11,10 +11,11 @@
     -> each lane ends the step (evaluation, checkpoint when due)
 
 A lane that is done (solved, out of budget, stopped, failed) is handed to ``end_done``,
-which ends it (and holds its copies); the others go on. A lane's own work that fails ends
-that lane alone (its :meth:`Lane.guarded`); a learner call that fails ends every lane in it
-(:meth:`Lane.fail`: a single run raises, a batch's seed keeps the trace), since they share
-its state.
+which ends it (and holds its copies); the others go on. ``refill`` may then start new
+lanes in the freed members (a tuning study's next trial x seed), from the next step on. A
+lane's own work that fails ends that lane alone (its :meth:`Lane.guarded`); a learner call
+that fails ends every lane in it (:meth:`Lane.fail`: a single run raises, a batch's seed
+keeps the trace), since they share its state.
 """
 
 from __future__ import annotations
@@ -47,10 +48,14 @@ class Lane(Protocol):
 
 
 def train(learner: Learner, env, lanes: Sequence[Lane],
-          end_done: Callable[[list[Lane]], list[Lane]]) -> None:
+          end_done: Callable[[list[Lane]], list[Lane]],
+          refill: Callable[[TensorDictBase, list[Lane], list[Lane]], tuple[TensorDictBase, list[Lane]]] | None = None
+          ) -> None:
     """Acts on ``env`` and learns from each step until every lane is done (see the module
     docstring); ``end_done(live)`` ends the lanes of ``live`` that are done and returns the
-    others."""
+    others; ``refill(td, ended, live)``, after a step where lanes ended, may start new lanes
+    in the freed members: it returns the next step's input (their blocks' first
+    observations in it) and the new lanes."""
     learner.begin()
     starts = [lane.run.start(lane.env) for lane in lanes]
     td = starts[0] if len(starts) == 1 else torch.cat(starts)
@@ -69,7 +74,12 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
         for lane in _sound(sound):
             lane.guarded(lambda lane=lane: lane.run.end_step(next_td))
         td = next_td
-        live = end_done(live)
+        going = end_done(live)
+        if refill is not None and len(going) < len(live):
+            still = {id(lane) for lane in going}
+            td, added = refill(td, [lane for lane in live if id(lane) not in still], going)
+            going = going + list(added)
+        live = going
 
 
 def _book(learner: Learner, lanes: list[Lane], td: TensorDictBase) -> dict[int, int]:

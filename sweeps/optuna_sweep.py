@@ -47,14 +47,14 @@ class TuningSweep:
                  report_every: int = 5000, pruner: str | dict | None = None, pruners: dict | None = None,
                  startup_trials: int = 5,
                  sampler_seed: int | None = None, write_tuned: bool = False, start_from_current: bool = True,
-                 value_defaults: bool = False) -> None:
+                 value_defaults: bool = False, refill: bool = False) -> None:
         # As given: :meth:`_check_settings` checks each and keeps it in its type (1.5 trials is
         # refused, not rounded; ``write_tuned=maybe`` is refused, not taken as true).
         self.settings = dict(study=study, storage=storage, n_trials=n_trials, trials_per_batch=trials_per_batch,
                              seeds=seeds, search=search, budget_steps=budget_steps, report_every=report_every,
                              pruner=pruner, pruners=pruners, startup_trials=startup_trials, sampler_seed=sampler_seed,
                              write_tuned=write_tuned, start_from_current=start_from_current,
-                             value_defaults=value_defaults)
+                             value_defaults=value_defaults, refill=refill)
         self.study_name, self.storage_url = str(study), str(storage)
         self.search, self.pruner, self.sampler_seed = search, pruner, sampler_seed
         self.config: DictConfig | None = None
@@ -77,7 +77,7 @@ class TuningSweep:
         self.report_every, self.pruner = checked["report_every"], checked["pruner"]
         self.startup_trials, self.sampler_seed = checked["startup_trials"], checked["sampler_seed"]
         self.write_tuned, self.start_from_current = checked["write_tuned"], checked["start_from_current"]
-        self.value_defaults = checked["value_defaults"]
+        self.value_defaults, self.refill = checked["value_defaults"], checked["refill"]
 
     def _fixed(self, arguments: list[str]) -> list[str]:
         """The command line's overrides, given to every job; sweeps and the sweeper's own keys refused."""
@@ -150,6 +150,9 @@ class TuningSweep:
         assert self.config is not None and self.launcher is not None
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         plan = self._plan(arguments)
+        if self.refill and not hasattr(self.launcher, "launch_fed"):
+            raise ConfigError("hydra.sweeper.refill=true trains a study's trials as members of one batch: it needs "
+                              f"hydra/launcher=seeds (the default); got {type(self.launcher).__name__}")
         study = self._open_study(plan)
         sweep_dir = Path(str(self.config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
@@ -179,15 +182,19 @@ class TuningSweep:
         results, done, launched = [], 0, 0
         while done < to_ask and not (sweep_dir / ".stop").exists():
             size = batch_size(self.trials_per_batch, to_ask - done, _finished(study), self.startup_trials)
-            batch = [study.ask({k: p.distribution for k, p in plan.params.items()}) for _ in range(size)]
-            for trial in batch:
-                claim(self._storage, self._trial_id(study, trial.number), self.seeds)
-            results.append(self._run_batch(study, batch, plan, first_job=launched, extra=extra))
-            launched += len(batch) * len(self.seeds) + len(extra)
+            batch = [self._ask(study, plan) for _ in range(size)]
+            if self.refill:
+                returns, asked = self._run_fed(study, batch, plan, launched, extra, to_ask - done - size, sweep_dir)
+                results.append(returns)
+                launched += len(returns)
+                done += asked
+            else:
+                results.append(self._run_batch(study, batch, plan, first_job=launched, extra=extra))
+                launched += len(batch) * len(self.seeds) + len(extra)
+                done += len(batch)
             if extra:
                 self._value_apart(study, plan, apart, results[-1][-len(extra):])
                 apart, extra = [], []
-            done += len(batch)
         if extra and not (sweep_dir / ".stop").exists():  # no round ran (a study already at its count)
             self._value_apart(study, plan, apart, self.launcher.launch(extra, initial_job_idx=launched))
         self._finish(study, plan, sweep_dir, told=_told(study) != told)
@@ -242,6 +249,75 @@ class TuningSweep:
         for i, (trial, vals) in enumerate(zip(batch, values)):
             self._tell(study, trial.number, plan, vals, [_run_dir(r) for r in returns[i * n:(i + 1) * n]])
         return returns
+
+    def _ask(self, study, plan: Plan):
+        """A new trial of the space, claimed by this sweep (its seeds, its lease)."""
+        trial = study.ask({k: p.distribution for k, p in plan.params.items()})
+        claim(self._storage, self._trial_id(study, trial.number), self.seeds)
+        return trial
+
+    def _may_ask(self, study) -> bool:
+        """Whether a trial may be asked now: one the sampler draws at random (the study holds
+        fewer than ``startup_trials``), or one it guides once that many have finished (as
+        :func:`sweeps.tuning.batch_size` keeps rounds: never a guided trial asked blind)."""
+        return len(study.get_trials(deepcopy=False)) < self.startup_trials or _finished(study) >= self.startup_trials
+
+    def _jobs(self, trial, plan: Plan) -> list[list[str]]:
+        """The trial's jobs' overrides, one per seed, and its values (kept for its line)."""
+        values = {k: p.value(trial.params[k]) for k, p in plan.params.items()}
+        self._values[trial.number] = values
+        return [[*plan.fixed, *(f"{k}={override_value(v)}" for k, v in values.items()), f"seed={seed}",
+                 f"trial={trial.number}"] for seed in self.seeds]
+
+    def _run_fed(self, study, batch: list, plan: Plan, first_job: int, extra: list, left: int,
+                 sweep_dir: Path) -> tuple[list, int]:
+        """``refill``: ``batch``'s trials (and ``extra`` jobs after them) launched as one batch
+        whose members, as a trial's jobs all end, take the study's next trials (up to
+        ``left`` more), each asked then, knowing every trial told so far (a guided one not
+        before the random ones have finished: :meth:`_may_ask`); each trial told as its last
+        job ends. Every job's return (the first batch's, the extra ones, then
+        the later trials'), and how many trials were asked."""
+        n, trial_of, ended, told = len(self.seeds), {}, {}, set()
+        self._values = {}
+        order: list[tuple[int, list[str]]] = []
+
+        def add(trial) -> list[tuple[int, list[str]]]:
+            jobs = [(first_job + len(order) + i, job) for i, job in enumerate(self._jobs(trial, plan))]
+            trial_of.update({idx: trial.number for idx, _ in jobs})
+            order.extend(jobs)
+            return jobs
+
+        def tell(number: int) -> None:
+            folders = ended.get(number, {})
+            self._tell(study, number, plan, self._values[number], [folders[i] for i in sorted(folders)])
+            told.add(number)
+
+        def more(done: Sequence[tuple[int, Path]], room: int) -> list[tuple[int, list[str]]]:
+            nonlocal left
+            for idx, folder in done:
+                if idx in trial_of:
+                    ended.setdefault(trial_of[idx], {})[idx] = folder
+                    if len(ended[trial_of[idx]]) == n:
+                        tell(trial_of[idx])
+            jobs = []
+            while left > 0 and room >= n and not (sweep_dir / ".stop").exists() and self._may_ask(study):
+                jobs += add(self._ask(study, plan))
+                left, room = left - 1, room - n
+            return jobs
+
+        for trial in batch:
+            add(trial)
+        first = list(order)
+        extras = [(first_job + len(order) + i, list(job)) for i, job in enumerate(extra)]
+        order.extend(extras)
+        returns = self.launcher.launch_fed(first + extras, more)
+        for number in {trial_of[idx] for idx in trial_of} - told:  # a job that never trained (its checks failed)
+            self._tell(study, number, plan, self._values[number],
+                       [_run_dir(returns[idx]) for idx in sorted(i for i in trial_of if trial_of[i] == number)])
+        indices = [idx for idx, _ in order if idx in returns]
+        extra_part = [returns[idx] for idx, _ in extras]
+        return [returns[idx] for idx in indices if idx not in {i for i, _ in extras}] + extra_part, \
+            len({trial_of[idx] for idx in trial_of})
 
     def _ran_with(self, plan: Plan) -> tuple[str | None, Path | None]:
         """The tuned file the trials compose and the study's file replaces: its name (the

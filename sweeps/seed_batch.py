@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
 from hydra.types import HydraContext, TaskFunction
@@ -25,12 +25,15 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
 from params.private_api import apply_value_overrides, overrides_dirname
-from runs.lifecycle import Job, run_jobs, same_batch
+from runs.lifecycle import Job, batch_key, run_jobs, same_batch
 
 log = logging.getLogger(__name__)
 # The key a batch's job is run with in its ``hydra.job.env_set`` (the job's own config, which
 # every launcher's schema leaves open): it hands its checked Job back instead of training.
 COLLECT = "RL_SEED_BATCH_JOB"
+# ``launch_fed``'s source of jobs: (the jobs that ended: index and folder, members free
+# beyond those waiting) -> the next jobs (index, overrides).
+Feed = Callable[[Sequence[tuple[int, Path]], int], Sequence[tuple[int, Sequence[str]]]]
 
 
 def _key(override: str) -> str:
@@ -92,6 +95,68 @@ class SeedBatchLaunch:
         for chunk in chunks:
             returns.update(self.run_chunk(chunk))
         return [returns[initial_job_idx + i] for i in range(len(job_overrides))]
+
+    def launch_fed(self, jobs: Sequence[tuple[int, Sequence[str]]], more: Feed) -> dict[int, JobReturn]:
+        """Launches ``jobs`` (job index, overrides) as :meth:`launch` does, each batch's freed
+        members given the jobs ``more(ended, room)`` hands in (:func:`runs.lifecycle.run_jobs`):
+        ``ended`` the jobs that ended at a step (index, folder), ``room`` the members free
+        beyond the jobs already waiting. A job handed in that does not fit the running batch
+        (another shape) waits for a batch of its own after it. Returns every job's return by
+        index."""
+        setup_globals()
+        configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
+        Path(str(self.config.hydra.sweep.dir)).mkdir(parents=True, exist_ok=True)
+        waiting = [(idx, list(overrides)) for idx, overrides in jobs]
+        returns: dict[int, JobReturn] = {}
+        while waiting:
+            keys = self._keys(waiting)
+            batch = [job for job in waiting if keys[job[0]] == keys[waiting[0][0]]][:self.max_seeds]
+            waiting[:] = [job for job in waiting if job not in batch]
+            returns.update(self._fed_batch(batch, keys[batch[0][0]], waiting, more))
+        return returns
+
+    def _keys(self, jobs: Sequence[tuple[int, list[str]]]) -> dict[int, str]:
+        """Each job's batch key by index (:func:`runs.lifecycle.batch_key`: jobs of one key
+        may share a batch), its config composed once and kept for its run."""
+        new = [(idx, overrides) for idx, overrides in jobs if idx not in self.composed]
+        if new:
+            composed = compose_jobs(self.hydra_context.config_loader, self.config, [o for _, o in new])
+            self.composed.update({idx: cfg for (idx, _), cfg in zip(new, composed)})
+        return {idx: repr(batch_key(_without_hydra(self.composed[idx]))) for idx, _ in jobs}
+
+    def _fed_batch(self, chunk: list[tuple[int, list[str]]], key: str, waiting: list, more: Feed
+                   ) -> dict[int, JobReturn]:
+        """One batch of ``chunk`` trained with its freed members fed (:meth:`launch_fed`);
+        jobs handed in go to ``waiting`` first, and those of this batch's ``key`` take freed
+        members in order."""
+        returns = {idx: self._run(idx, overrides, collect=True) for idx, overrides in chunk}
+        index = {id(ret.return_value): idx for idx, ret in returns.items() if isinstance(_value(ret), Job)}
+        jobs = [ret.return_value for ret in returns.values() if isinstance(_value(ret), Job)]
+
+        def feed(ended: Sequence[Job], free: int) -> list[Job]:
+            handed = more([(index[id(job)], job.run_dir) for job in ended], free - len(waiting))
+            waiting.extend((idx, list(overrides)) for idx, overrides in handed)
+            given, keys = [], self._keys(waiting)
+            for idx, overrides in list(waiting):
+                if len(given) == free:
+                    break
+                if keys[idx] != key:
+                    continue  # another shape: a batch of its own later
+                waiting.remove((idx, overrides))
+                returns[idx] = ret = self._run(idx, overrides, collect=True)
+                if isinstance(_value(ret), Job):  # (a job that failed its checks has its return)
+                    index[id(ret.return_value)] = idx
+                    given.append(ret.return_value)
+            return given
+
+        if jobs:
+            log.info(f"Training {len(jobs)} runs together, freed members taking the next ones: " + ", ".join(
+                f"trial {j.cfg.get('trial')} seed {j.cfg.seed}" for j in jobs))
+        summaries = _batch(jobs, feed) if jobs else []
+        stopped = [s for s in summaries if s.get("interrupted")]
+        if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)
+            raise SystemExit(128 + int(stopped[0].get("signal", 2)))
+        return returns
 
     def run_chunk(self, chunk: list[tuple[int, list[str]]]) -> dict[int, JobReturn]:
         """One batch's jobs (job index, overrides): trained together, or alone if one."""
@@ -202,10 +267,11 @@ def _value(ret: JobReturn):
         return None
 
 
-def _batch(jobs: list[Job]) -> list[dict]:
-    """Trains ``jobs`` as one batch; a refusal is one line, kept in each job's ``error.txt``."""
+def _batch(jobs: list[Job], more=None) -> list[dict]:
+    """Trains ``jobs`` as one batch (``more``: the source of jobs for its freed members); a
+    refusal is one line, kept in each job's ``error.txt``."""
     try:
-        return run_jobs(jobs)
+        return run_jobs(jobs, more=more)
     except ConfigError as err:
         message = f"error: {err}"
         print(message, file=sys.stderr)

@@ -129,7 +129,7 @@ def check_sweeper_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
             raise refuse(name, f"an integer >= {low} and <= {high:.0e}" if high >= 10**6 else
                          f"an integer >= {low} and <= {high}")
         out[name] = int(settings[name])
-    for name in ("write_tuned", "start_from_current", "value_defaults"):
+    for name in ("write_tuned", "start_from_current", "value_defaults", "refill"):
         if not isinstance(settings[name], bool):
             raise refuse(name, "true or false")
     for name in ("study", "storage"):

@@ -37,10 +37,10 @@ BUDGETS = {
 }
 
 
-def jobs(learner: str, root: Path, prefix: str, extra=()) -> list[Job]:
+def jobs(learner: str, root: Path, prefix: str, extra=(), seeds=SEEDS) -> list[Job]:
     choices = {"robot": "cartpole", "task": "stay_up", "learner": learner, "tuned": f"cartpole_{learner}"}
     found = []
-    for seed in SEEDS:
+    for seed in seeds:
         cfg = compose("cartpole", learner=learner, overrides=[f"seed={seed}", "quiet=true",
                                                                *BUDGETS[learner], *extra])
         check_run_config(cfg)
@@ -114,6 +114,54 @@ def same_run_files(together: Path, alone: Path) -> None:
                                              if not k.endswith(CLOCK_SCALARS)}
         assert tensors_equal({k: v for k, v in a.items() if k not in keys},
                              {k: v for k, v in b.items() if k not in keys}), (together.name, name)
+
+
+@pytest.mark.parametrize("learner, settings", [
+    ("qlearn", ["learner.alpha=0.3", "learner.number_splits=6", "eval_every=7"]),
+    ("dqn", ["learner.lr=0.003", "learner.batch_size=16", "learner.buffer_size=600"]),
+])
+def test_freed_members_train_the_next_jobs_each_as_its_run_alone(tmp_path, learner, settings):
+    """A batch of two members handed three more jobs as its members free (another trial's
+    two seeds, then a third seed of the first trial): every run is its run alone, file for
+    file, and the source of jobs hears which ended."""
+    short = ["max_env_steps=1200"] if learner == "dqn" else []
+    queue = [*jobs(learner, tmp_path, "batch_b", [*short, *settings]), *jobs(learner, tmp_path, "batch_a", short, (7,))]
+    calls = []
+
+    def more(ended, free):
+        calls.append(([job.run_dir.name for job in ended], free))
+        given = queue[:free]
+        del queue[:free]
+        return given
+
+    summaries = run_jobs(jobs(learner, tmp_path, "batch_a", short), more=more)
+    assert not queue and len(summaries) == 5 and not any("failed" in s for s in summaries)
+    ended = [name for names, _ in calls for name in names]
+    assert sorted(ended) == sorted(f"batch_{t}{s}" for t, s in (("a", 4), ("a", 9), ("b", 4), ("b", 9), ("a", 7)))
+    for extra, seeds, trial in ((short, (*SEEDS, 7), "a"), ([*short, *settings], SEEDS, "b")):
+        for job in jobs(learner, tmp_path, f"alone_{trial}", extra, seeds):
+            job.run_dir.mkdir()
+            execute(job.cfg, job.run_dir, choices=job.choices)
+        for seed in seeds:
+            same_run_files(tmp_path / f"batch_{trial}{seed}", tmp_path / f"alone_{trial}{seed}")
+
+
+def test_a_job_that_does_not_fit_the_batch_is_refused_in_its_folder(tmp_path):
+    """A job handed in for a freed member that differs in a setting members may not (its
+    tabular quirk) ends at once with one line in its error.txt; the next job takes the member."""
+    unfit = jobs("qlearn", tmp_path, "unfit", ["learner.noise_exploration=true"], (5,))
+    queue = [*unfit, *jobs("qlearn", tmp_path, "next", (), (6,))]
+
+    def more(ended, free):
+        given = queue[:1]
+        del queue[:1]
+        return given
+
+    summaries = run_jobs(jobs("qlearn", tmp_path, "batch"), more=more)
+    error = (tmp_path / "unfit5" / "error.txt").read_text()
+    assert "cannot take a freed member" in error and "\n" not in error.strip()
+    assert [("failed" in s) for s in summaries] == [False, False, True, False]
+    assert json.loads((tmp_path / "next6" / "summary.json").read_text())["episodes"] > 0
 
 
 @pytest.mark.parametrize("learner, settings", [

@@ -150,6 +150,29 @@ def test_trials_that_differ_in_member_wise_settings_train_as_one_batch(tmp_path)
     assert trials[0].params != trials[1].params
 
 
+def test_with_refill_freed_members_take_the_studys_next_trials_in_the_same_batch(tmp_path):
+    """refill=true: a study of 5 trials, 2 at a time, trains in one batch of 4 members; as a
+    trial's jobs end, the next trial is asked and takes its members; every trial is told."""
+    space = tmp_path / "space.yaml"
+    space.write_text("learner.alpha: interval(0.05, 0.5)\nlearner.gamma: interval(0.9, 0.999)\n")
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    proc = cli("-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=qlearn", "num_envs=2", "eval_episodes=2",
+               "hydra.sweeper.n_trials=5", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[0,1]",
+               "hydra.sweeper.budget_steps=1000", "hydra.sweeper.report_every=250", "hydra.sweeper.pruner=null",
+               "hydra.sweeper.refill=true", "hydra.sweeper.startup_trials=2", "hydra.sweeper.sampler_seed=0",
+               f"hydra.sweeper.search={space}", f"hydra.sweeper.storage={url}", f"hydra.sweep.dir={tmp_path / 'sweep'}")
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-3000:]
+    assert out.count("Training 4 runs together, freed members taking the next ones") == 1, out[-3000:]
+    study = optuna.load_study(study_name="cartpole-stay_up-qlearn", storage=url)
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 5
+    assert len({tuple(sorted(t.params.items())) for t in study.trials}) == 5
+    for trial in study.trials:
+        assert f"trial {trial.number}: success_and_speed" in out
+    folders = [p for p in (tmp_path / "sweep").iterdir() if (p / "summary.json").is_file()]
+    assert len(folders) == 10
+
+
 @pytest.mark.parametrize("per_batch, startup, sizes", [
     (12, 5, [5, 7]),  # the random trials together, then the rest asked from what they found
     (4, 5, [4, 1, 4, 3]),  # never a guided trial asked before the fifth random one finished

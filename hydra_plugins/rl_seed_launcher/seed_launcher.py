@@ -40,6 +40,12 @@ class SeedBatchLauncher(Launcher):
         assert self.launch_impl is not None, "setup() first"
         return self.launch_impl.launch(job_overrides, initial_job_idx)
 
+    def launch_fed(self, jobs: Sequence[Any], more: Any) -> dict:
+        """Jobs (index, overrides) launched with each batch's freed members given the jobs
+        ``more`` hands in (:meth:`sweeps.seed_batch.SeedBatchLaunch.launch_fed`)."""
+        assert self.launch_impl is not None, "setup() first"
+        return self.launch_impl.launch_fed(jobs, more)
+
 
 class _SubmititBatches:
     """Hydra's submitit launcher with one submitit job per batch of seeds, not per seed
