@@ -9,8 +9,9 @@ successive halving, ``startup_trials``, ``value_defaults``, sampler seed 0) from
 journal twice, one after the other, the order alternating over the repeats: as the grid
 runs it (rounds: a round waits for its slowest trial) and with ``hydra.sweeper.refill=true``
 (a trial's freed members take the study's next trial at once). ``--per-batch`` and
-``--trials`` replace the plan's trials a batch and a study. Each study's journal, console
-and sweep folder go under ``--out``. Prints a line per study and, per pair, ``REFILL
+``--trials`` replace the plan's trials a batch and a study. Each study's journal goes under
+``--out`` with a row of ``studies.csv``; its console and job folders under
+``tuning/bench/refill/``. Prints a line per study and, per pair, ``REFILL
 <pair> rounds_s=<v> refill_s=<v> ratio=<refill/rounds> rounds_best=<v> refill_best=<v>``
 (wall seconds start to exit; best: the study's best trial's value on the tuning seeds).
 """
@@ -18,6 +19,7 @@ and sweep folder go under ``--out``. Prints a line per study and, per pair, ``RE
 from __future__ import annotations
 
 import argparse
+import csv
 import statistics
 import sys
 import time
@@ -26,7 +28,7 @@ from pathlib import Path
 from bench import child
 from bench.benchmark import load_plan
 from bench.seed_batch import load
-from bench.tune_grid import ROOT, command, journal_study
+from bench.tune_grid import ROOT, SWEEPS, command, cpu, journal_study
 
 
 def study(pair: str, plan: dict, refill: bool, out: Path, per_batch: int | None, trials: int | None
@@ -38,17 +40,19 @@ def study(pair: str, plan: dict, refill: bool, out: Path, per_batch: int | None,
     task, learner = pair.split("_", 1)
     tuning = dict(plan["tuning"], **({"trials": per_batch} if per_batch else {}))
     mode = "refill" if refill else "rounds"
-    folder = out / f"{pair}_{mode}_{time.strftime('%Y%m%d-%H%M%S')}"
+    name = f"{pair}_{mode}_{time.strftime('%Y%m%d-%H%M%S')}"
+    folder, sweep = out / name, ROOT / SWEEPS / "refill" / name / "sweep"  # the journal kept; the jobs' not
     folder.mkdir(parents=True)
+    sweep.parent.mkdir(parents=True)
     cmd = command(task, plan["tasks"][task], learner, tuning, trials or int(plan["tuning"]["trials"]),
-                  folder / "sweep", studies=folder, write=False)
+                  sweep, studies=folder, write=False)
     cmd += ["hydra.sweeper.refill=true"] if refill else []
     start = time.perf_counter()
-    with open(folder / "console.log", "w") as console:
+    with open(sweep.parent / "console.log", "w") as console:
         code = child.call(cmd, ROOT, stdout=console)
     seconds = time.perf_counter() - start
     if code:
-        raise SystemExit(f"{pair} ({mode}) exited {code}: see {folder / 'console.log'}")
+        raise SystemExit(f"{pair} ({mode}) exited {code}: see {sweep.parent / 'console.log'}")
     found = journal_study(f"bench-{task}-{learner}", folder / f"{pair}.log")
     states = [t.state for t in found.trials]
     counts = ", ".join(f"{sum(s == k for s in states)} {k.name.lower()}"
@@ -56,6 +60,17 @@ def study(pair: str, plan: dict, refill: bool, out: Path, per_batch: int | None,
                                  optuna.trial.TrialState.FAIL))
     best = found.best_value if any(s == optuna.trial.TrialState.COMPLETE for s in states) else None
     return seconds, best, counts
+
+
+def record(path: Path, row: list) -> None:
+    """Appends ``row`` to the CSV file ``path`` (its header first where it is new)."""
+    new = not path.is_file()
+    with open(path, "a", newline="") as f:
+        writer = csv.writer(f)
+        if new:
+            writer.writerow(["ended", "pair", "mode", "per_batch", "trials", "seconds", "best", "trials_states",
+                             "cpu", "load"])
+        writer.writerow(row)
 
 
 def main() -> None:
@@ -75,8 +90,11 @@ def main() -> None:
                 s, best, counts = study(pair, plan, refill, ROOT / args.out, args.per_batch, args.trials)
                 seconds[refill].append(s)
                 bests[refill].append(best)
-                print(f"{pair} {'refill' if refill else 'rounds'}: {s:.1f} s, best {best}, {counts} "
-                      f"(load {load()})", flush=True)
+                mode = "refill" if refill else "rounds"
+                print(f"{pair} {mode}: {s:.1f} s, best {best}, {counts} (load {load()})", flush=True)
+                record(ROOT / args.out / "studies.csv", [time.strftime("%Y-%m-%dT%H:%M:%S"), pair, mode,
+                                                         args.per_batch or "", args.trials or "", f"{s:.1f}",
+                                                         best, counts, cpu(), load()])
         rounds, refilled = statistics.fmean(seconds[False]), statistics.fmean(seconds[True])
         print(f"REFILL {pair} rounds_s={rounds:.1f} refill_s={refilled:.1f} ratio={refilled / rounds:.2f} "
               f"rounds_best={bests[False]} refill_best={bests[True]}", flush=True)

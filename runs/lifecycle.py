@@ -526,18 +526,30 @@ class _Refill:
                 continue
             if not added:
                 td = td.clone()  # its tensors are the step's own, which the runs have booked
-            generator = _seeded(slot)
-            self.learner.renew(b, generator, instantiate(job.cfg.learner, _convert_="all")
-                               if _own_settings(job.cfg, self.cfg) else None)
-            observation = self.env.renew_block(b, slot.seed)
-            _session(slot, self.learner.member(b), self.env.seed_block(b))
-            rows = self.env.block(b)
-            _begin(slot, _first(observation))
-            first = slot.run.start(slot.env)
-            for key, value in td.items():
-                value[rows] = first.get(key) if key in first.keys() else 0
+            try:
+                self._start(slot, td)
+            except Exception:  # noqa: BLE001 - the job fails alone; its member stays free, its copies held
+                with slot.active():
+                    slot._failed(traceback.format_exc())
+                slot.summary = {"failed": slot.failed.strip().splitlines()[-1]}
+                self.env.physics.hold(self.env.block_mask(b))
+                continue
             added.append(slot)
         return td, added
+
+    def _start(self, slot: _Slot, td: TensorDictBase) -> None:
+        """The slot's member and seed block made anew for its job, its run started, and its
+        block of ``td`` (the next step's input) its first step's."""
+        b, job = slot.index, slot.job
+        generator = _seeded(slot)
+        self.learner.renew(b, generator, instantiate(job.cfg.learner, _convert_="all")
+                           if _own_settings(job.cfg, self.cfg) else None)
+        observation = self.env.renew_block(b, slot.seed)
+        _session(slot, self.learner.member(b), self.env.seed_block(b))
+        _begin(slot, _first(observation))
+        first, rows = slot.run.start(slot.env), self.env.block(b)
+        for key, value in td.items():
+            value[rows] = first.get(key) if key in first.keys() else 0
 
     def _refused(self, job: Job) -> str | None:
         """Why ``job`` cannot train in this batch (None: it can)."""

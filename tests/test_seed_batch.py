@@ -164,6 +164,30 @@ def test_a_job_that_does_not_fit_the_batch_is_refused_in_its_folder(tmp_path):
     assert json.loads((tmp_path / "next6" / "summary.json").read_text())["episodes"] > 0
 
 
+def test_a_job_that_fails_to_start_in_a_freed_member_fails_alone(tmp_path, monkeypatch):
+    """A job whose start in a freed member raises (here its member's renewal) ends with its
+    trace in its error.txt; the batch goes on and the next job takes the member."""
+    real = QLearn.renew
+
+    def renew(self, b, generator, variant=None):
+        if generator.initial_seed() == 5:
+            raise RuntimeError("no member for seed 5")
+        return real(self, b, generator, variant)
+
+    monkeypatch.setattr(QLearn, "renew", renew)
+    queue = [*jobs("qlearn", tmp_path, "bad", (), (5,)), *jobs("qlearn", tmp_path, "next", (), (6,))]
+
+    def more(ended, free):
+        given = queue[:1]
+        del queue[:1]
+        return given
+
+    summaries = run_jobs(jobs("qlearn", tmp_path, "batch"), more=more)
+    assert "RuntimeError: no member for seed 5" in (tmp_path / "bad5" / "error.txt").read_text()
+    assert [("failed" in s) for s in summaries] == [False, False, True, False]
+    assert json.loads((tmp_path / "next6" / "summary.json").read_text())["episodes"] > 0
+
+
 @pytest.mark.parametrize("learner, settings", [
     ("qlearn", ["learner.alpha=0.3", "learner.gamma=0.9", "learner.epsilon_discount=0.99"]),
     ("dqn", ["learner.lr=0.003", "learner.tau=0.05", "learner.updates=3"]),

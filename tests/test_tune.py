@@ -553,6 +553,7 @@ def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(projec
 @pytest.mark.parametrize("args, words", [
     (["seed=0,1"], "the study picks the values"),
     (["hydra.sweeper.storage=postgresql://nobody@127.0.0.1:1/none"], "cannot be opened"),
+    (["hydra/launcher=basic", "hydra.sweeper.refill=true"], "refill=true trains a study's trials as members"),
 ])
 def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     storage = [] if any("storage" in a for a in args) else [f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}"]
@@ -574,6 +575,7 @@ def test_bad_tuning_input_is_one_line(tmp_path, args, words):
     ({"write_tuned": "maybe"}, [], "hydra.sweeper.write_tuned must be true or false; got 'maybe'"),
     ({"write_tuned": 1}, [], "hydra.sweeper.write_tuned must be true or false; got 1"),
     ({"start_from_current": "yes"}, [], "hydra.sweeper.start_from_current must be true or false"),
+    ({"refill": "yes"}, [], "hydra.sweeper.refill must be true or false; got 'yes'"),
     ({"seeds": [1, 1]}, [], "hydra.sweeper.seeds must be distinct seeds"),
     ({"seeds": [-1]}, [], "hydra.sweeper.seeds must be distinct seeds, at least one, each an integer"),
     ({"sampler_seed": 2**40}, [], "hydra.sweeper.sampler_seed must be null or an integer"),
