@@ -443,23 +443,30 @@ def _tensor_bytes(state) -> int:
     return 0
 
 
+def member_bytes(env: RobotTaskEnv, cfg: DictConfig, sizes: dict[str, int]) -> int:
+    """The bytes of a member's training state's tensors with ``cfg``'s learner on ``env``'s
+    task, measured on a learner of one for each value of the settings that size it (the
+    class's ``SIZING``: members may differ in their replay buffer's size or their table's
+    bins), kept in ``sizes`` by that value."""
+    sizing = getattr(get_class(str(cfg.learner._target_)), "SIZING", ())
+    size = repr([OmegaConf.to_container(cfg.learner, resolve=True).get(k) for k in sizing])
+    if size not in sizes:
+        one = instantiate(cfg.learner, _convert_="all")
+        one.build(env.task, [torch.Generator()])
+        sizes[size] = _tensor_bytes(one.training_state(0))
+    return sizes[size]
+
+
 def _check_memory(env: RobotTaskEnv, cfgs: Sequence[DictConfig]) -> None:
     """One line, before any training, when the members of ``cfgs`` (each member's training
     state's tensors, measured on a learner of one for each value of the settings that size
     it, the class's ``SIZING``: members may differ in their replay buffer's size or their
     table's bins) and ``env``'s physics buffers would take most of the free memory."""
-    sizing = getattr(get_class(str(cfgs[0].learner._target_)), "SIZING", ())
-    sizes = [repr([OmegaConf.to_container(cfg.learner, resolve=True).get(k) for k in sizing]) for cfg in cfgs]
-    per_member = {}
-    for size, cfg in {size: cfg for size, cfg in zip(sizes, cfgs)}.items():
-        one = instantiate(cfg.learner, _convert_="all")
-        one.build(env.task, [torch.Generator()])
-        per_member[size] = _tensor_bytes(one.training_state(0))
-        del one
+    sizes: dict[str, int] = {}
     seeds = len(cfgs)
     physics = env.physics
     per_step = physics.nstate + physics.model.nsensordata + physics.model.nu
-    need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + sum(per_member[size] for size in sizes)
+    need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + sum(member_bytes(env, cfg, sizes) for cfg in cfgs)
     free = available_bytes()
     if free is not None and need > 0.8 * free:
         raise ConfigError(f"a batch of {seeds} seeds x {copies(env.block_size)} needs about {need / 2**30:.3g} "
@@ -504,6 +511,7 @@ class _Refill:
         self.more, self.learner, self.env, self.slots, self.stack = more, learner, env, slots, stack
         self.cfg = slots[0].job.cfg
         self.stopped: dict = {"signal": None}
+        self.sizes: dict[str, int] = {}  # a member's bytes by the settings that size it (member_bytes)
 
     def __call__(self, td: TensorDictBase, ended: list[_Slot], live: list[_Slot]) -> tuple[TensorDictBase, list]:
         """The next step's input with the new jobs' first observations in their blocks, and
@@ -560,6 +568,11 @@ class _Refill:
                     "the learner's member-wise settings: it cannot take a freed member")
         if any(repr(_own(slot.job.cfg)) == repr(_own(job.cfg)) for slot in self.slots if slot.job is not job):
             return f"seed {job.cfg.seed} of these settings is trained already in this batch"
+        need, free = member_bytes(self.env, job.cfg, self.sizes), available_bytes()
+        if free is not None and need > 0.8 * free:
+            return (f"job {job.run_dir.name}'s member needs about {need / 2**30:.3g} GiB, more than 80% of the "
+                    f"{free / 2**30:.3g} GiB free: a smaller replay buffer or table (learner.buffer_size, "
+                    "learner.number_splits), or fewer trials a batch")
         return None
 
 

@@ -164,6 +164,29 @@ def test_a_job_that_does_not_fit_the_batch_is_refused_in_its_folder(tmp_path):
     assert json.loads((tmp_path / "next6" / "summary.json").read_text())["episodes"] > 0
 
 
+def test_a_job_whose_member_would_not_fit_the_free_memory_is_refused_in_its_folder(tmp_path, monkeypatch):
+    """A job handed in for a freed member whose training state would take most of the memory
+    then free ends at once with one line naming what to shrink; the batch goes on."""
+    reads = []
+
+    def available():  # unknown while the batch is built (its own check passes), then 1 MiB free
+        reads.append(1)
+        return None if len(reads) == 1 else 2**20
+
+    monkeypatch.setattr(batch_module, "available_bytes", available)
+    queue = jobs("dqn", tmp_path, "big", ["learner.buffer_size=1000000", "max_env_steps=1200"], (5,))
+
+    def more(ended, free):
+        given = queue[:1]
+        del queue[:1]
+        return given
+
+    summaries = run_jobs(jobs("dqn", tmp_path, "batch", ["max_env_steps=1200"]), more=more)
+    error = (tmp_path / "big5" / "error.txt").read_text().strip()
+    assert "member needs about" in error and "learner.buffer_size" in error and "\n" not in error
+    assert [("failed" in s) for s in summaries] == [False, False, True]
+
+
 def test_a_job_that_fails_to_start_in_a_freed_member_fails_alone(tmp_path, monkeypatch):
     """A job whose start in a freed member raises (here its member's renewal) ends with its
     trace in its error.txt; the batch goes on and the next job takes the member."""
