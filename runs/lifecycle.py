@@ -518,9 +518,16 @@ class _Refill:
         the new jobs' slots (to train from this step on)."""
         busy = {slot.index for slot in live}
         free = [b for b in range(self.learner.members) if b not in busy]
-        jobs = list(self.more([slot.job for slot in ended], len(free))) if self.stopped["signal"] is None else []
+        if self.stopped["signal"] is not None:
+            return td, []
+        jobs = list(self.more([slot.job for slot in ended], len(free)))
         if len(jobs) > len(free):
             raise ValueError(f"{len(jobs)} jobs for {len(free)} free members")
+        if self.stopped["signal"] is not None:  # asked to stop while they were made: none starts
+            for job, b in zip(jobs, free):
+                slot = _Slot(job, b, summary={"interrupted": True, "signal": self.stopped["signal"]})
+                self.slots.append(slot)
+            return td, []
         added = []
         for job, b in zip(jobs, free):
             slot = _Slot(job, b)

@@ -9,6 +9,7 @@ import json
 import os
 import shutil
 import shlex
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -185,6 +186,24 @@ def test_a_job_whose_member_would_not_fit_the_free_memory_is_refused_in_its_fold
     error = (tmp_path / "big5" / "error.txt").read_text().strip()
     assert "member needs about" in error and "learner.buffer_size" in error and "\n" not in error
     assert [("failed" in s) for s in summaries] == [False, False, True]
+
+
+def test_a_ctrl_c_while_the_next_jobs_are_made_starts_none_of_them(tmp_path):
+    """Ctrl-C arriving while the source of jobs makes the next ones: the runs still training
+    stop with their checkpoint, and the jobs just made are handed back as stopped, untrained
+    (so a sweep stops too, and its next run takes their trials over)."""
+    queue = jobs("qlearn", tmp_path, "next", (), (5,))
+
+    def more(ended, free):
+        os.kill(os.getpid(), signal.SIGINT)  # as a Ctrl-C in the middle of making them
+        given = queue[:free]
+        del queue[:free]
+        return given
+
+    summaries = run_jobs(jobs("qlearn", tmp_path, "batch"), more=more)
+    assert len(summaries) == 3 and summaries[-1] == {"interrupted": True, "signal": signal.SIGINT}
+    assert sum(bool(s.get("interrupted")) for s in summaries[:2]) == 1  # the one still training
+    assert not (tmp_path / "next5" / "summary.json").exists()
 
 
 def test_a_job_that_fails_to_start_in_a_freed_member_fails_alone(tmp_path, monkeypatch):
