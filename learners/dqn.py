@@ -446,6 +446,13 @@ class UpdateStats:
         return stats
 
 
+def _one_target_kind(settings: Sequence[DQN]) -> None:
+    """One line unless the members of ``settings`` all have a target network or none."""
+    require(len({bool(v.target_update or v.tau) for v in settings}) == 1,
+            "learner.tau and learner.target_update: members of one batch must all have a target network or none",
+            [(v.tau, v.target_update) for v in settings])
+
+
 @dataclass(eq=False)
 class DQN:
     """A configurable DQN over a member axis (see the module docstring)."""
@@ -582,9 +589,7 @@ class DQN:
         self.generators = single(generators)
         self.members = m = len(self.generators)
         self.settings = own = member_settings(self, variants, m)
-        targets = {bool(v.target_update or v.tau) for v in own}
-        require(len(targets) == 1, "learner.tau and learner.target_update: members of one batch must all "
-                "have a target network or none", [(v.tau, v.target_update) for v in own])
+        _one_target_kind(own)
         self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
         with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
             template = self._template(task)
@@ -613,18 +618,25 @@ class DQN:
         self.owed = [0] * m  # whole updates owed, run by settle
         self.schedules = [v.epsilon if b == 0 else copy.deepcopy(v.epsilon) for b, v in enumerate(own)]  # each its own
         self.trackers = [UpdateStats() for _ in range(m)]
-        width = self._row_width()
-        self.buffers = [RowReplayBuffer(v.buffer_size, width, v.batch_size, self.device) for v in own]
-        if self.prioritized:
-            for buffer, v in zip(self.buffers, own):
-                buffer.priorities = Priorities(v.buffer_size, v.priority_alpha, v.priority_eps, self.device)
-        sizes = [v.batch_size for v in own]  # a round's minibatches, per size: as many rows as members of it
-        self._minibatch = {size: torch.empty(sizes.count(size), size, width, device=self.device) for size in sizes}
+        self.buffers = [self._buffer(v) for v in own]
+        self._minibatch = self._minibatches()
         self.nsteps: list[NStep] = []  # each member's queues, made at its first step (copies known then)
 
     def _row_width(self) -> int:
         """A replay buffer row's numbers (:func:`pack`); n-step rows carry their steps."""
         return 2 * self.n_obs + 3 + (self.n_step > 1)
+
+    def _buffer(self, own: DQN) -> RowReplayBuffer:
+        """An empty replay buffer of a member with settings ``own`` (its priorities too)."""
+        buffer = RowReplayBuffer(own.buffer_size, self._row_width(), own.batch_size, self.device)
+        if self.prioritized:
+            buffer.priorities = Priorities(own.buffer_size, own.priority_alpha, own.priority_eps, self.device)
+        return buffer
+
+    def _minibatches(self) -> dict[int, torch.Tensor]:
+        """A round's minibatches, per minibatch size among the members: as many as members of it."""
+        sizes = [v.batch_size for v in self.settings]
+        return {size: torch.empty(sizes.count(size), size, self._row_width(), device=self.device) for size in sizes}
 
     @torch.no_grad()
     def renew(self, b: int, generator: torch.Generator, variant: DQN | None = None) -> None:
@@ -632,9 +644,7 @@ class DQN:
         settings), as :meth:`build` makes a member: a batch's freed member given another trial
         x seed. The other members are left as they are."""
         own = self if variant is None else member_settings(self, [variant], 1)[0]
-        require(bool(own.target_update or own.tau) == self.has_target,
-                "learner.tau and learner.target_update: members of one batch must all have a target "
-                "network or none", (own.tau, own.target_update))
+        _one_target_kind([self.settings[0], own])
         self.generators[b], self.settings[b] = generator, own
         self.params[b] = self._initial(generator)
         if self.has_target:
@@ -644,14 +654,8 @@ class DQN:
         self.steps[b], self.credit[b], self.owed[b] = 0, 0.0, 0
         self.schedules[b] = dataclasses.replace(own.epsilon)  # at its start, whatever own's has done
         self.trackers[b] = UpdateStats()
-        width = self._row_width()
-        self.buffers[b] = RowReplayBuffer(own.buffer_size, width, own.batch_size, self.device)
-        if self.prioritized:
-            self.buffers[b].priorities = Priorities(own.buffer_size, own.priority_alpha, own.priority_eps, self.device)
-        sizes = [v.batch_size for v in self.settings]
-        for size in set(sizes):
-            if size not in self._minibatch or len(self._minibatch[size]) < sizes.count(size):
-                self._minibatch[size] = torch.empty(sizes.count(size), size, width, device=self.device)
+        self.buffers[b] = self._buffer(own)
+        self._minibatch = self._minibatches()
         if self.nsteps:
             copies = len(self.nsteps[b].count)
             self.nsteps[b] = NStep(self.n_step, copies, self.n_obs, own.gamma)

@@ -353,8 +353,7 @@ def run_jobs(jobs: Sequence[Job], solo: bool = False, more: More | None = None) 
         if jobs[0].cfg.mode == "eval":
             _evaluate(slots[0])
         else:
-            refill = None if more is None or solo else _Refill(more, learner, env, slots, stack)
-            _train(learner, slots, env, finals, refill)
+            _train(learner, slots, env, finals, None if solo else more, stack)
     return [slot.summary for slot in slots]
 
 
@@ -507,10 +506,11 @@ class _Refill:
     alone from its first step. A job that does not fit the batch ends at once, its
     ``error.txt`` saying why; none is taken after a stop was asked."""
 
-    def __init__(self, more: More, learner, env: RobotTaskEnv, slots: list[_Slot], stack: ExitStack) -> None:
+    def __init__(self, more: More, learner, env: RobotTaskEnv, slots: list[_Slot], stack: ExitStack,
+                 stopped: dict, runs: list[Run]) -> None:
         self.more, self.learner, self.env, self.slots, self.stack = more, learner, env, slots, stack
         self.cfg = slots[0].job.cfg
-        self.stopped: dict = {"signal": None}
+        self.stopped, self.runs = stopped, runs  # stop_on_signals' signal, and the runs it stops
         self.sizes: dict[str, int] = {}  # a member's bytes by the settings that size it (member_bytes)
 
     def __call__(self, td: TensorDictBase, ended: list[_Slot], live: list[_Slot]) -> tuple[TensorDictBase, list]:
@@ -550,6 +550,7 @@ class _Refill:
                 self.env.physics.hold(self.env.block_mask(b))
                 continue
             added.append(slot)
+            self.runs.append(slot.run)
         return td, added
 
     def _start(self, slot: _Slot, td: TensorDictBase) -> None:
@@ -637,23 +638,17 @@ def _evaluate(slot: _Slot) -> None:
 
 
 def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluations,
-           refill: _Refill | None = None) -> None:
+           more: More | None = None, stack: ExitStack | None = None) -> None:
     """Steps every seed's copies together until each run is done (:func:`runs.loop.train`);
     a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
-    done; ``refill`` gives freed members new jobs. A single run stopped by an exception still
-    saves its model and closes its files."""
+    done; ``more`` hands freed members new jobs (:class:`_Refill`, their consoles kept open
+    in ``stack``). A single run stopped by an exception still saves its model and closes its
+    files."""
     runs = [slot.run for slot in slots]
     with stop_on_signals(runs) as stopped:
-        if refill is not None:
-            refill.stopped = stopped
-
-            def grow(td, ended, live):
-                td, added = refill(td, ended, live)
-                runs.extend(slot.run for slot in added)
-                return td, added
+        refill = None if more is None else _Refill(more, learner, env, slots, stack, stopped, runs)
         try:
-            train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals),
-                  None if refill is None else grow)
+            train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals), refill)
         except BaseException:
             for slot in slots:
                 if slot.solo and not slot.closed:

@@ -14,6 +14,7 @@ the budget's end, and valued a hand pick that solves quickly as a failure."""
 
 from __future__ import annotations
 
+import itertools
 import statistics
 import warnings
 from pathlib import Path
@@ -241,9 +242,8 @@ class TuningSweep:
         the same launch: side by side where they fit one batch), and tells the study the
         trials' values; every job's return, the trials' first."""
         assert self.launcher is not None
-        values = [{k: p.value(t.params[k]) for k, p in plan.params.items()} for t in batch]
-        jobs = [[*plan.fixed, *(f"{k}={override_value(v)}" for k, v in vals.items()), f"seed={seed}",
-                 f"trial={t.number}"] for t, vals in zip(batch, values) for seed in self.seeds]
+        values = [self._values(t, plan) for t in batch]
+        jobs = [job for t, vals in zip(batch, values) for job in self._jobs(t, vals, plan)]
         returns = self.launcher.launch(jobs + list(extra or []), initial_job_idx=first_job)
         n = len(self.seeds)
         for i, (trial, vals) in enumerate(zip(batch, values)):
@@ -262,10 +262,13 @@ class TuningSweep:
         :func:`sweeps.tuning.batch_size` keeps rounds: never a guided trial asked blind)."""
         return len(study.get_trials(deepcopy=False)) < self.startup_trials or _finished(study) >= self.startup_trials
 
-    def _jobs(self, trial, plan: Plan) -> list[list[str]]:
-        """The trial's jobs' overrides, one per seed, and its values (kept for its line)."""
-        values = {k: p.value(trial.params[k]) for k, p in plan.params.items()}
-        self._values[trial.number] = values
+    @staticmethod
+    def _values(trial, plan: Plan) -> dict:
+        """The trial's values of the searched settings, as a run takes them."""
+        return {k: p.value(trial.params[k]) for k, p in plan.params.items()}
+
+    def _jobs(self, trial, values: dict, plan: Plan) -> list[list[str]]:
+        """The overrides of the trial's jobs (with its ``values``), one per seed."""
         return [[*plan.fixed, *(f"{k}={override_value(v)}" for k, v in values.items()), f"seed={seed}",
                  f"trial={trial.number}"] for seed in self.seeds]
 
@@ -277,47 +280,40 @@ class TuningSweep:
         before the random ones have finished: :meth:`_may_ask`); each trial told as its last
         job ends. Every job's return (the first batch's, the extra ones, then
         the later trials'), and how many trials were asked."""
-        n, trial_of, ended, told = len(self.seeds), {}, {}, set()
-        self._values = {}
-        order: list[tuple[int, list[str]]] = []
+        n, trial_of, values, ended, told = len(self.seeds), {}, {}, {}, set()
+        index = itertools.count(first_job)
 
         def add(trial) -> list[tuple[int, list[str]]]:
-            jobs = [(first_job + len(order) + i, job) for i, job in enumerate(self._jobs(trial, plan))]
+            values[trial.number] = self._values(trial, plan)
+            jobs = [(next(index), job) for job in self._jobs(trial, values[trial.number], plan)]
             trial_of.update({idx: trial.number for idx, _ in jobs})
-            order.extend(jobs)
             return jobs
-
-        def tell(number: int) -> None:
-            folders = ended.get(number, {})
-            self._tell(study, number, plan, self._values[number], [folders[i] for i in sorted(folders)])
-            told.add(number)
 
         def more(done: Sequence[tuple[int, Path]], room: int) -> list[tuple[int, list[str]]]:
             nonlocal left
             for idx, folder in done:
                 if idx in trial_of:
-                    ended.setdefault(trial_of[idx], {})[idx] = folder
-                    if len(ended[trial_of[idx]]) == n:
-                        tell(trial_of[idx])
+                    number = trial_of[idx]
+                    ended.setdefault(number, {})[idx] = folder
+                    if len(ended[number]) == n:
+                        folders = [ended[number][i] for i in sorted(ended[number])]
+                        self._tell(study, number, plan, values[number], folders)
+                        told.add(number)
             jobs = []
             while left > 0 and room >= n and not (sweep_dir / ".stop").exists() and self._may_ask(study):
                 jobs += add(self._ask(study, plan))
                 left, room = left - 1, room - n
             return jobs
 
-        for trial in batch:
-            add(trial)
-        first = list(order)
-        extras = [(first_job + len(order) + i, list(job)) for i, job in enumerate(extra)]
-        order.extend(extras)
+        first = [job for trial in batch for job in add(trial)]
+        extras = [(next(index), list(job)) for job in extra]
         returns = self.launcher.launch_fed(first + extras, more)
-        for number in {trial_of[idx] for idx in trial_of} - told:  # a job that never trained (its checks failed)
-            self._tell(study, number, plan, self._values[number],
+        for number in set(trial_of.values()) - told:  # a job that never trained (its checks failed)
+            self._tell(study, number, plan, values[number],
                        [_run_dir(returns[idx]) for idx in sorted(i for i in trial_of if trial_of[i] == number)])
-        indices = [idx for idx, _ in order if idx in returns]
-        extra_part = [returns[idx] for idx, _ in extras]
-        return [returns[idx] for idx in indices if idx not in {i for i, _ in extras}] + extra_part, \
-            len({trial_of[idx] for idx in trial_of})
+        # (a trial's jobs are numbered in the order asked; the extra ones between the first trials and the later)
+        return [returns[idx] for idx in sorted(trial_of) if idx in returns] + [returns[idx] for idx, _ in extras], \
+            len(set(trial_of.values()))
 
     def _ran_with(self, plan: Plan) -> tuple[str | None, Path | None]:
         """The tuned file the trials compose and the study's file replaces: its name (the

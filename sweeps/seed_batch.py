@@ -152,10 +152,7 @@ class SeedBatchLaunch:
         if jobs:
             log.info(f"Training {len(jobs)} runs together, freed members taking the next ones: " + ", ".join(
                 f"trial {j.cfg.get('trial')} seed {j.cfg.seed}" for j in jobs))
-        summaries = _batch(jobs, feed) if jobs else []
-        stopped = [s for s in summaries if s.get("interrupted")]
-        if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)
-            raise SystemExit(128 + int(stopped[0].get("signal", 2)))
+        _batch(jobs, feed)
         return returns
 
     def run_chunk(self, chunk: list[tuple[int, list[str]]]) -> dict[int, JobReturn]:
@@ -188,10 +185,7 @@ class SeedBatchLaunch:
             log.info(f"Training {len(jobs)} {'runs' if trials else 'seeds'} together: " + ", ".join(
                 f"trial {j.cfg.trial} seed {j.cfg.seed}" if j.cfg.get("trial") is not None
                 else f"seed {j.cfg.seed}" if trials else str(j.cfg.seed) for j in jobs))
-        summaries = _batch(jobs) if jobs else []
-        stopped = [s for s in summaries if s.get("interrupted")]
-        if stopped:  # Ctrl-C: the sweep stops (train.cli prints what finished and how to resume)
-            raise SystemExit(128 + int(stopped[0].get("signal", 2)))
+        _batch(jobs)
         return returns
 
 
@@ -267,17 +261,23 @@ def _value(ret: JobReturn):
         return None
 
 
-def _batch(jobs: list[Job], more=None) -> list[dict]:
-    """Trains ``jobs`` as one batch (``more``: the source of jobs for its freed members); a
-    refusal is one line, kept in each job's ``error.txt``."""
+def _batch(jobs: list[Job], more=None) -> None:
+    """Trains ``jobs`` (if any) as one batch (``more``: the source of jobs for its freed
+    members); a refusal is one line, kept in each job's ``error.txt``. A batch stopped by
+    Ctrl-C stops the sweep (train.cli prints what finished and how to resume)."""
+    if not jobs:  # (every job of the chunk failed its checks)
+        return
     try:
-        return run_jobs(jobs, more=more)
+        summaries = run_jobs(jobs, more=more)
     except ConfigError as err:
         message = f"error: {err}"
         print(message, file=sys.stderr)
         for job in jobs:
             (job.run_dir / "error.txt").write_text(message + "\n")
-        return []
+        return
+    stopped = [s for s in summaries if s.get("interrupted")]
+    if stopped:
+        raise SystemExit(128 + int(stopped[0].get("signal", 2)))
 
 
 # -- submitit: one submitit job per batch ----------------------------------------------

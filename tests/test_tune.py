@@ -130,17 +130,25 @@ def test_a_trial_below_the_median_is_pruned_and_reports_only_from_its_first_seed
     assert lead(20, 1.0) is False  # a trial already told (a resumed job) is left alone
 
 
+def batched_study(tmp_path: Path, learner: str, space: str, *extra: str) -> tuple[subprocess.CompletedProcess, str]:
+    """A small cart-pole study of ``learner`` over the search ``space`` (a file's text), two
+    trials a batch x seeds 0 and 1, no pruner, its storage an SQLite file in ``tmp_path``
+    (returned); ``extra`` overrides after the others."""
+    (tmp_path / "space.yaml").write_text(space)
+    url = f"sqlite:///{tmp_path / 's.db'}"
+    proc = cli("-m", "hydra/sweeper=optuna", "robot=cartpole", f"learner={learner}", "num_envs=2", "eval_episodes=2",
+               "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[0,1]", "hydra.sweeper.budget_steps=1000",
+               "hydra.sweeper.pruner=null", f"hydra.sweeper.search={tmp_path / 'space.yaml'}",
+               f"hydra.sweeper.storage={url}", f"hydra.sweep.dir={tmp_path / 'sweep'}", *extra)
+    return proc, url
+
+
 def test_trials_that_differ_in_member_wise_settings_train_as_one_batch(tmp_path):
     """trials_per_batch=2 with a space of member-wise settings only: the two trials x two seeds
     train as the four members of one batch, each job reporting to its study from there."""
-    space = tmp_path / "space.yaml"
-    space.write_text("learner.lr: tag(log, interval(0.0001, 0.01))\nlearner.gamma: interval(0.9, 0.999)\n")
-    url = f"sqlite:///{tmp_path / 's.db'}"
-    proc = cli("-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=dqn", "num_envs=2", "eval_episodes=2",
-               "hydra.sweeper.n_trials=2", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[0,1]",
-               "hydra.sweeper.budget_steps=1000", "hydra.sweeper.report_every=100", "hydra.sweeper.pruner=null",
-               f"hydra.sweeper.search={space}", f"hydra.sweeper.storage={url}",
-               f"hydra.sweep.dir={tmp_path / 'sweep'}")
+    proc, url = batched_study(tmp_path, "dqn", "learner.lr: tag(log, interval(0.0001, 0.01))\n"
+                              "learner.gamma: interval(0.9, 0.999)\n",
+                              "hydra.sweeper.n_trials=2", "hydra.sweeper.report_every=100")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     out = proc.stdout + proc.stderr
     assert "Training 4 runs together: trial 0 seed 0, trial 0 seed 1, trial 1 seed 0, trial 1 seed 1" in out, out[-3000:]
@@ -153,14 +161,10 @@ def test_trials_that_differ_in_member_wise_settings_train_as_one_batch(tmp_path)
 def test_with_refill_freed_members_take_the_studys_next_trials_in_the_same_batch(tmp_path):
     """refill=true: a study of 5 trials, 2 at a time, trains in one batch of 4 members; as a
     trial's jobs end, the next trial is asked and takes its members; every trial is told."""
-    space = tmp_path / "space.yaml"
-    space.write_text("learner.alpha: interval(0.05, 0.5)\nlearner.gamma: interval(0.9, 0.999)\n")
-    url = f"sqlite:///{tmp_path / 's.db'}"
-    proc = cli("-m", "hydra/sweeper=optuna", "robot=cartpole", "learner=qlearn", "num_envs=2", "eval_episodes=2",
-               "hydra.sweeper.n_trials=5", "hydra.sweeper.trials_per_batch=2", "hydra.sweeper.seeds=[0,1]",
-               "hydra.sweeper.budget_steps=1000", "hydra.sweeper.report_every=250", "hydra.sweeper.pruner=null",
-               "hydra.sweeper.refill=true", "hydra.sweeper.startup_trials=2", "hydra.sweeper.sampler_seed=0",
-               f"hydra.sweeper.search={space}", f"hydra.sweeper.storage={url}", f"hydra.sweep.dir={tmp_path / 'sweep'}")
+    proc, url = batched_study(tmp_path, "qlearn", "learner.alpha: interval(0.05, 0.5)\n"
+                              "learner.gamma: interval(0.9, 0.999)\n", "hydra.sweeper.n_trials=5",
+                              "hydra.sweeper.report_every=250", "hydra.sweeper.refill=true",
+                              "hydra.sweeper.startup_trials=2", "hydra.sweeper.sampler_seed=0")
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-3000:]
     assert out.count("Training 4 runs together, freed members taking the next ones") == 1, out[-3000:]
