@@ -330,6 +330,13 @@ def single(generator: torch.Generator | Sequence[torch.Generator] | None) -> lis
     return list(generator)
 
 
+def greedy_stream() -> torch.Generator:
+    """The stream that breaks a greedy policy's ties in one evaluation: seeded the same each
+    time, so an evaluation neither draws from training's stream nor varies between two of
+    one policy."""
+    return torch.Generator().manual_seed(0)
+
+
 class MemberPolicy(TensorDictModuleBase):
     """A member's policy as a TensorDict module: reads ``observation``, writes ``action`` (and
     what else its learner writes): epsilon-greedy from the member's own stream, or greedy
@@ -366,8 +373,7 @@ class Member:
 
     def __init__(self, learner: Learner, index: int) -> None:
         self.learner, self.index = learner, int(index)
-        # Inside greedy(): the stream that breaks its ties (seeded the same each time, so an
-        # evaluation neither draws from training's stream nor varies between two of one policy).
+        # Inside greedy(): the stream that breaks its ties (greedy_stream()).
         self.greedy_draws: torch.Generator | None = None
         self.policy = MemberPolicy(self)
 
@@ -381,7 +387,7 @@ class Member:
     @contextmanager
     def greedy(self) -> Iterator[None]:
         """Within the block ``policy`` acts greedily (no exploration)."""
-        saved, self.greedy_draws = self.greedy_draws, torch.Generator().manual_seed(0)
+        saved, self.greedy_draws = self.greedy_draws, greedy_stream()
         try:
             yield
         finally:

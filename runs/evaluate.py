@@ -18,7 +18,9 @@ from typing import Mapping, Sequence
 import numpy as np
 import torch
 from omegaconf import DictConfig
+from tensordict import TensorDict
 
+from learners.base import greedy_stream
 from tasks.base import Success
 from tasks.env import RobotTaskEnv
 from tasks.factory import build_env
@@ -62,7 +64,6 @@ def _episodes(env, policy, max_steps: int | None) -> tuple[np.ndarray, np.ndarra
     n = env.num_envs
     ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
     alive = np.ones(n, dtype=bool)
-    info_fn = getattr(env.task, "episode_info", None)
     info: dict[str, np.ndarray] = {}
     td = env.reset()
     steps = 0
@@ -71,21 +72,32 @@ def _episodes(env, policy, max_steps: int | None) -> tuple[np.ndarray, np.ndarra
             while alive.any() and (max_steps is None or steps < max_steps):
                 td = env.step(policy(td))
                 nxt = td.get("next")
-                ret += nxt.get("reward").reshape(n).numpy() * alive
-                length += alive
-                ended = alive & nxt.get("done").reshape(n).numpy()
-                if ended.any():
-                    if info_fn is not None:
-                        _keep_info(info, info_fn, env.physics, ended)
-                    env.physics.hold(ended)  # a finished episode's copy steps no more
-                alive &= ~ended
+                _book_step(env, nxt, ret, length, alive, info)
                 td = nxt.exclude("reward", "done", "terminated", "truncated")
                 steps += 1
     finally:
         env.physics.release()
+    info_fn = getattr(env.task, "episode_info", None)
     if info_fn is not None and alive.any():  # cut off by max_steps
         _keep_info(info, info_fn, env.physics, alive)
     return ret, length, info
+
+
+def _book_step(env, nxt, ret: np.ndarray, length: np.ndarray, alive: np.ndarray,
+               info: dict[str, np.ndarray]) -> None:
+    """Books a step's ``next`` for the copies ``alive`` marks: their rewards and lengths
+    added; those whose episode ended have their ``episode_info`` kept in ``info``, are held
+    (:meth:`~robots.physics.BatchedPhysics.hold`: they step no more) and are alive no more."""
+    n = env.num_envs
+    ret += nxt.get("reward").reshape(n).numpy() * alive
+    length += alive
+    ended = alive & nxt.get("done").reshape(n).numpy()
+    if ended.any():
+        info_fn = getattr(env.task, "episode_info", None)
+        if info_fn is not None:
+            _keep_info(info, info_fn, env.physics, ended)
+        env.physics.hold(ended)
+    alive &= ~ended
 
 
 def _summary(ret: np.ndarray, length: np.ndarray, info: dict[str, np.ndarray]) -> dict:
@@ -139,6 +151,75 @@ class GreedyEvaluator:
     def close(self) -> None:
         for env in self.envs.values():
             env.close()
+
+
+class SideEvaluations:
+    """The periodic greedy evaluations of a batch's members, made beside its training: member
+    ``b``'s on seed block ``b`` of one env of ``copies`` copies a member, from its seed's starts,
+    each the result its :class:`GreedyEvaluator` gives alone. Every evaluation under way takes
+    one step per :meth:`step`, all of them in one physics call (the training loop steps them
+    once a training step, while their members' training waits: ``runs.loop``); an
+    evaluation's own episodes are a few hundred narrow steps otherwise, stepped while the
+    whole batch waits."""
+
+    def __init__(self, cfg: DictConfig, learner, members: int, copies: int) -> None:
+        self.learner, self.copies = learner, int(copies)
+        self.env = build_env(cfg, members * self.copies, list(range(members)))  # each block seeded as it starts
+        n = self.env.num_envs
+        self.env.physics.hold(np.ones(n, dtype=bool))
+        self.ret, self.length = np.zeros(n), np.zeros(n, dtype=np.int64)
+        self.alive = np.zeros(n, dtype=bool)
+        self.info: dict[str, np.ndarray] = {}
+        self.observation = torch.zeros(n, len(self.env.task.observation_names))
+        self.streams: dict[int, torch.Generator] = {}  # the members evaluating: their greedy ties' streams
+
+    @property
+    def members(self) -> list[int]:
+        """The members whose evaluation is under way, in order."""
+        return sorted(self.streams)
+
+    def start(self, b: int, seed: int) -> None:
+        """Member ``b``'s evaluation starts: its block's episodes from ``seed``'s starts (as its
+        evaluator's env starts them). None: the result comes from a later :meth:`step`."""
+        rows = self.env.block(b)
+        self.observation[rows] = self.env.renew_block(b, seed)
+        self.ret[rows], self.length[rows], self.alive[rows] = 0.0, 0, True
+        self.streams[b] = greedy_stream()
+
+    def step(self) -> dict[int, dict]:
+        """One step of every evaluation under way, each member's greedy policy acting on its
+        block; the results of those whose episodes have all ended, by member."""
+        members, env = self.members, self.env
+        acting = np.zeros(env.num_envs, dtype=bool)
+        for b in members:
+            acting[env.block(b)] = True
+        rows = torch.from_numpy(acting)
+        observed = TensorDict({"observation": self.observation[rows]}, batch_size=[int(acting.sum())])
+        action = torch.zeros(env.num_envs, dtype=torch.int64)
+        with torch.no_grad():
+            action[rows] = self.learner.act_members(observed, members, True,
+                                                    [self.streams[b] for b in members]).get("action")
+            nxt = env.step(TensorDict({"observation": self.observation, "action": action},
+                                      batch_size=[env.num_envs])).get("next")
+        _book_step(env, nxt, self.ret, self.length, self.alive, self.info)
+        self.observation = nxt.get("observation")
+        results = {}
+        for b in members:
+            block = env.block(b)
+            if not self.alive[block].any():
+                results[b] = _summary(self.ret[block].copy(), self.length[block].copy(),
+                                      {k: v[block].copy() for k, v in self.info.items()})
+                del self.streams[b]
+        return results
+
+    def drop(self, b: int) -> None:
+        """Member ``b``'s evaluation, if one is under way, ends unfinished (its run failed)."""
+        if self.streams.pop(b, None) is not None:
+            self.alive[self.env.block(b)] = False
+            self.env.physics.hold(self.env.block_mask(b))
+
+    def close(self) -> None:
+        self.env.close()
 
 
 def describe_evaluation(result: dict, success: Success) -> str:

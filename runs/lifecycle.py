@@ -49,7 +49,7 @@ from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.console import Tee, banner_lines, copies
-from runs.evaluate import GreedyEvaluator, describe_evaluation, greedy_evaluations, measure_of
+from runs.evaluate import GreedyEvaluator, SideEvaluations, describe_evaluation, greedy_evaluations, measure_of
 from runs.folder import model_path, run_lock, start_run
 from runs.loggers import log_hparams, make_logger, run_scalar_names
 from runs.loop import train
@@ -99,6 +99,9 @@ class Session:
     learner: Member
     env: RobotTaskEnv
     evaluator: GreedyEvaluator
+    # A batch's periodic evaluations are made beside its training (runs.evaluate.SideEvaluations):
+    # this starts the seed's, its run waiting for the result. None: made at once by ``evaluator``.
+    side_eval: Callable[[], None] | None = None
 
     @property
     def success(self) -> Success:
@@ -349,12 +352,32 @@ def run_jobs(jobs: Sequence[Job], solo: bool = False, more: More | None = None) 
         finals = _FinalEvaluations(jobs[0].cfg)
         stack.callback(env.close)
         stack.callback(finals.close)
+        side = None if solo else _side_evaluations(jobs[0].cfg, learner, slots)
+        if side is not None:
+            stack.callback(side.close)
         _start(slots, env)
         if jobs[0].cfg.mode == "eval":
             _evaluate(slots[0])
         else:
-            _train(learner, slots, env, finals, None if solo else more, stack)
+            _train(learner, slots, env, finals, None if solo else more, stack, side)
     return [slot.summary for slot in slots]
+
+
+def _side_evaluations(cfg: DictConfig, learner, slots: list[_Slot]) -> SideEvaluations | None:
+    """A training batch's periodic evaluations, made beside its training (none without
+    them), each seed's started by its run."""
+    if cfg.mode != "train" or not int(cfg.eval_episodes):
+        return None
+    side = SideEvaluations(cfg, learner, learner.members, int(cfg.eval_episodes))
+    for slot in slots:
+        _side_eval(slot, side)
+    return side
+
+
+def _side_eval(slot: _Slot, side: SideEvaluations | None) -> None:
+    """The seed's periodic evaluations made by ``side`` (if any), from its evaluator's seed."""
+    if side is not None:
+        slot.session.side_eval = partial(side.start, slot.index, slot.session.evaluator.seed)
 
 
 def _consoles(slots: list[_Slot], stack: ExitStack) -> None:
@@ -507,8 +530,9 @@ class _Refill:
     ``error.txt`` saying why; none is taken after a stop was asked."""
 
     def __init__(self, more: More, learner, env: RobotTaskEnv, slots: list[_Slot], stack: ExitStack,
-                 stopped: dict, runs: list[Run]) -> None:
+                 stopped: dict, runs: list[Run], side: SideEvaluations | None = None) -> None:
         self.more, self.learner, self.env, self.slots, self.stack = more, learner, env, slots, stack
+        self.side = side  # the batch's periodic evaluations
         self.cfg = slots[0].job.cfg
         self.stopped, self.runs = stopped, runs  # stop_on_signals' signal, and the runs it stops
         self.sizes: dict[str, int] = {}  # a member's bytes by the settings that size it (member_bytes)
@@ -562,6 +586,7 @@ class _Refill:
                            if _own_settings(job.cfg, self.cfg) else None)
         observation = self.env.renew_block(b, slot.seed)
         _session(slot, self.learner.member(b), self.env.seed_block(b))
+        _side_eval(slot, self.side)
         _begin(slot, _first(observation))
         first, rows = slot.run.start(slot.env), self.env.block(b)
         for key, value in td.items():
@@ -614,7 +639,8 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
     logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name, tags=_tags(session.run_dir),
                          **{k: v for k, v in cfg.logger.items() if k != "kind"})
     hooks = Hooks(checkpoint=partial(save or save_training_state, session.state_path, learner, env),
-                  greedy_eval=partial(session.evaluator, int(cfg.eval_episodes)) if cfg.eval_episodes else None,
+                  greedy_eval=(session.side_eval or partial(session.evaluator, int(cfg.eval_episodes)))
+                  if cfg.eval_episodes else None,
                   train_stats=learner.train_stats, progress=progress)
     run = Run(session.run_dir, env.num_envs, int(cfg.max_episodes), session.success, logger=logger,
               extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
@@ -638,17 +664,17 @@ def _evaluate(slot: _Slot) -> None:
 
 
 def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluations,
-           more: More | None = None, stack: ExitStack | None = None) -> None:
+           more: More | None = None, stack: ExitStack | None = None, side: SideEvaluations | None = None) -> None:
     """Steps every seed's copies together until each run is done (:func:`runs.loop.train`);
     a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
     done; ``more`` hands freed members new jobs (:class:`_Refill`, their consoles kept open
-    in ``stack``). A single run stopped by an exception still saves its model and closes its
+    in ``stack``); ``side`` makes the periodic evaluations. A single run stopped by an exception still saves its model and closes its
     files."""
     runs = [slot.run for slot in slots]
     with stop_on_signals(runs) as stopped:
-        refill = None if more is None else _Refill(more, learner, env, slots, stack, stopped, runs)
+        refill = None if more is None else _Refill(more, learner, env, slots, stack, stopped, runs, side)
         try:
-            train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals), refill)
+            train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals), refill, side)
         except BaseException:
             for slot in slots:
                 if slot.solo and not slot.closed:

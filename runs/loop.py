@@ -28,7 +28,9 @@ import torch
 from tensordict import TensorDictBase
 
 from learners.base import Learner
+from runs.evaluate import SideEvaluations
 from runs.run import Run
+from runs.training_state import env_state, load_env_state
 
 
 class Lane(Protocol):
@@ -49,37 +51,95 @@ class Lane(Protocol):
 
 def train(learner: Learner, env, lanes: Sequence[Lane],
           end_done: Callable[[list[Lane]], list[Lane]],
-          refill: Callable[[TensorDictBase, list[Lane], list[Lane]], tuple[TensorDictBase, list[Lane]]] | None = None
-          ) -> None:
+          refill: Callable[[TensorDictBase, list[Lane], list[Lane]], tuple[TensorDictBase, list[Lane]]] | None = None,
+          side: SideEvaluations | None = None) -> None:
     """Acts on ``env`` and learns from each step until every lane is done (see the module
     docstring); ``end_done(live)`` ends the lanes of ``live`` that are done and returns the
     others; ``refill(td, ended, live)``, after a step where lanes ended, may start new lanes
     in the freed members: it returns the next step's input (their blocks' first
-    observations in it) and the new lanes."""
+    observations in it) and the new lanes. ``side``: the batch's periodic evaluations,
+    started by the lanes' runs (which then wait) and stepped here once a step."""
     learner.begin()
     starts = [lane.run.start(lane.env) for lane in lanes]
     td = starts[0] if len(starts) == 1 else torch.cat(starts)
     live = end_done(list(lanes))  # a run resumed at its end ends here
+    paused: dict[int, dict] = {}  # a waiting lane's member: its block's env state when it stopped
     while live:
-        td = _together(live, lambda: learner.act(td, _indices(live)))
-        if td is None:  # the call failed: every live lane with it
-            end_done(live)
-            return
-        td, next_td = env.step_and_maybe_reset(td)
-        _together(live, lambda: learner.observe(td, _indices(live)))
-        sound = _sound(live)
-        ended = _book(learner, sound, td)
-        if ended:
-            _together(sound, lambda: learner.end_episodes(ended))
-        for lane in _sound(sound):
-            lane.guarded(lambda lane=lane: lane.run.end_step(next_td))
-        td = next_td
-        going = end_done(live)
+        training = [lane for lane in live if lane.index not in paused]
+        if training:
+            td = _step(learner, env, live, training, td, paused, side)
+            if td is None:  # the learner's call failed: every live lane with it
+                end_done(live)
+                return
+        if paused:
+            td = _evaluate(env, live, td, paused, side)
+        stay = {id(lane) for lane in end_done([lane for lane in live if lane.index not in paused])}
+        going = [lane for lane in live if id(lane) in stay or lane.index in paused]
         if refill is not None and len(going) < len(live):
             still = {id(lane) for lane in going}
             td, added = refill(td, [lane for lane in live if id(lane) not in still], going)
             going = going + list(added)
         live = going
+
+
+def _step(learner: Learner, env, live: list[Lane], training: list[Lane], td: TensorDictBase,
+          paused: dict[int, dict], side: SideEvaluations | None) -> TensorDictBase | None:
+    """One training step of the ``training`` lanes (the others' copies held); each then ends
+    its step, and one whose run waits for an evaluation pauses (its block's state kept in
+    ``paused``). The next step's input; None if a learner call failed (the ``live`` lanes
+    with it)."""
+    acted = _together(live, lambda: learner.act(td, _indices(training)))
+    if acted is None:
+        return None
+    acted, next_td = env.step_and_maybe_reset(acted)
+    _together(live, lambda: learner.observe(acted, _indices(training)))
+    sound = _sound(training)
+    ended = _book(learner, sound, acted)
+    if ended:
+        _together(sound, lambda: learner.end_episodes(ended))
+    for lane in _sound(sound):
+        lane.guarded(lambda lane=lane: lane.run.end_step(next_td))
+        if lane.run.waiting:
+            if lane.failed is None:
+                paused[lane.index] = _pause(env, lane)
+            elif side is not None:
+                side.drop(lane.index)
+    return next_td
+
+
+def _evaluate(env, live: list[Lane], td: TensorDictBase, paused: dict[int, dict],
+              side: SideEvaluations) -> TensorDictBase:
+    """One step of the evaluations under way; a lane whose evaluation ended takes its result
+    and trains again from where it stopped (its block's state and rows of ``td`` as they
+    were). A waiting lane that failed is no longer waited for. The next step's input."""
+    waiting = [lane for lane in live if lane.index in paused]
+    results = _together(waiting, side.step) or {}
+    for lane in waiting:
+        if lane.failed is not None:
+            side.drop(lane.index)
+            del paused[lane.index]
+        elif lane.index in results:
+            td = _resume(env, lane, paused.pop(lane.index), td)
+            lane.guarded(lambda lane=lane: lane.run.evaluated(results[lane.index]))
+    return td
+
+
+def _pause(env, lane: Lane) -> dict:
+    """The lane's block of ``env`` held (its copies step no more) and its state as it is
+    (the env computes every block's step: a held block's counters and starts move on)."""
+    env.physics.hold(env.block_mask(lane.index))
+    return env_state(lane.env)
+
+
+def _resume(env, lane: Lane, state: dict, td: TensorDictBase) -> TensorDictBase:
+    """The lane's block of ``env`` back to ``state`` and stepping again; ``td`` with the
+    lane's rows of the step input it paused at (its run's ``last_td``)."""
+    load_env_state(lane.env, state, lane.run.run_dir)
+    env.physics.release(env.block_mask(lane.index))
+    rows = env.block(lane.index)
+    td = td.clone()
+    td[rows] = lane.run.last_td[rows]
+    return td
 
 
 def _book(learner: Learner, lanes: list[Lane], td: TensorDictBase) -> dict[int, int]:

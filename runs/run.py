@@ -86,13 +86,14 @@ class Hooks:
     """What a :class:`Run` calls out to, all given when it is built (each optional):
 
     - ``checkpoint(run, td)``: saves the whole training state at a step boundary;
-    - ``greedy_eval()``: a greedy evaluation's result (:func:`runs.evaluate.evaluate`'s);
+    - ``greedy_eval()``: a greedy evaluation's result (:func:`runs.evaluate.evaluate`'s), or None
+      when it is made later (the run waits for it: :meth:`Run.end_step`);
     - ``train_stats(reset=True)``: the learner's ``train/*`` numbers;
     - ``progress``: a tuning trial's :class:`Progress` report.
     """
 
     checkpoint: Callable[[Run, TensorDictBase], None] | None = None
-    greedy_eval: Callable[[], dict] | None = None
+    greedy_eval: Callable[[], dict | None] | None = None
     train_stats: Callable[..., dict[str, float]] | None = None
     progress: Progress | None = None
 
@@ -254,6 +255,7 @@ class Run:
         self._train_due = False  # an episode finished since
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
         self.last_td: TensorDictBase | None = None  # where the next step would start
+        self._owed: str | None = None  # the evaluation a waiting run's boundary waits for
         self.episodes = EpisodeLog(num_envs)
         self.evals: list[dict] = []  # one row per greedy evaluation (evals.csv's, "value" the measure)
         self.last_eval: dict | None = None  # the newest evaluation's full result
@@ -311,18 +313,57 @@ class Run:
     def end_step(self, td: TensorDictBase) -> TensorDictBase:
         """At the step boundary before ``td``: a greedy evaluation every ``eval_every``
         episodes or ``eval_every_steps`` env steps, then a checkpoint every
-        ``checkpoint_every`` (so it holds the evaluation). Returns ``td``, the next step's input."""
+        ``checkpoint_every`` (so it holds the evaluation). Returns ``td``, the next step's input.
+
+        A ``greedy_eval`` hook that returns None makes its evaluation later (a batch's,
+        beside the other members' training): the run then waits at this boundary
+        (:attr:`waiting`), taking no step, until :meth:`evaluated` hands it the result and
+        ends the boundary as if the evaluation had been made here."""
         self.last_td = td
         self.log_train()
         if self.progress is not None and self.progress.every and self.env_steps >= self._next_progress:
             self._report_progress()
         if self.progress is not None and self.pruned_at is None and not self.done and self.progress.pruned:
             self.pruned_at = self.n_episodes  # pruned by another seed's report: stop now
+        self._owed = self._evaluation_owed()
+        if self._owed is not None:
+            result = self.greedy_eval()
+            if result is None:
+                return td
+            self._take_evaluation(result)
+        self._close_boundary(td)
+        return td
+
+    @property
+    def waiting(self) -> bool:
+        """Whether the run waits at its step boundary for an evaluation made elsewhere."""
+        return self._owed is not None
+
+    def evaluated(self, result: dict) -> None:
+        """The evaluation the run waited for (see :meth:`end_step`): recorded, judged, and the
+        boundary ended (a checkpoint when due) at the step input it stopped at."""
+        self._take_evaluation(result)
+        self._close_boundary(self.last_td)
+
+    def _evaluation_owed(self) -> str | None:
+        """Which greedy evaluation the boundary makes: ``"confirm"`` (the training episodes
+        met the rule: does the greedy policy?), ``"due"`` (its schedule) or None."""
         if self.judge.candidate is not None and not self.stop_requested:
-            self.evaluate_greedy()
-            self.judge.confirmed(self.evals[-1]["value"], self.n_episodes)
+            return "confirm"
         if self.greedy_eval is not None and not self.done and self._evaluation_due():
-            self.evaluate_greedy()
+            return "due"
+        return None
+
+    def _take_evaluation(self, result: dict) -> None:
+        """Records the boundary's evaluation ``result``; a confirming one decides the candidate."""
+        owed, self._owed = self._owed, None
+        self.evaluate_greedy(lambda: result)
+        if owed == "confirm":
+            self.judge.confirmed(self.evals[-1]["value"], self.n_episodes)
+
+    def _close_boundary(self, td: TensorDictBase) -> None:
+        """The rest of a step boundary, after its evaluation: a solved run told to the
+        ``progress`` hook, the periodic checkpoint and the memory trim."""
         if self.progress is not None and self.solved_at is not None and self.stop_when_solved and not self._told:
             self._told = True
             self.progress.solved(self.env_steps, max(self.rolling(), self.success.threshold))
@@ -333,7 +374,6 @@ class Run:
         if self.n_episodes - self._last_trim >= TRIM_EPISODES:  # after the checkpoint's garbage
             _release_free_memory()
             self._last_trim = self.n_episodes
-        return td
 
     # -- episodes and evaluations ---------------------------------------------
     def _evaluation_due(self) -> bool:
