@@ -5,6 +5,7 @@ what it measured.
 greedy policy from the same starts every time (:class:`GreedyEvaluator` keeps a
 run's evaluation envs); :func:`greedy_evaluations` runs several learners' at once,
 each on its seed block of one env (a seed batch's seeds, each as alone);
+:class:`SideEvaluations` makes a batch's periodic evaluations beside its training;
 :func:`measure_of` reads the
 task's success measure from the result and :func:`describe_evaluation` puts it
 in one line.

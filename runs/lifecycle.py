@@ -668,8 +668,8 @@ def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluat
     """Steps every seed's copies together until each run is done (:func:`runs.loop.train`);
     a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
     done; ``more`` hands freed members new jobs (:class:`_Refill`, their consoles kept open
-    in ``stack``); ``side`` makes the periodic evaluations. A single run stopped by an exception still saves its model and closes its
-    files."""
+    in ``stack``); ``side`` makes the periodic evaluations. A single run stopped by an
+    exception still saves its model and closes its files."""
     runs = [slot.run for slot in slots]
     with stop_on_signals(runs) as stopped:
         refill = None if more is None else _Refill(more, learner, env, slots, stack, stopped, runs, side)

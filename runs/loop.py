@@ -9,6 +9,13 @@
     -> each lane books its block's finished episodes (its Run)
     -> end_episodes (one call: epsilon schedules, the updates the episodes owe)
     -> each lane ends the step (evaluation, checkpoint when due)
+    -> one step of the batch's evaluations under way (``side``)
+
+In a batch, a lane whose greedy evaluation is due waits: its block of the env is held and
+its state kept, its evaluation steps in the batch's evaluation env (one physics call for
+every evaluation under way, once a step) while the other lanes train on, and once its
+episodes have ended the lane takes the result and trains again from where it stopped, as
+its run alone goes on after its evaluation.
 
 A lane that is done (solved, out of budget, stopped, failed) is handed to ``end_done``,
 which ends it (and holds its copies); the others go on. ``refill`` may then start new

@@ -93,6 +93,29 @@ def test_seeds_that_end_at_one_step_are_evaluated_together_as_each_alone(tmp_pat
     same_files(tmp_path, SEEDS)
 
 
+def test_members_wait_for_their_evaluations_beside_the_others_training_each_as_alone(tmp_path):
+    """A batch's periodic evaluations and the evaluations that confirm a training window
+    that met the rule are made beside the other members' training (its member waits for
+    its own): some seeds solve at a confirming evaluation, others try again; each seed's
+    files are its run's alone."""
+    seeds = (4, 9, 11)
+    rule = ["task.win.threshold=30", "task.win.window=10", "task.win.min_episodes=10", "max_episodes=80",
+            "eval_every=15", "eval_episodes=4", "checkpoint_every=20"]
+    steps, real = [], batch_module.SideEvaluations.step
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(batch_module.SideEvaluations, "step", lambda self: steps.append(self.members) or real(self))
+        run_jobs(jobs("qlearn", tmp_path, "batch", rule, seeds))
+    assert any(len(members) > 1 for members in steps)  # evaluations under way side by side
+    assert any(len(members) < len(seeds) for members in steps)  # and beside others' training
+    for job in jobs("qlearn", tmp_path, "alone", rule, seeds):
+        job.run_dir.mkdir()
+        execute(job.cfg, job.run_dir, choices=job.choices)
+    same_files(tmp_path, seeds)
+    verdicts = [json.loads((tmp_path / f"batch{seed}" / "summary.json").read_text()) for seed in seeds]
+    confirmed = [v for v in verdicts if v.get("solved")]
+    assert confirmed and all(v["episodes"] % 15 for v in confirmed), verdicts  # solved off the schedule
+
+
 def same_files(tmp_path: Path, seeds) -> None:
     for seed in seeds:
         same_run_files(tmp_path / f"batch{seed}", tmp_path / f"alone{seed}")
