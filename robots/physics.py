@@ -106,7 +106,7 @@ class BatchedPhysics:
         self._nsensordata = model.nsensordata
         self._opt = model.opt  # a live view of the model's options
         self._elapsed = np.empty(num_envs)
-        self._arrays: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._arrays: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._none_diverged = np.zeros(num_envs, dtype=bool)
         self._none_diverged.flags.writeable = False
         self.diverged = self._none_diverged
@@ -215,13 +215,14 @@ class BatchedPhysics:
 
     def _buffers(self, copies: int, nsubsteps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``mujoco.rollout``'s output (states, sensor readings) and control arrays for
-        ``copies`` and ``nsubsteps``, allocated once per shape and reused."""
-        key = (copies, nsubsteps)
-        if key not in self._arrays:
-            shape = (copies, nsubsteps)
-            self._arrays[key] = (np.empty(shape + (self.nstate,)), np.empty(shape + (self._nsensordata,)),
-                                 np.empty(shape + (self.model.nu,)))
-        return self._arrays[key]
+        ``copies`` and ``nsubsteps``: the first ``copies`` rows (contiguous) of arrays for every
+        copy, allocated once per ``nsubsteps`` and reused (the copies still stepping, one fewer
+        at each episode that ends, would otherwise keep arrays of every width they passed)."""
+        if nsubsteps not in self._arrays:
+            shape = (self.num_envs, nsubsteps)
+            self._arrays[nsubsteps] = (np.empty(shape + (self.nstate,)), np.empty(shape + (self._nsensordata,)),
+                                       np.empty(shape + (self.model.nu,)))
+        return tuple(array[:copies] for array in self._arrays[nsubsteps])
 
     def _keep_good(self, diverged: np.ndarray, last: np.ndarray, sensor: np.ndarray | None) -> None:
         """The slow path of a step where some copy failed: ``diverged`` (the copies whose

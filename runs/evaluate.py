@@ -3,9 +3,9 @@ what it measured.
 
 :func:`evaluate` runs any policy; :func:`greedy_evaluation` runs a learner's
 greedy policy from the same starts every time (:class:`GreedyEvaluator` keeps a
-run's evaluation envs); :func:`greedy_evaluations` runs several learners' at once,
-each on its seed block of one env (a seed batch's seeds, each as alone);
-:class:`SideEvaluations` makes a batch's periodic evaluations beside its training;
+run's evaluation envs); :class:`MemberEvaluations` makes several members' at once,
+each on its seed block of one env and each as alone (a batch's periodic evaluations
+beside its training, the final ones of the seeds that end at one step);
 :func:`measure_of` reads the
 task's success measure from the result and :func:`describe_evaluation` puts it
 in one line.
@@ -13,7 +13,6 @@ in one line.
 
 from __future__ import annotations
 
-from contextlib import ExitStack
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -43,20 +42,6 @@ def evaluate(env, policy, max_steps: int | None = None) -> dict:
     their mean under ``info_mean``.
     """
     return _summary(*_episodes(env, policy, max_steps))
-
-
-def evaluate_blocks(env: RobotTaskEnv, policies: Sequence, max_steps: int | None = None) -> list[dict]:
-    """:func:`evaluate` of ``policies[b]`` on seed block ``b`` of ``env``, every block in the
-    same steps (one physics call a step for all of them); one result per block, each what
-    :func:`evaluate` gives on that block's env alone (a copy's episode depends on its own
-    start, policy and physics only)."""
-    blocks = [env.block(b) for b in range(len(policies))]
-
-    def policy(td):
-        return torch.cat([p(td[rows]) for p, rows in zip(policies, blocks)])
-
-    ret, length, info = _episodes(env, policy, max_steps)
-    return [_summary(ret[rows], length[rows], {k: v[rows] for k, v in info.items()}) for rows in blocks]
 
 
 def _episodes(env, policy, max_steps: int | None) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -125,16 +110,6 @@ def greedy_evaluation(learner, env, seed: int) -> dict:
         return evaluate(env, learner.policy)
 
 
-def greedy_evaluations(learners: Sequence, env: RobotTaskEnv, seeds: Sequence[int]) -> list[dict]:
-    """:func:`greedy_evaluation` of ``learners[b]`` from ``seeds[b]``'s starts on seed block
-    ``b`` of ``env``, all blocks stepped together (:func:`evaluate_blocks`)."""
-    env.set_seed([int(s) for s in seeds])
-    with ExitStack() as stack:
-        for learner in learners:
-            stack.enter_context(learner.greedy())
-        return evaluate_blocks(env, [learner.policy for learner in learners])
-
-
 class GreedyEvaluator:
     """Greedy evaluations of ``learner`` on envs of the run's config kept for it (one per
     number of copies, built when first asked for), each from ``seed``'s starts."""
@@ -154,70 +129,75 @@ class GreedyEvaluator:
             env.close()
 
 
-class SideEvaluations:
-    """The periodic greedy evaluations of a batch's members, made beside its training: member
-    ``b``'s on seed block ``b`` of one env of ``copies`` copies a member, from its seed's starts,
-    each the result its :class:`GreedyEvaluator` gives alone. Every evaluation under way takes
-    one step per :meth:`step`, all of them in one physics call (the training loop steps them
-    once a training step, while their members' training waits: ``runs.loop``); an
-    evaluation's own episodes are a few hundred narrow steps otherwise, stepped while the
-    whole batch waits."""
+class MemberEvaluations:
+    """Greedy evaluations of a batch's members, each on a seed block of one env of ``blocks``
+    blocks of ``copies`` copies, from its seed's starts: each the result its
+    :class:`GreedyEvaluator` gives alone (a copy's episode depends on its own start, policy
+    and physics only). An evaluation starts when asked (:meth:`start`); every one under way
+    takes one step per :meth:`step`, all of them in one physics call. The training loop
+    steps a batch's periodic evaluations once a training step while their members'
+    training waits (``runs.loop``): alone, an evaluation's episodes are a few hundred
+    narrow steps of its own, made while the whole batch waits."""
 
-    def __init__(self, cfg: DictConfig, learner, members: int, copies: int) -> None:
-        self.learner, self.copies = learner, int(copies)
-        self.env = build_env(cfg, members * self.copies, list(range(members)))  # each block seeded as it starts
+    def __init__(self, cfg: DictConfig, learner, blocks: int, copies: int) -> None:
+        self.learner = learner
+        self.env = build_env(cfg, blocks * int(copies), list(range(blocks)))  # each block seeded as it starts
         n = self.env.num_envs
         self.env.physics.hold(np.ones(n, dtype=bool))
         self.ret, self.length = np.zeros(n), np.zeros(n, dtype=np.int64)
         self.alive = np.zeros(n, dtype=bool)
         self.info: dict[str, np.ndarray] = {}
         self.observation = torch.zeros(n, len(self.env.task.observation_names))
-        self.streams: dict[int, torch.Generator] = {}  # the members evaluating: their greedy ties' streams
+        # The members evaluating: each one's block and the stream that breaks its greedy ties.
+        self.running: dict[int, tuple[int, torch.Generator]] = {}
 
     @property
     def members(self) -> list[int]:
-        """The members whose evaluation is under way, in order."""
-        return sorted(self.streams)
+        """The members whose evaluation is under way, in the order of their blocks."""
+        return sorted(self.running, key=lambda b: self.running[b][0])
 
-    def start(self, b: int, seed: int) -> None:
-        """Member ``b``'s evaluation starts: its block's episodes from ``seed``'s starts (as its
-        evaluator's env starts them). None: the result comes from a later :meth:`step`."""
-        rows = self.env.block(b)
-        self.observation[rows] = self.env.renew_block(b, seed)
+    def start(self, member: int, seed: int, block: int | None = None) -> None:
+        """``member``'s evaluation starts on ``block`` (default: the member's own): the block's
+        episodes from ``seed``'s starts, as its evaluator's env starts them. None: the result
+        comes from a later :meth:`step`."""
+        block = member if block is None else block
+        rows = self.env.block(block)
+        self.observation[rows] = self.env.renew_block(block, seed)
         self.ret[rows], self.length[rows], self.alive[rows] = 0.0, 0, True
-        self.streams[b] = greedy_stream()
+        self.running[member] = block, greedy_stream()
 
     def step(self) -> dict[int, dict]:
         """One step of every evaluation under way, each member's greedy policy acting on its
         block; the results of those whose episodes have all ended, by member."""
         members, env = self.members, self.env
         acting = np.zeros(env.num_envs, dtype=bool)
-        for b in members:
-            acting[env.block(b)] = True
+        for member in members:
+            acting[env.block(self.running[member][0])] = True
         rows = torch.from_numpy(acting)
         observed = TensorDict({"observation": self.observation[rows]}, batch_size=[int(acting.sum())])
         action = torch.zeros(env.num_envs, dtype=torch.int64)
         with torch.no_grad():
             action[rows] = self.learner.act_members(observed, members, True,
-                                                    [self.streams[b] for b in members]).get("action")
+                                                    [self.running[m][1] for m in members]).get("action")
             nxt = env.step(TensorDict({"observation": self.observation, "action": action},
                                       batch_size=[env.num_envs])).get("next")
         _book_step(env, nxt, self.ret, self.length, self.alive, self.info)
         self.observation = nxt.get("observation")
         results = {}
-        for b in members:
-            block = env.block(b)
+        for member in members:
+            block = env.block(self.running[member][0])
             if not self.alive[block].any():
-                results[b] = _summary(self.ret[block].copy(), self.length[block].copy(),
-                                      {k: v[block].copy() for k, v in self.info.items()})
-                del self.streams[b]
+                results[member] = _summary(self.ret[block].copy(), self.length[block].copy(),
+                                           {k: v[block].copy() for k, v in self.info.items()})
+                del self.running[member]
         return results
 
-    def drop(self, b: int) -> None:
-        """Member ``b``'s evaluation, if one is under way, ends unfinished (its run failed)."""
-        if self.streams.pop(b, None) is not None:
-            self.alive[self.env.block(b)] = False
-            self.env.physics.hold(self.env.block_mask(b))
+    def drop(self, member: int) -> None:
+        """``member``'s evaluation, if one is under way, ends unfinished (its run failed)."""
+        running = self.running.pop(member, None)
+        if running is not None:
+            self.alive[self.env.block(running[0])] = False
+            self.env.physics.hold(self.env.block_mask(running[0]))
 
     def close(self) -> None:
         self.env.close()

@@ -49,7 +49,7 @@ from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.console import Tee, banner_lines, copies
-from runs.evaluate import GreedyEvaluator, SideEvaluations, describe_evaluation, greedy_evaluations, measure_of
+from runs.evaluate import GreedyEvaluator, MemberEvaluations, describe_evaluation, measure_of
 from runs.folder import model_path, run_lock, start_run
 from runs.loggers import log_hparams, make_logger, run_scalar_names
 from runs.loop import train
@@ -99,7 +99,7 @@ class Session:
     learner: Member
     env: RobotTaskEnv
     evaluator: GreedyEvaluator
-    # A batch's periodic evaluations are made beside its training (runs.evaluate.SideEvaluations):
+    # A batch's periodic evaluations are made beside its training (runs.evaluate.MemberEvaluations):
     # this starts the seed's, its run waiting for the result. None: made at once by ``evaluator``.
     side_eval: Callable[[], None] | None = None
 
@@ -363,18 +363,18 @@ def run_jobs(jobs: Sequence[Job], solo: bool = False, more: More | None = None) 
     return [slot.summary for slot in slots]
 
 
-def _side_evaluations(cfg: DictConfig, learner, slots: list[_Slot]) -> SideEvaluations | None:
+def _side_evaluations(cfg: DictConfig, learner, slots: list[_Slot]) -> MemberEvaluations | None:
     """A training batch's periodic evaluations, made beside its training (none without
     them), each seed's started by its run."""
     if cfg.mode != "train" or not int(cfg.eval_episodes):
         return None
-    side = SideEvaluations(cfg, learner, learner.members, int(cfg.eval_episodes))
+    side = MemberEvaluations(cfg, learner, learner.members, int(cfg.eval_episodes))
     for slot in slots:
         _side_eval(slot, side)
     return side
 
 
-def _side_eval(slot: _Slot, side: SideEvaluations | None) -> None:
+def _side_eval(slot: _Slot, side: MemberEvaluations | None) -> None:
     """The seed's periodic evaluations made by ``side`` (if any), from its evaluator's seed."""
     if side is not None:
         slot.session.side_eval = partial(side.start, slot.index, slot.session.evaluator.seed)
@@ -530,7 +530,7 @@ class _Refill:
     ``error.txt`` saying why; none is taken after a stop was asked."""
 
     def __init__(self, more: More, learner, env: RobotTaskEnv, slots: list[_Slot], stack: ExitStack,
-                 stopped: dict, runs: list[Run], side: SideEvaluations | None = None) -> None:
+                 stopped: dict, runs: list[Run], side: MemberEvaluations | None = None) -> None:
         self.more, self.learner, self.env, self.slots, self.stack = more, learner, env, slots, stack
         self.side = side  # the batch's periodic evaluations
         self.cfg = slots[0].job.cfg
@@ -664,7 +664,7 @@ def _evaluate(slot: _Slot) -> None:
 
 
 def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluations,
-           more: More | None = None, stack: ExitStack | None = None, side: SideEvaluations | None = None) -> None:
+           more: More | None = None, stack: ExitStack | None = None, side: MemberEvaluations | None = None) -> None:
     """Steps every seed's copies together until each run is done (:func:`runs.loop.train`);
     a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
     done; ``more`` hands freed members new jobs (:class:`_Refill`, their consoles kept open
@@ -696,34 +696,46 @@ def _end_done(live: list[_Slot], env: RobotTaskEnv, stopped: dict, finals: _Fina
 
 class _FinalEvaluations:
     """The final greedy evaluations of the seeds that end at the same step (all of a
-    budget's seeds, at its last step), made in one env of their seed blocks, stepped
-    together (:func:`runs.evaluate.greedy_evaluations`): each seed's result is the one its
-    own evaluator gives alone. Envs are kept per number of seeds."""
+    budget's seeds, at its last step), made together (:class:`runs.evaluate.MemberEvaluations`
+    of their blocks, kept per number of seeds and episodes): each seed's result is the one
+    its own evaluator gives alone."""
 
     def __init__(self, cfg: DictConfig) -> None:
         self.cfg = cfg
-        self.envs: dict[int, RobotTaskEnv] = {}
+        self.sides: dict[tuple[int, int], MemberEvaluations] = {}
 
     def __call__(self, done: list[_Slot]) -> dict[int, dict]:
-        """Each seed's evaluation by its index, for the seeds of ``done`` that owe one, when
-        two or more do (one alone evaluates in its own env, as before)."""
+        """Each seed's evaluation by its index, for the seeds of ``done`` that owe one, where
+        two or more owe as many episodes (one alone evaluates in its own env, as before)."""
         owing = [slot for slot in done if slot.failed is None and slot.run is not None
                  and owes_final_evaluation(slot.session, slot.run)]
-        if len(owing) < 2:
-            return {}
-        seeds = [slot.session.evaluator.seed for slot in owing]
-        if len(owing) not in self.envs:
-            per_seed = owing[0].session.final_episodes  # copies: one per evaluation episode
-            self.envs[len(owing)] = build_env(self.cfg, len(owing) * per_seed, seeds)
+        results: dict[int, dict] = {}
+        for episodes in {slot.session.final_episodes for slot in owing}:
+            alike = [slot for slot in owing if slot.session.final_episodes == episodes]
+            if len(alike) > 1:
+                results.update(self._together(alike, episodes))
+        return results
+
+    def _together(self, slots: list[_Slot], episodes: int) -> dict[int, dict]:
+        """The evaluations of ``slots``, ``episodes`` each, in one env of a block each."""
+        key = (len(slots), episodes)
+        if key not in self.sides:
+            self.sides[key] = MemberEvaluations(self.cfg, slots[0].session.learner.learner, len(slots), episodes)
+        side, results = self.sides[key], {}
         try:
-            results = greedy_evaluations([slot.session.learner for slot in owing], self.envs[len(owing)], seeds)
+            for block, slot in enumerate(slots):
+                side.start(slot.index, slot.session.evaluator.seed, block)
+            while side.members:
+                results.update(side.step())
         except Exception:  # noqa: BLE001 - each seed then evaluates alone, a failure its own
+            for slot in slots:
+                side.drop(slot.index)
             return {}
-        return {slot.index: result for slot, result in zip(owing, results)}
+        return results
 
     def close(self) -> None:
-        for env in self.envs.values():
-            env.close()
+        for side in self.sides.values():
+            side.close()
 
 
 def _finish(slot: _Slot, interrupted: int | None, evaluation: dict | None = None) -> None:

@@ -35,7 +35,7 @@ import torch
 from tensordict import TensorDictBase
 
 from learners.base import Learner
-from runs.evaluate import SideEvaluations
+from runs.evaluate import MemberEvaluations
 from runs.run import Run
 from runs.training_state import env_state, load_env_state
 
@@ -59,7 +59,7 @@ class Lane(Protocol):
 def train(learner: Learner, env, lanes: Sequence[Lane],
           end_done: Callable[[list[Lane]], list[Lane]],
           refill: Callable[[TensorDictBase, list[Lane], list[Lane]], tuple[TensorDictBase, list[Lane]]] | None = None,
-          side: SideEvaluations | None = None) -> None:
+          side: MemberEvaluations | None = None) -> None:
     """Acts on ``env`` and learns from each step until every lane is done (see the module
     docstring); ``end_done(live)`` ends the lanes of ``live`` that are done and returns the
     others; ``refill(td, ended, live)``, after a step where lanes ended, may start new lanes
@@ -90,7 +90,7 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
 
 
 def _step(learner: Learner, env, live: list[Lane], training: list[Lane], td: TensorDictBase,
-          paused: dict[int, dict], side: SideEvaluations | None) -> TensorDictBase | None:
+          paused: dict[int, dict], side: MemberEvaluations | None) -> TensorDictBase | None:
     """One training step of the ``training`` lanes (the others' copies held); each then ends
     its step, and one whose run waits for an evaluation pauses (its block's state kept in
     ``paused``). The next step's input; None if a learner call failed (the ``live`` lanes
@@ -115,7 +115,7 @@ def _step(learner: Learner, env, live: list[Lane], training: list[Lane], td: Ten
 
 
 def _evaluate(env, live: list[Lane], td: TensorDictBase, paused: dict[int, dict],
-              side: SideEvaluations) -> TensorDictBase:
+              side: MemberEvaluations) -> TensorDictBase:
     """One step of the evaluations under way; a lane whose evaluation ended takes its result
     and trains again from where it stopped (its block's state and rows of ``td`` as they
     were). A waiting lane that failed is no longer waited for. The next step's input."""

@@ -217,7 +217,7 @@ class RobotTaskEnv(EnvBase):
         and their rows of it read the new episode's observation, done flags false and,
         in every other entry (``action``, a policy's), zeros, as TorchRL's partial reset
         (``_update_during_reset``) pads them (unless every copy restarts: then, as
-        there, those entries stay as they were). Inputs this path does not cover (a partial
+        there, those entries stay as they were; with seed blocks, every copy of a block). Inputs this path does not cover (a partial
         ``_step``, a preset ``next``, lazy stacks, named dims, another batch size,
         transforms' hooks) take ``EnvBase``'s generic path, which gives the same results."""
         if tensordict.device != self.device:
@@ -239,9 +239,16 @@ class RobotTaskEnv(EnvBase):
         restarted = {"observation": torch.from_numpy(obs), "done": torch.from_numpy(false[0]),
                      "terminated": torch.from_numpy(false[1]),
                      "truncated": torch.from_numpy(false[2])}
-        # TorchRL pads the other entries' reset rows with zeros only in a partial reset;
-        # when every copy restarts, it leaves them as they are.
-        return tensordict, self._next_input(tensordict, restarted, None if done.all() else done)
+        return tensordict, self._next_input(tensordict, restarted, self._padded(done))
+
+    def _padded(self, done: np.ndarray) -> np.ndarray | None:
+        """The restarted rows whose other entries are zeroed (None: none). TorchRL pads them
+        with zeros only in a partial reset; when every copy restarts, it leaves them as they
+        are. Per seed block, as that block's env alone would: a block whose copies all
+        restarted keeps its rows."""
+        whole = done.reshape(self.n_blocks, self.block_size).all(axis=1)
+        padded = done & ~np.repeat(whole, self.block_size)
+        return padded if padded.any() else None
 
     # -- the step and the restart of ended copies ---------------------------------
     def _one_pass_action(self, tensordict: TensorDictBase) -> np.ndarray | None:
