@@ -217,9 +217,10 @@ class RobotTaskEnv(EnvBase):
         and their rows of it read the new episode's observation, done flags false and,
         in every other entry (``action``, a policy's), zeros, as TorchRL's partial reset
         (``_update_during_reset``) pads them (unless every copy restarts: then, as
-        there, those entries stay as they were; with seed blocks, every copy of a block). Inputs this path does not cover (a partial
-        ``_step``, a preset ``next``, lazy stacks, named dims, another batch size,
-        transforms' hooks) take ``EnvBase``'s generic path, which gives the same results."""
+        there, those entries stay as they were; with seed blocks, every copy of a block:
+        :meth:`_padded`). Inputs this path does not cover (a partial ``_step``, a preset
+        ``next``, lazy stacks, named dims, another batch size, transforms' hooks) take
+        ``EnvBase``'s generic path, which gives the same results."""
         if tensordict.device != self.device:
             tensordict = tensordict.to(self.device)
         action = self._one_pass_action(tensordict)
