@@ -769,8 +769,9 @@ def final_evaluation(session: Session, run: Run, result: dict | None = None) -> 
         return None
     if _evaluated_already(session, run):
         return run.last_eval
-    evaluation = partial(session.evaluator, session.final_episodes) if result is None else lambda: result
-    return run.evaluate_greedy(evaluation)
+    if result is None:
+        result = session.evaluator(session.final_episodes)
+    return run.record_evaluation(result)
 
 
 def owes_final_evaluation(session: Session, run: Run) -> bool:

@@ -357,7 +357,7 @@ class Run:
     def _take_evaluation(self, result: dict) -> None:
         """Records the boundary's evaluation ``result``; a confirming one decides the candidate."""
         owed, self._owed = self._owed, None
-        self.evaluate_greedy(lambda: result)
+        self.record_evaluation(result)
         if owed == "confirm":
             self.judge.confirmed(self.evals[-1]["value"], self.n_episodes)
 
@@ -419,10 +419,13 @@ class Run:
         self.judge.training(ep.rolling, self.n_episodes)
         return ep
 
-    def evaluate_greedy(self, evaluation=None) -> dict:
-        """Runs ``evaluation`` (default ``greedy_eval``) now, records it and, if the greedy
-        policy judges, may solve."""
-        result = (evaluation or self.greedy_eval)()
+    def evaluate_greedy(self) -> dict:
+        """Runs the ``greedy_eval`` hook now and records its result (:meth:`record_evaluation`)."""
+        return self.record_evaluation(self.greedy_eval())
+
+    def record_evaluation(self, result: dict) -> dict:
+        """Records a greedy evaluation's ``result`` (evals.csv, the logger, the console) and, if
+        the greedy policy judges, may solve."""
         value = measure_of(result, self.success.measure)
         row = {"episode": self.n_episodes, "env_steps": self.env_steps, "episodes": result["episodes"],
                "length": result["mean_length"], "return": result["mean_return"], "value": value}

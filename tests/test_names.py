@@ -46,8 +46,8 @@ def walked_run(tmp_path: Path) -> Run:
     """Six episodes of known returns and distances, then a greedy evaluation (2.5 m, return 7)."""
     run = Run(tmp_path, 1, 100, WALK, quiet=True)
     feed(run, EPISODES)
-    run.evaluate_greedy(lambda: {"episodes": 3, "mean_length": 30.0, "mean_return": 7.0,
-                                 "info_mean": {"distance_walked": 2.5}})
+    run.record_evaluation({"episodes": 3, "mean_length": 30.0, "mean_return": 7.0,
+                           "info_mean": {"distance_walked": 2.5}})
     return run
 
 
