@@ -133,20 +133,36 @@ def _terminal(stream: IO[str]) -> IO[str]:
 
 
 class Tee:
-    """A text stream writing to ``terminal`` and, flushed line by line, to ``log``."""
+    """A text stream writing to ``terminal`` and, flushed line by line, to ``log``.
+
+    It owns neither: closing it closes nothing, and once ``log`` is closed (its run over) it
+    writes to ``terminal`` alone. A library that kept the stream it found at import (absl's
+    log handler, imported inside a run) closes it when logging is configured again (Hydra's
+    next job): that close reached the process's stderr, and a sweep's later signal handlers
+    then failed on it (issue 63)."""
 
     def __init__(self, terminal: IO[str], log: IO[str]) -> None:
         self.terminal, self.log = terminal, log
 
     def write(self, text: str) -> int:
-        self.log.write(text)
-        if "\n" in text:
-            self.log.flush()
+        if not self.log.closed:
+            self.log.write(text)
+            if "\n" in text:
+                self.log.flush()
         return self.terminal.write(text)
 
     def flush(self) -> None:
-        self.log.flush()
+        if not self.log.closed:
+            self.log.flush()
         self.terminal.flush()
+
+    def close(self) -> None:
+        """Flushes what it can: the terminal and the log belong to whoever opened them (and
+        may be closed already)."""
+        try:
+            self.flush()
+        except (OSError, ValueError):
+            pass
 
     def isatty(self) -> bool:
         return self.terminal.isatty()
