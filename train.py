@@ -44,10 +44,11 @@ from params import CheckpointError, ConfigError, did_you_mean
 from runs.console import tee_console, tuned_changes
 from tasks.catalog import (GROUPS, compose, locate_model, names, run_choices, unreadable_conf_file, use_config_dirs,
                           with_tuned_layers)
-from runs.folder import (MadeFolders, check_new_run, check_output_folder, eval_config, resumed_config, run_folder_of,
-                         taken, with_run_choices, write_hydra_record)
+from runs.folder import (WRITE_FAILED, MadeFolders, cannot_write, check_new_run, check_output_folder, eval_config,
+                         resumed_config, run_folder_of, taken, with_run_choices, write_hydra_record)
 from runs.layout import is_run_folder, is_sweep_folder
 from runs.settings import check_no_empty_mappings, check_run_config, moved, moved_to
+from runs.signals import hold_early
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
                           sibling_should_exit, stop_sweep, sweep_dir, sweep_stopped)
 from sweeps.tuning import trial_link
@@ -80,14 +81,14 @@ def _one_line(err: BaseException) -> str:
     return str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
 
 
-def _fail(message: str, run_dir: Path, in_sweep: bool) -> None:
+def _fail(message: str, run_dir: Path, in_sweep: bool, status: int = 2) -> None:
     """Prints ``message``; a sweep job keeps it in ``error.txt`` and lets the sweep go on (the
     sweep's end says on stderr how many jobs failed, so the job's own line goes to stdout)."""
     if not in_sweep:
         if _MADE is not None:  # a refused command leaves no folder it made
             _MADE.remove(run_dir)
         print(message, file=sys.stderr)
-        sys.exit(2)
+        sys.exit(status)
     print(message, flush=True)
     try:
         (run_dir / "error.txt").write_text(message + "\n")
@@ -161,6 +162,8 @@ def main(cfg: DictConfig) -> Job | None:
     # Unresolved: an override such as seed=${oops} is the validator's to report, not a crash here.
     overrides = list(OmegaConf.to_container(HydraConfig.get().overrides.task, resolve=False))
     run_dir = Path(HydraConfig.get().runtime.output_dir)
+    if in_sweep and os.getpid() != _LAUNCHER_PID:
+        hold_early()  # a worker's job: a signal before its training starts is kept for it
     if in_sweep and sweep_stopped():
         return  # the sweep was stopped before this job began: it never starts
     try:
@@ -170,6 +173,8 @@ def main(cfg: DictConfig) -> Job | None:
     except REFUSALS as err:
         return _fail(f"error: {_one_line(err)}", run_dir, in_sweep)
     except OSError as err:  # the run folder: missing, read-only, full
+        if (run_dir / "run.json").is_file():  # the run had started: its files could not be written
+            return _fail(cannot_write(err, run_dir), run_dir, in_sweep, WRITE_FAILED)
         where = f"{err.filename}: " if err.filename else ""
         return _fail(f"error: cannot write the run: {where}{err.strerror or err}", run_dir, in_sweep)
     except Exception:
@@ -207,10 +212,10 @@ def cli() -> None:
         use_config_dirs(_config_dir_args(sys.argv[1:]))
         # '~tuned': both layers; '--config-dir d' anywhere (Hydra's parser is not so lenient)
         sys.argv[1:] = _flags_first(with_tuned_layers(with_run_choices(sys.argv[1:])))
-        for arg in sys.argv[1:]:  # before Hydra writes its record (.hydra/, train.log) there
+        for i, arg in enumerate(sys.argv[1:], 1):  # before Hydra writes its record (.hydra/, train.log) there
             key, _, value = arg.partition("=")
             if key in ("hydra.run.dir", "hydra.sweep.dir") and value:
-                check_output_folder(key, value)
+                sys.argv[i] = arg = f"{key}={check_output_folder(key, value)}"
             if arg.startswith("~") and arg[1:] in GROUPS:
                 raise ConfigError(f"{arg} would leave the run without a {arg[1:]}; allowed: "
                                   f"{arg[1:]}=<one of {', '.join(names(arg[1:]))}>")

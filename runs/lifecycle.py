@@ -32,7 +32,6 @@ import json
 import random
 import signal
 import sys
-import threading
 import traceback
 from contextlib import ExitStack, contextmanager
 from functools import partial
@@ -50,10 +49,11 @@ from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.console import Tee, banner_lines, copies
 from runs.evaluate import GreedyEvaluator, MemberEvaluations, describe_evaluation, measure_of
-from runs.folder import model_path, run_lock, start_run
+from runs.folder import cannot_write, model_path, run_lock, start_run
 from runs.loggers import log_hparams, make_logger, run_scalar_names
 from runs.loop import train
 from runs.run import Hooks, Progress, Run
+from runs.signals import stop_on_signals
 from runs.summary import verdict_lines
 from runs.training_state import load_training_state, save_training_state, seed_everything
 from runs.video import record_video
@@ -251,6 +251,8 @@ class _Slot:
             return True
         try:
             work()
+        except OSError as err:  # its folder could not be written (a full disk): one line
+            self._failed(cannot_write(err, self.job.run_dir))
         except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
             self._failed(traceback.format_exc())
         return self.failed is None
@@ -265,7 +267,10 @@ class _Slot:
     def _failed(self, trace: str) -> None:
         self.failed = trace
         print(trace, file=sys.stderr)
-        (self.job.run_dir / "error.txt").write_text(trace)
+        try:
+            (self.job.run_dir / "error.txt").write_text(trace)
+        except OSError:  # (a full disk) the console has it
+            pass
 
     def save(self, path, learner, env, run, td: TensorDictBase) -> None:
         """:func:`runs.training_state.save_training_state` with this seed's random states in
@@ -678,7 +683,10 @@ def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluat
         except BaseException:
             for slot in slots:
                 if slot.solo and not slot.closed:
-                    close_run(slot.session, slot.run, finished=False)
+                    try:
+                        close_run(slot.session, slot.run, finished=False)
+                    except OSError:  # (a full disk) the first failure is the one raised
+                        pass
             raise
 
 
@@ -839,30 +847,3 @@ def report(session: Session, summary: dict, result: dict | None) -> None:
             {k: v for k, v in summary.items() if k != "eval"}, indent=1))
         for line in verdict_lines(summary, run_dir):
             print(line)
-
-
-@contextmanager
-def stop_on_signals(records: list[Run]) -> Iterator[dict]:
-    """Ctrl-C / SIGTERM ask each of ``records`` (those in it at the time) to stop after the
-    current step; a second Ctrl-C aborts. Yields ``{"signal": None}``, where the stopping
-    signal's number is put."""
-    stopped: dict = {"signal": None}
-    if threading.current_thread() is not threading.main_thread():
-        yield stopped  # signal handlers live in the main thread only (e.g. joblib workers)
-        return
-
-    def handler(signum, frame):
-        if any(r.stop_requested for r in records) and signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        stopped["signal"] = signum
-        for record in records:
-            record.request_stop()
-        print(f"\n{signal.Signals(signum).name}: stopping after this step and saving a checkpoint "
-              "(Ctrl-C again aborts without saving)", file=sys.stderr)
-
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield stopped
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)

@@ -68,6 +68,9 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
     started by the lanes' runs (which then wait) and stepped here once a step."""
     learner.begin()
     starts = [lane.run.start(lane.env) for lane in lanes]
+    if len(starts) > 1:  # a run resumed from its first step has a reset's keys, one from later a step's too
+        common = set.intersection(*(set(start.keys()) for start in starts))
+        starts = [start.select(*common) for start in starts]  # the step's input: the rest is made anew
     td = starts[0] if len(starts) == 1 else torch.cat(starts)
     live = end_done(list(lanes))  # a run resumed at its end ends here
     paused: dict[int, dict] = {}  # a waiting lane's member: its block's env state when it stopped

@@ -23,8 +23,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 
 from params import ConfigError
+from runs.signals import HELD, say
 from runs.summary import summarize_run
-from sweeps.folder import job_folders
+from sweeps.folder import job_folders, sweep_jobs
 from sweeps.comparison import NotASweep, report
 from sweeps.launchers import check_launcher
 
@@ -47,6 +48,9 @@ class RecordSweep(Callback):
             check_launcher(config.hydra.get("launcher"))
         except ConfigError as err:
             raise SweepRefused(str(err)) from None
+        launcher = config.hydra.get("launcher")
+        if launcher is not None and str(launcher.get("_target_", "")).endswith("LocalLauncher"):  # submitit_local's
+            keep_controllers_through_ctrl_c()
         # Resolved here, once, in the launching process: ${now:} and ${pid:} are cached
         # resolvers, and Hydra copies their cached values into every job's config.
         SWEEP["dir"] = Path(str(config.hydra.sweep.dir))
@@ -97,31 +101,34 @@ def stop_sweep(signum, frame) -> None:
     folder = sweep_dir()
     if folder is not None and folder.is_dir():
         (folder / ".stop").write_text(signal.Signals(signum).name + "\n")
-    print(f"\n{signal.Signals(signum).name}: the sweep's running jobs stop after their step and "
-          "save a checkpoint; jobs not started are skipped (Ctrl-C again aborts)", file=sys.stderr)
+    say(f"\n{signal.Signals(signum).name}: the sweep's running jobs stop after their step and "
+        "save a checkpoint; jobs not started are skipped (Ctrl-C again aborts)")
 
 
 def sweep_stopped() -> bool:
     """Inside a job: whether its sweep was asked to stop before the job began (in the
     launching process, even before the sweep's folder existed to hold ``.stop``)."""
-    if SWEEP["signal"] is not None:
+    if SWEEP["signal"] is not None or HELD["signal"] is not None:
         return True
     folder = sweep_dir()
     return folder is not None and (folder / ".stop").exists()
 
 
 def report_stopped_sweep(folder: Path) -> None:
-    """One resume command per job the stop left unfinished."""
-    resumable = 0
-    for job in job_folders(folder):  # (Hydra's own .hydra* folders aside)
-        state = summarize_run(job)  # the same reading of a job folder compare.py uses
-        if state.get("resume"):
-            print(f"resume with: {state['resume']}")
+    """One resume command per job the stop left unfinished, each job not started named, and
+    the one command that finishes the sweep."""
+    resumable = not_started = 0
+    for job in sweep_jobs(folder)[0]:  # planned jobs too: a launcher stopped before their folders
+        if job.get("resume"):
+            print(f"resume with: {job['resume']}")
             resumable += 1
-        elif state["status"] == "never started":
-            print(f"not started: {job.name}")
-    if resumable > 1:
-        print(f"or all of them, seeds of one setting together: python train.py resume={folder}")
+        elif job["status"] == "never started":
+            where = Path(job["run_dir"]).name if job.get("run_dir") else f"job {job['job']}"
+            print(f"not started: {where}")
+            not_started += 1
+    if resumable > 1 or not_started:
+        print(f"or the whole rest of the sweep in one command (stopped jobs resumed, seeds of one setting "
+              f"together, jobs not started run): python train.py resume={folder}")
     record = folder / "multirun.yaml"
     if record.is_file() and "rl_optuna_sweeper" in record.read_text(errors="replace"):
         print("or the same tuning command again: the next sweep of the study resumes the trials this "
@@ -236,3 +243,29 @@ def sibling_should_exit() -> bool:
     job stopped by its SIGTERM, saved, ends its worker process (else the launcher would wait)."""
     folder = sweep_dir()
     return folder is not None and (folder / BROKEN).exists()
+
+
+def keep_controllers_through_ctrl_c() -> None:
+    """In the launching process of a submitit_local sweep: submitit starts each job under a
+    controller process of its own, in the terminal's process group, which dies on Ctrl-C with a
+    traceback and sends its job a second SIGINT (abort, nothing saved) and then SIGKILL.
+    Patched here to start each controller with SIGINT ignored (inherited by its job, whose
+    training handles the signal itself: :mod:`runs.signals`), so the job stops after its step,
+    saves, and the controller ends with it. Idempotent; a no-op without submitit."""
+    try:
+        from submitit.local import local
+    except ImportError:
+        return
+    start = local.start_controller
+    if getattr(start, "keeps_through_ctrl_c", False):
+        return
+
+    def start_ignoring_ctrl_c(*args, **kwargs):
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            return start(*args, **kwargs)
+        finally:
+            signal.signal(signal.SIGINT, previous)
+
+    start_ignoring_ctrl_c.keeps_through_ctrl_c = True
+    local.start_controller = start_ignoring_ctrl_c
