@@ -45,7 +45,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from tqdm import tqdm
 
-from bench import child
+from sweeps import child
 from runs.layout import is_sweep_folder
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from bench import child
+from sweeps import child
 from bench.before_after import worktree
 from bench.benchmark import load_plan
 from bench.seed_batch import floor_of, load

@@ -36,7 +36,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench import child
+from sweeps import child
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDIES = Path("bench") / "studies"  # from ROOT (the URL in each tuned file's header names no machine)

@@ -5,14 +5,15 @@ alike but their seed trained together as one seed batch (:func:`runs.lifecycle.r
 each exactly as ``resume=<job folder>`` continues it alone; then the sweep's comparison is
 made again. Jobs that cannot continue (no checkpoint.pt, a damaged one) are listed with
 their one-line reason and left as they are; finished jobs are not touched. Jobs of the
-sweep's plan that never started (a launcher stopped before them) are listed with the
-command that runs each into the sweep, and the resume then exits 1: the sweep is not
-finished until they are.
+sweep's plan that never started (a launcher stopped before them) then run, each as its own
+``train.py`` into the folder its sweep would have given it: the one command finishes the
+sweep.
 """
 
 from __future__ import annotations
 
 import shlex
+import signal
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -26,22 +27,48 @@ from runs.folder import is_finished, resumed_config
 from runs.layout import is_run_folder
 from runs.training_state import read_run_json
 from runs.settings import check_run_config
+from sweeps import child
 from sweeps.comparison import NotASweep, report
 from sweeps.folder import job_folders, overrides_dict, sweep_jobs
 from sweeps.state import report_stopped_sweep
 
 
-def never_started(folder: Path) -> list[str]:
-    """The command that runs each job of the sweep in ``folder`` that never started, into
-    the folder its sweep would have given it."""
+def never_started(folder: Path) -> list[list[str]]:
+    """The command line (``train.py``'s arguments) that runs each job of the sweep in
+    ``folder`` that never started, into the folder its sweep would have given it."""
     jobs, _ = sweep_jobs(folder)
     commands = []
     for job in (j for j in jobs if j.get("status") == "never started" and j.get("overrides") is not None):
         seed = overrides_dict(job["overrides"]).get("seed", 0)
         name = f"{job['job']}_{job.get('robot')}_{job.get('learner')}_seed{seed}"
-        commands.append(" ".join(["python train.py", *(shlex.quote(o) for o in job["overrides"]),
-                                  shlex.quote(f"hydra.run.dir={folder / name}")]))
+        commands.append([*job["overrides"], f"hydra.run.dir={folder / name}"])
     return commands
+
+
+def shown(args: Sequence[str]) -> str:
+    """``python train.py <args>``, quoted for a shell."""
+    return " ".join(["python train.py", *(shlex.quote(a) for a in args)])
+
+
+def run_never_started(commands: Sequence[Sequence[str]], folder: Path) -> None:
+    """Runs each of ``commands`` (:func:`never_started`) as its own ``train.py``, in turn; a
+    Ctrl-C stops the one running (it saves) and starts no more: the stop is reported and the
+    process exits 130."""
+    for args in commands:
+        print(f"starting a job that never started: {shown(args)}", flush=True)
+        try:
+            code = child.call([*_train_command(), *args], Path.cwd(), every=0.2)
+        except KeyboardInterrupt:
+            code = 128 + signal.SIGINT
+        if code >= 128:
+            report_stopped_sweep(folder)
+            raise SystemExit(code)
+
+
+def _train_command() -> list[str]:
+    """This program again: ``train.py`` (or the installed command) as it was started."""
+    program = Path(sys.argv[0])
+    return [sys.executable, str(program)] if program.is_file() else [sys.executable, "-m", "train"]
 
 
 def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Job], list[str]]:
@@ -93,16 +120,12 @@ def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
     """Continues the sweep ``cfg.resume`` (see the module docstring); each job's summary."""
     folder = Path(str(cfg.resume))
     unstarted = never_started(folder)
-    if unstarted:
-        print(f"{len(unstarted)} job{'s' * (len(unstarted) != 1)} of {folder} never started; each runs with:")
-        for command in unstarted:
-            print(f"  {command}")
     try:
         jobs, skipped = resumable_jobs(cfg, overrides)
     except CheckpointError:
-        if unstarted:  # nothing to continue, but the sweep is not finished
-            raise SystemExit(1) from None
-        raise
+        if not unstarted:
+            raise
+        jobs, skipped = [], []  # nothing to continue, but jobs to start
     for line in skipped:
         print(line)
     (folder / ".stop").unlink(missing_ok=True)  # the stop is over: the comparison says so no more
@@ -112,14 +135,12 @@ def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
         print(f"resuming {len(batch)} job{'s' * (len(batch) != 1)} of {folder} together: "
               f"{', '.join(job.run_dir.name for job in batch)}")
         summaries += run_jobs(batch)
+    if any(s.get("interrupted") for s in summaries):
+        report_stopped_sweep(folder)
+        return summaries
+    run_never_started(unstarted, folder)
     try:
         report(folder)
     except NotASweep as err:  # pragma: no cover - the folder held the jobs just resumed
         print(f"no comparison: {err}")
-    if any(s.get("interrupted") for s in summaries):
-        report_stopped_sweep(folder)
-    elif unstarted:
-        print(f"the sweep is not finished: {len(unstarted)} job{'s' * (len(unstarted) != 1)} never started "
-              "(the commands above)", file=sys.stderr)
-        raise SystemExit(1)
     return summaries

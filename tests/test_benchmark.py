@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from bench import benchmark, child
+from bench import benchmark
+from sweeps import child
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -280,7 +281,7 @@ sys.exit(130)
 CALLER = """
 import sys
 sys.path.insert(0, {root!r})
-from bench import child
+from sweeps import child
 try:
     child.call([sys.executable, "-c", {stopper!r}, {out!r}], cwd={out!r})
 except KeyboardInterrupt:
@@ -309,7 +310,7 @@ POOL = """
 import sys
 sys.path.insert(0, {root!r})
 from pathlib import Path
-from bench import child
+from sweeps import child
 outs = [{out!r} + f"/{{i}}" for i in range(3)]
 try:
     child.call_all([[sys.executable, "-c", {stopper!r}, out] for out in outs], cwd={out!r}, jobs=2,
