@@ -13,8 +13,10 @@ numbers are not all finite (NaN or infinite weights or Q-values).
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
+import shutil
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -82,6 +84,17 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
+def _failed_write(path: Path, err: RuntimeError) -> OSError:
+    """The OSError under torch's ``RuntimeError`` of a write that failed (``unexpected pos``:
+    the file is shorter than written): out of space where the disk has no room left."""
+    try:
+        full = shutil.disk_usage(path.parent).free < (1 << 20)
+    except OSError:
+        full = False
+    code = errno.ENOSPC if full else errno.EIO
+    return OSError(code, os.strerror(code), str(path))
+
+
 def save_checkpoint(path: Path | str, payload: dict) -> None:
     """Writes ``payload`` with its checksum to ``path``: a temporary file, fsynced, renamed
     over ``path``, then the folder fsynced, so a crash leaves the old checkpoint or the new one."""
@@ -94,7 +107,10 @@ def save_checkpoint(path: Path | str, payload: dict) -> None:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; give it a normal file's mode
         with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
+            try:
+                torch.save(payload, f)
+            except RuntimeError as err:  # torch's zip writer says a failed write (a full disk) so
+                raise _failed_write(path, err) from err
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

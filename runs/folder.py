@@ -20,6 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from params import ConfigError
 from tasks.catalog import GROUPS
 from params import CheckpointError
+from runs.layout import is_run_folder
 from runs.settings import upgraded
 
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
@@ -28,15 +29,25 @@ RESUME_OVERRIDES = ("resume", "quiet", "verbose", "log_every", "torch_threads", 
 PICKS = GROUPS  # the config groups a run folder fixes
 
 
-def check_output_folder(key: str, path: str) -> None:
+def check_output_folder(key: str, path: str) -> str:
     """``hydra.run.dir`` / ``hydra.sweep.dir`` (``key``) may be a new or empty folder, or one
     this project made (a run's: run.json, its .lock or Hydra's .hydra record; a sweep's: multirun.yaml):
-    anything else (``/``, a home folder, a source tree) is refused before a file is written."""
+    anything else (``/``, a home folder, a source tree) is refused before a file is written, and
+    so is a folder inside a run's (symlinks and ``..`` resolved: no run is written into
+    another). Returns the path to make: ``path``, or its resolved form where it went through
+    ``..`` (Hydra would make the folders before the ``..``)."""
     if "${" in path:  # resolved by Hydra later: a time-stamped name, a new folder
-        return
+        return path
+    resolved = Path(path).resolve()
+    inside = next((p for p in resolved.parents if is_run_folder(p)), None)
+    if inside is not None:
+        raise ConfigError(f"{key}={path} is inside the run folder {inside}; allowed: a folder outside every "
+                          "run's (a sweep's folder holds its runs side by side)")
+    if ".." in Path(path).parts:
+        path = str(resolved)
     folder = Path(path)
     if not folder.exists():
-        return
+        return path
     if not folder.is_dir():
         raise ConfigError(f"{key}={path} is a file; allowed: a new or empty folder, or a run or sweep "
                           "folder of this project")
@@ -51,6 +62,7 @@ def check_output_folder(key: str, path: str) -> None:
         raise ConfigError(f"{key}={path} is a folder that holds other files ({shown}); allowed: a new or "
                           f"empty folder, or a {'run' if key == 'hydra.run.dir' else 'sweep'} folder of "
                           "this project")
+    return path
 
 
 def is_finished(run_dir: Path) -> bool:
@@ -148,6 +160,19 @@ def with_run_choices(args: list[str]) -> list[str]:
         raise ConfigError(f"checkpoint={folder} is a {'/'.join(str(saved.get(k)) for k in PICKS)} "
                           f"run, evaluated with its own robot, task and learner; drop {' '.join(clash)}")
     return [*(f"{k}={saved[k]}" for k in PICKS if k not in given and saved.get(k)), *args]
+
+
+WRITE_FAILED = 3  # exit status of a run that could not write its files (2: a refused command)
+
+
+def cannot_write(err: OSError, run_dir: Path) -> str:
+    """One line for a write into ``run_dir`` that failed (a full disk, a folder gone): what
+    could not be written, why, and how to go on from the last checkpoint where there is one."""
+    line = f"error: cannot write {err.filename or run_dir}: {err.strerror or err}"
+    if (run_dir / "checkpoint.pt").is_file():
+        line += (f"; the last checkpoint is intact: once there is room, resume with: "
+                 f"python train.py resume={run_dir}")
+    return line
 
 
 class MadeFolders:
