@@ -78,7 +78,7 @@ def test_the_table_covers_what_was_tried():
 
 def test_a_full_disk_mid_run_is_one_line_and_the_last_checkpoint_survives(tmp_path, monkeypatch,
                                                                           capsys):
-    """The second checkpoint write fails as on a full disk: one line, exit 2, and the first
+    """The second checkpoint write fails as on a full disk: one line, exit 3, and the first
     checkpoint still loads (saves are atomic: write a temporary file, then rename)."""
     saves = []
 
@@ -93,7 +93,9 @@ def test_a_full_disk_mid_run_is_one_line_and_the_last_checkpoint_survives(tmp_pa
     code = cli(["max_episodes=200", "checkpoint_every=20", "eval_episodes=0"], tmp_path,
                monkeypatch)
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
-    assert code == 2 and err == [f"error: cannot write the run: {saves[-1]}: No space left on device"]
+    run_dir = tmp_path / "run"
+    assert code == 3 and err == [f"error: cannot write {saves[-1]}: No space left on device; the last checkpoint "
+                                 f"is intact: once there is room, resume with: python train.py resume={run_dir}"]
     state = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
     assert state["run"]["n_episodes"] == 20
 
@@ -135,6 +137,7 @@ def made(tmp_path_factory) -> dict[str, str]:
     save_checkpoint(base / "nan.pt", {**unchecked, "table": table})
     (base / "foreign").mkdir()
     (base / "foreign" / "notes.txt").write_text("not a run\n")
+    (base / "link").symlink_to(finished)
     (base / "conf" / "tuned").mkdir(parents=True)
     (base / "conf" / "tuned" / "latin1.yaml").write_bytes(b"# @package _global_\nlearner:\n  alpha: 0.\xe93\n")
     return {"finished": str(finished), "base": str(base), "foreign": str(base / "foreign")}
@@ -146,6 +149,12 @@ MADE = [  # (arguments, what the one line must say); {name} is made[name]
     (["resume={finished}"], "resume={finished}: it is finished"),
     (["hydra.run.dir={foreign}"], "hydra.run.dir={foreign} is a folder that holds other files (notes.txt)"),
     (["-m", "hydra.sweep.dir={foreign}"], "hydra.sweep.dir={foreign} is a folder that holds other files"),
+    # issue 63: never a run inside another run's folder, through a symlink or '..' either
+    (["hydra.run.dir={finished}/sub2"], "hydra.run.dir={finished}/sub2 is inside the run folder {finished}"),
+    (["hydra.run.dir={base}/link/sub2"], "hydra.run.dir={base}/link/sub2 is inside the run folder {finished}"),
+    (["hydra.run.dir={finished}/x/../sub"], "is inside the run folder {finished}"),
+    (["hydra.run.dir={finished}/x/../../finished"], "hydra.run.dir={finished} already holds a run"),
+    (["-m", "hydra.sweep.dir={finished}/sweep"], "hydra.sweep.dir={finished}/sweep is inside the run folder"),
     (["hydra.searchpath=[file://{base}/conf]", "tuned=latin1"],
      "conf/tuned/latin1.yaml is not valid UTF-8 (byte 0xe9 at position 40)"),
     (["-m", "seed=-1,-2"], "every job of the sweep failed (2); the first, 0_cartpole_qlearn_seed-1: seed must be "
