@@ -65,6 +65,9 @@ def check_run_config(cfg: DictConfig) -> None:
         raise ConfigError("max_episodes and max_env_steps are both 0 (no limit), so training would never "
                           "end; allowed: a budget in either or both, e.g. max_episodes=1000; got "
                           f"max_episodes={conf.get('max_episodes')!r}, max_env_steps={conf.get('max_env_steps')!r}")
+    if conf.get("mode") == "eval" and conf.get("eval_episodes") == 0:
+        raise ConfigError("mode=eval with eval_episodes=0 would evaluate nothing; allowed: eval_episodes >= 1 "
+                          "(the greedy episodes to run)")
     for node in ("robot", "task", "learner"):
         if node not in conf or not isinstance(conf[node], dict):
             raise ConfigError(f"{node} must be a config group with a _target_; got {conf.get(node)!r}")

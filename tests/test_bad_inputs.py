@@ -154,6 +154,7 @@ MADE = [  # (arguments, what the one line must say); {name} is made[name]
     (["hydra.run.dir={base}/link/sub2"], "hydra.run.dir={base}/link/sub2 is inside the run folder {finished}"),
     (["hydra.run.dir={finished}/x/../sub"], "is inside the run folder {finished}"),
     (["hydra.run.dir={finished}/x/../../finished"], "hydra.run.dir={finished} already holds a run"),
+    (["mode=eval", "checkpoint={finished}", "eval_episodes=0"], "mode=eval with eval_episodes=0 would evaluate nothing"),
     (["-m", "hydra.sweep.dir={finished}/sweep"], "hydra.sweep.dir={finished}/sweep is inside the run folder"),
     (["hydra.searchpath=[file://{base}/conf]", "tuned=latin1"],
      "conf/tuned/latin1.yaml is not valid UTF-8 (byte 0xe9 at position 40)"),
