@@ -207,8 +207,16 @@ class MadeFolders:
 @contextmanager
 def taken(run_dir: Path, refusals: tuple[type[BaseException], ...]) -> Iterator[None]:
     """:func:`run_lock` on ``run_dir``; a ``refusals`` error raised inside before the run
-    started (before its run.json) removes what was written into the folder while held."""
+    started (before its run.json) removes what was written into the folder while held. A
+    resumed run refused (its run.json older) leaves its folder as it was: what was made is
+    removed, ``train.log`` cut back to its length, ``.lock`` and Hydra's records of earlier
+    commands given back their bytes."""
     before = set(os.listdir(run_dir))
+    records = [run_dir / name for name in (".hydra", ".hydra-resume") if name in before]
+    kept = {path: path.read_bytes() for path in [run_dir / ".lock", *(p for r in records for p in r.rglob("*"))]
+            if path.is_file()}
+    log = run_dir / "train.log"
+    log_size = log.stat().st_size if "train.log" in before else None
     with run_lock(run_dir):
         try:
             yield
@@ -218,6 +226,13 @@ def taken(run_dir: Path, refusals: tuple[type[BaseException], ...]) -> Iterator[
                 for name in made:
                     path = run_dir / name
                     shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+                if log_size is not None:
+                    os.truncate(log, log_size)
+                for record in records:
+                    shutil.rmtree(record, ignore_errors=True)
+                for path, data in kept.items():
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    path.write_bytes(data)
             raise
 
 

@@ -55,7 +55,8 @@ from runs.loop import train
 from runs.run import Hooks, Progress, Run
 from runs.signals import stop_on_signals
 from runs.summary import verdict_lines
-from runs.training_state import load_training_state, save_training_state, seed_everything
+from runs.training_state import (load_training_state, restore_training_state, save_training_state,
+                                 seed_everything)
 from runs.video import record_video
 from tasks.base import Success
 from tasks.env import RobotTaskEnv
@@ -197,6 +198,7 @@ class _Slot:
     summary: dict = dataclasses.field(default_factory=dict)
     console: IO[str] | None = None
     closed: bool = False  # its model saved and its files closed
+    restored: dict | None = None  # a resumed seed's checkpoint, checked and loaded when built
 
     @property
     def seed(self) -> int:
@@ -425,6 +427,9 @@ def _build(slots: list[_Slot]):
         elif slot.job.cfg.mode == "eval":
             raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
         _session(slot, member, env if solo else env.seed_block(slot.index))
+        if slot.job.resume:  # every tensor checked before the folder is written
+            slot.restored = restore_training_state(slot.session.state_path, slot.job.run_dir, member,
+                                                   slot.session.env)
     return learner, env
 
 
@@ -522,7 +527,9 @@ def _begin(slot: _Slot, first: TensorDictBase | None) -> None:
         write_success(session)
         if job.cfg.mode != "train":
             return
-        slot.run = make_run(session, resume=job.resume, progress=job.progress, save=slot.save)
+        slot.run = make_run(session, resume=job.resume, progress=job.progress, save=slot.save,
+                            restored=slot.restored)
+        slot.restored = None
         if not job.resume:
             slot.run.continue_from(first)
 
@@ -636,10 +643,11 @@ def _tags(run_dir: Path) -> dict:
 
 
 def make_run(session: Session, resume: bool, progress: Progress | None,
-             save: Callable[..., None] | None = None) -> Run:
+             save: Callable[..., None] | None = None, restored: dict | None = None) -> Run:
     """Training's :class:`Run` with its logger and hooks (``save``: writes the training
     state, :func:`runs.training_state.save_training_state`'s arguments); a resumed run continues
-    from its checkpoint (its metrics files cut back to it)."""
+    from its checkpoint (``restored``: as read when the run was built; its metrics files cut
+    back to it)."""
     cfg, learner, env = session.cfg, session.learner, session.env
     logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name, tags=_tags(session.run_dir),
                          **{k: v for k, v in cfg.logger.items() if k != "kind"})
@@ -655,7 +663,7 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
               max_env_steps=int(cfg.get("max_env_steps", 0)),
               stop_when_solved=bool(cfg.get("stop_when_solved", True)), hooks=hooks)
     if resume:
-        run.continue_from(load_training_state(session.state_path, learner, env, run))
+        run.continue_from(load_training_state(session.state_path, learner, env, run, restored))
         print(f"resuming {session.run_dir} after episode {run.n_episodes} ({run.env_steps} env steps)")
     log_hparams(logger, cfg, run_scalar_names(session.success.measure, session.success.window))
     return run

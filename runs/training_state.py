@@ -21,14 +21,17 @@ Everything is stored as tensors and plain Python values, so it loads with
 
 Resuming refuses a checkpoint before any file of the run folder is touched:
 :func:`read_training_state` (read-only) checks the format, the checksum, the
-learner and the identity; :func:`load_training_state` then restores every part
-in memory, and only once all of it has loaded cuts the metrics files back to
-the checkpoint's episodes. ``runs.folder.resumed_config`` calls
+learner and the identity; :func:`restore_training_state` loads the learner and the
+env when the run is built (every tensor's key, shape and dtype checked before the
+folder is written); :func:`load_training_state` then restores the rest in memory,
+and only once all of it has loaded cuts the metrics files back to the checkpoint's
+episodes. ``runs.folder.resumed_config`` calls
 :func:`check_targets` and :func:`read_training_state` before the run starts.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import importlib
@@ -274,27 +277,11 @@ def check_checkpoint(run_dir: Path | str, cfg: DictConfig) -> None:
     read_training_state(Path(run_dir) / "checkpoint.pt", run_dir, _learner_kind(cfg))
 
 
-def load_training_state(path: Path, learner, env, run) -> TensorDictBase:
-    """Restores what :func:`save_training_state` wrote; returns the next step's input.
-
-    Every part is checked and loaded before any file changes: only then are the
-    temporary files of a save that a kill interrupted removed (the rename never
-    happened, so ``path`` is the last complete checkpoint) and the metrics files
-    cut back to the checkpoint's episodes (``run.reopen``).
-    """
-    state = read_training_state(path, run.run_dir, learner.kind)
+@contextlib.contextmanager
+def _fits(path: Path | str):
+    """A part of checkpoint ``path`` that does not fit this run: one :class:`CheckpointError`."""
     try:
-        load_env_state(env, state["env"], path)
-        own = state["learner"]
-        if "generator" not in own:  # written before each learner had its own stream: the run's torch stream
-            own = {**own, "generator": state["rng"]["torch"]}
-        learner.load_training_state(own)
-        run.load_state_dict(state["run"], reopen=False)
-        load_global_rng_state(state["rng"])
-        td = TensorDict(state["td"], batch_size=[env.num_envs])
-        for leftover in Path(path).parent.glob(Path(path).name + ".*.tmp"):
-            leftover.unlink(missing_ok=True)
-        run.reopen()
+        yield
     except CheckpointError:
         raise
     except StateMismatch as err:
@@ -302,6 +289,47 @@ def load_training_state(path: Path, learner, env, run) -> TensorDictBase:
     except (KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError) as err:
         raise CheckpointError(f"checkpoint {path} does not fit this run ({type(err).__name__}: "
                               f"{str(err).splitlines()[0] if str(err) else ''})") from None
+
+
+def restore_training_state(path: Path | str, run_dir: Path | str, learner, env) -> dict:
+    """Reads and checks ``path`` (:func:`read_training_state`) and loads its env and learner
+    parts into ``env`` and ``learner``: every tensor's key, shape and dtype is checked here,
+    when the run is built, before any file of its folder is written. Returns the state, for
+    :func:`load_training_state`."""
+    state = read_training_state(path, run_dir, learner.kind)
+    with _fits(path):
+        load_env_state(env, state["env"], path)
+        own = state["learner"]
+        if "generator" not in own:  # written before each learner had its own stream: the run's torch stream
+            own = {**own, "generator": state["rng"]["torch"]}
+        learner.load_training_state(own)
+        TensorDict(state["td"], batch_size=[env.num_envs])
+        if len(state["run"]["ret"]) != env.num_envs:
+            raise ValueError(f"the checkpoint has {len(state['run']['ret'])} copies, this run {env.num_envs}")
+    return state
+
+
+def load_training_state(path: Path, learner, env, run, state: dict | None = None) -> TensorDictBase:
+    """Restores what :func:`save_training_state` wrote; returns the next step's input.
+    ``state``: what :func:`restore_training_state` returned when the run was built (its
+    learner loaded then; its env again now, a batch's first reset having come between);
+    None: restored now.
+
+    Every part is checked and loaded before any file changes: only then are the
+    temporary files of a save that a kill interrupted removed (the rename never
+    happened, so ``path`` is the last complete checkpoint) and the metrics files
+    cut back to the checkpoint's episodes (``run.reopen``).
+    """
+    if state is None:
+        state = restore_training_state(path, run.run_dir, learner, env)
+    with _fits(path):
+        load_env_state(env, state["env"], path)
+        run.load_state_dict(state["run"], reopen=False)
+        load_global_rng_state(state["rng"])
+        td = TensorDict(state["td"], batch_size=[env.num_envs])
+        for leftover in Path(path).parent.glob(Path(path).name + ".*.tmp"):
+            leftover.unlink(missing_ok=True)
+        run.reopen()
     return td
 
 

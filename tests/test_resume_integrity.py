@@ -164,6 +164,33 @@ def test_a_part_that_does_not_load_is_refused_before_metrics_are_cut(tmp_path, k
     assert_refused(run_dir, "does not fit this run")
 
 
+def every_file(run_dir: Path) -> dict[str, bytes]:
+    """Every file of the run folder and its bytes, none aside."""
+    return {str(p.relative_to(run_dir)): p.read_bytes() for p in sorted(run_dir.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("change, says", [
+    (lambda s: s["learner"].update(table=s["learner"]["table"].reshape(-1, 1)), "table is torch.float64 ["),
+    (lambda s: s["learner"].pop("table"), "it lacks table"),
+], ids=["reshaped", "removed"])
+def test_a_learner_tensor_that_does_not_fit_is_refused_before_anything_is_written(tmp_path, killed, change, says):
+    """A checkpoint of this run, intact by its checksum, whose learner's table was reshaped or
+    removed: refused in one line with the folder byte for byte as it was (no banner, no
+    ``logs/``, ``train.log``, ``.lock`` and Hydra's records untouched)."""
+    run_dir = clone(killed, tmp_path / "run")
+    state = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    change(state)
+    save_checkpoint(run_dir / "checkpoint.pt", state)
+    before = every_file(run_dir)
+    done = resume(run_dir)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2, done.stderr[-1500:]
+    assert len(lines) == 1 and "does not fit this run" in lines[0] and says in lines[0], done.stderr[-1500:]
+    assert done.stdout == ""
+    assert every_file(run_dir) == before
+    assert sorted(p.name for p in run_dir.iterdir()) == sorted(Path(k).parts[0] for k in before)
+
+
 def test_a_leftover_temporary_file_stays_when_the_checkpoint_is_refused(tmp_path, killed):
     run_dir = clone(killed, tmp_path / "run", run_id=new_run_identity()["run_id"])
     (run_dir / "checkpoint.pt.k1ll3d.tmp").write_bytes(b"half a checkp")
