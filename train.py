@@ -47,7 +47,7 @@ from tasks.catalog import (GROUPS, compose, locate_model, names, run_choices, un
 from runs.folder import (WRITE_FAILED, MadeFolders, cannot_write, check_new_run, check_output_folder, eval_config,
                          resumed_config, run_folder_of, taken, with_run_choices, write_hydra_record)
 from runs.layout import is_run_folder, is_sweep_folder
-from runs.settings import check_no_empty_mappings, check_run_config, moved, moved_to
+from runs.settings import check_hydra_key, check_no_empty_mappings, check_run_config, moved, moved_to
 from runs.signals import hold_early
 from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
                           sibling_should_exit, stop_sweep, sweep_dir, sweep_stopped)
@@ -209,6 +209,7 @@ def cli() -> None:
     os.environ["HYDRA_FULL_ERROR"] = "1"
     sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
     try:
+        sys.argv[1:] = [_physical(arg) for arg in sys.argv[1:]]
         use_config_dirs(_config_dir_args(sys.argv[1:]))
         # '~tuned': both layers; '--config-dir d' anywhere (Hydra's parser is not so lenient)
         sys.argv[1:] = _flags_first(with_tuned_layers(with_run_choices(sys.argv[1:])))
@@ -219,6 +220,8 @@ def cli() -> None:
             if arg.startswith("~") and arg[1:] in GROUPS:
                 raise ConfigError(f"{arg} would leave the run without a {arg[1:]}; allowed: "
                                   f"{arg[1:]}=<one of {', '.join(names(arg[1:]))}>")
+            if key.startswith("+") and key.lstrip("+").startswith("hydra."):
+                check_hydra_key(arg)
             if moved_to(key.lstrip("+~")):
                 raise ConfigError(moved(key.lstrip("+~"), value))
     except ConfigError as err:
@@ -257,6 +260,17 @@ def cli() -> None:
 _VALUED = ("--config-dir", "-cd", "--config-name", "-cn", "--config-path", "-cp", "--cfg", "-c", "--package",
            "-p", "--experimental-rerun")
 _INFO = ("all", "config", "defaults", "defaults-tree", "plugins", "searchpath")
+
+
+def _physical(arg: str) -> str:
+    """``resume=`` or ``checkpoint=`` a path that exists, resolved through its symlinks before
+    its ``..`` (as the file system does, where text would not: ``link/../K``)."""
+    key, eq, value = arg.partition("=")
+    if eq and key.lstrip("+") in ("resume", "checkpoint") and value and "${" not in value and "," not in value:
+        path = Path(value)
+        if path.exists():
+            return f"{key}={path.resolve()}"
+    return arg
 
 
 def _flags_first(args: list[str]) -> list[str]:

@@ -29,6 +29,7 @@ import hashlib
 import inspect
 import json
 import math
+import sys
 import types
 import typing
 from collections.abc import Mapping as AbcMapping, Sequence as AbcSequence
@@ -140,6 +141,9 @@ class Spec:
                               f"got {entry!r}".replace("  ", " "))
         if bad is not None or not self.range.holds(value):
             raise ConfigError(f"{full} must be {self.allowed()}; got {value!r}")
+        if isinstance(value, float) and value != 0 and abs(value) < sys.float_info.min:
+            raise ConfigError(f"{full} must be {self.allowed()}; got {value!r}, below the smallest normal "
+                              f"number ({sys.float_info.min:.3g}), which training's arithmetic takes for 0")
         if self.extra is not None:
             self.extra(value)
         if self.hint is float or (self.hint == (float | None) and value is not None):

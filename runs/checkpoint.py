@@ -18,6 +18,7 @@ import hashlib
 import os
 import shutil
 import tempfile
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -130,7 +131,9 @@ def load_checkpoint(path: Path | str, kind: str) -> dict:
         raise CheckpointError(f"checkpoint {path} is not a file; allowed: a model.pt or checkpoint.pt "
                               "this toolkit wrote, or a run folder")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # (a TorchScript archive: torch warns before it fails) the line says it
+            warnings.simplefilter("ignore")
+            payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises many types for a damaged file
         raise CheckpointError(f"checkpoint {path} cannot be read ({type(err).__name__}: truncated or damaged); "
                               "nothing was changed: restore it from a copy, or start a new run") from None

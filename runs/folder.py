@@ -91,7 +91,8 @@ def resumed_config(cfg: DictConfig, overrides: list[str]) -> tuple[DictConfig, P
         raise CheckpointError(f"resume={run_dir}: it is finished (its summary.json says so), so there is "
                               f"nothing to continue; allowed: a stopped or killed run (evaluate this one with "
                               f"mode=eval checkpoint={run_dir})")
-    from runs.training_state import check_checkpoint, check_targets, load_run_config, read_run_json
+    from runs.settings import check_targets
+    from runs.training_state import check_checkpoint, load_run_config, read_run_json
 
     read_run_json(run_dir)  # a damaged run.json is refused now, not when model.pt is written
     saved = load_run_config(run_dir)
@@ -128,7 +129,8 @@ def eval_config(cfg: DictConfig, overrides: list[str]) -> DictConfig:
     the run's own config.yaml; the run settings (``eval_episodes``, ``seed``, ``video``, ...)
     and every override of this command (a task parameter for a robustness test) on top."""
     folder = run_folder_of(cfg.checkpoint)
-    from runs.training_state import check_targets, load_run_config
+    from runs.settings import check_targets
+    from runs.training_state import load_run_config
 
     saved = upgraded(load_run_config(folder))
     check_targets(saved)  # config.yaml is data: it may build only the project's own classes

@@ -24,12 +24,13 @@ error handling, and it has no ranges: ``num_envs=-3`` and ``lr=nan`` pass.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import importlib.util
 import inspect
 import typing
 from typing import Any, Callable
 
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from params import ConfigError, did_you_mean, locate
@@ -47,6 +48,68 @@ ADDED = {"eval_every_steps": 0}
 _ABSENT = object()
 LOGGERS = ("csv", "tensorboard", "wandb", "mlflow", "none")
 SEED_LIMIT = 2**63
+ALLOWED_TARGET_PACKAGES = ("robots", "tasks", "learners")  # what a _target_ may build
+
+
+def check_targets(cfg: Any, where: str = "") -> None:
+    """Refuses (:class:`ConfigError`, one line) any ``_target_`` in ``cfg`` but a class defined
+    in the project's own packages (``robots.``, ``tasks.``, ``learners.``).
+
+    A run folder's config.yaml and a command line are data, and Hydra's ``instantiate``
+    would call whatever a ``_target_`` names (``os.system``, ``subprocess.Popen``): checked as
+    written, interpolations unresolved, and nothing outside those packages is imported to
+    check it.
+    """
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        cfg = OmegaConf.to_container(cfg, resolve=False)
+    if isinstance(cfg, dict):
+        for key, value in cfg.items():
+            name = f"{where}.{key}" if where else str(key)
+            if key == "_target_":
+                _check_target(value, name)
+            else:
+                check_targets(value, name)
+    elif isinstance(cfg, list):
+        for i, value in enumerate(cfg):
+            check_targets(value, f"{where}[{i}]")
+
+
+def _check_target(target: Any, key: str) -> None:
+    allowed = ", ".join(f"{p}." for p in ALLOWED_TARGET_PACKAGES)
+    refusal = ConfigError(f"{key}={target!r} is not allowed: a run builds only classes of the project's own "
+                          f"packages ({allowed})")
+    if not isinstance(target, str) or target.split(".", 1)[0] not in ALLOWED_TARGET_PACKAGES:
+        raise refusal
+    if declared(target):  # one of the project's declared classes, known without importing it
+        return
+    module_name, _, attr = target.rpartition(".")
+    if not (module_name and all(part.isidentifier() for part in target.split("."))):
+        raise refusal
+    try:  # the module itself, not an attribute path through it (runs.checkpoint.os.system)
+        module = importlib.import_module(module_name)
+    except Exception:  # noqa: BLE001 - no such module in the project
+        raise refusal from None
+    obj = getattr(module, attr, None)
+    if not (isinstance(obj, type)
+            and str(obj.__module__).split(".", 1)[0] in ALLOWED_TARGET_PACKAGES):
+        raise refusal
+
+
+def check_hydra_key(override: str) -> None:
+    """Refuses (one line) the override ``+hydra.<key>=<value>`` unless Hydra's own config has it: a key of its
+    schema (``hydra.conf.HydraConf``), or one under a mapping open to any key (``job.env_set``,
+    a launcher's or sweeper's settings, the logging configs)."""
+    from hydra.conf import HydraConf
+
+    kind, path = HydraConf, "hydra"
+    for part in override.lstrip("+").split("=", 1)[0].split(".")[1:]:
+        if not dataclasses.is_dataclass(kind):
+            return  # a mapping or a plugin's node: its keys are its own
+        fields = typing.get_type_hints(kind)
+        if part not in fields:
+            raise ConfigError(f"{path}.{part} is not a setting of Hydra; allowed under {path}: "
+                              f"{', '.join(f.name for f in dataclasses.fields(kind))}; got {override}")
+        kind, path = fields[part], f"{path}.{part}"
 
 
 def check_run_config(cfg: DictConfig) -> None:
@@ -60,6 +123,7 @@ def check_run_config(cfg: DictConfig) -> None:
         value = OmegaConf.select(cfg, old, default=_ABSENT)
         if value is not _ABSENT:
             raise ConfigError(moved(old, value))
+    check_targets(OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]))
     _check_top_level(conf)
     if conf.get("mode") == "train" and not conf.get("max_episodes") and not conf.get("max_env_steps"):
         raise ConfigError("max_episodes and max_env_steps are both 0 (no limit), so training would never "

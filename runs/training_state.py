@@ -26,7 +26,7 @@ env when the run is built (every tensor's key, shape and dtype checked before th
 folder is written); :func:`load_training_state` then restores the rest in memory,
 and only once all of it has loaded cuts the metrics files back to the checkpoint's
 episodes. ``runs.folder.resumed_config`` calls
-:func:`check_targets` and :func:`read_training_state` before the run starts.
+:func:`runs.settings.check_targets` and :func:`read_training_state` before the run starts.
 """
 
 from __future__ import annotations
@@ -39,11 +39,10 @@ import json
 import random
 import uuid
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict, TensorDictBase
 
 from learners.base import StateMismatch
@@ -53,15 +52,12 @@ from params import ConfigError
 # 3: the run's identity and a checksum; 2: the task's and robot's declared state_dict;
 # 1: scanned attributes.
 FORMAT = 3
-# The packages whose classes a resumed run's config.yaml may name as ``_target_``.
-ALLOWED_TARGET_PACKAGES = ("robots", "tasks", "learners")
 
 
 # -- the run folder: identity, run.json, config.yaml ------------------------
 def new_run_identity() -> dict:
     """``{"run_id": <random hex>}``, for a new run's ``run.json`` (its checkpoints carry it)."""
     return {"run_id": uuid.uuid4().hex}
-
 
 def read_run_json(run_dir: Path | str) -> dict:
     """The run folder's ``run.json``, refused in one line unless it is a JSON object."""
@@ -77,12 +73,14 @@ def read_run_json(run_dir: Path | str) -> dict:
         raise CheckpointError(f"{path}: run_id must be a non-empty string; got {data['run_id']!r}")
     return data
 
-
 def load_run_config(run_dir: Path | str) -> DictConfig:
     """The run folder's ``config.yaml``, refused in one line if it does not parse as a mapping."""
     path = Path(run_dir) / "config.yaml"
     try:
         cfg = OmegaConf.load(path)
+    except OSError as err:
+        raise CheckpointError(f"{path} cannot be read ({err.strerror or type(err).__name__}); "
+                              "allowed: resume= a run folder holding config.yaml and run.json") from None
     except Exception as err:  # noqa: BLE001 - yaml and OmegaConf raise many types
         raise CheckpointError(f"{path} does not parse ({type(err).__name__}: "
                               f"{str(err).strip().splitlines()[0] if str(err).strip() else ''})") from None
@@ -105,7 +103,6 @@ def run_identity(run_dir: Path | str) -> dict:
     run_id = read_run_json(run_dir).get("run_id") or "config-" + raw_sha256[:32]
     return {"run_id": run_id, "config_sha256": _settings_sha256(str(run_dir), raw_sha256)}
 
-
 @functools.lru_cache(maxsize=256)
 def _settings_sha256(run_dir: str, raw_sha256: str) -> str:
     """The hash of ``run_dir``'s config.yaml settings, parsed once per content of the file
@@ -115,50 +112,8 @@ def _settings_sha256(run_dir: str, raw_sha256: str) -> str:
     canonical = json.dumps(settings, sort_keys=True, separators=(",", ":"), default=repr)
     return hashlib.sha256(canonical.encode()).hexdigest()
 
-
-def check_targets(cfg: Any, where: str = "") -> None:
-    """Refuses (:class:`ConfigError`, one line) any ``_target_`` in ``cfg`` but a class defined
-    in the project's own packages (``robots.``, ``tasks.``, ``learners.``).
-
-    A run folder's config.yaml is data, and Hydra's ``instantiate`` would call whatever a
-    ``_target_`` names (``os.system``, ``builtins.eval``): checked as written, interpolations
-    unresolved, and nothing outside those packages is imported to check it.
-    """
-    if isinstance(cfg, (DictConfig, ListConfig)):
-        cfg = OmegaConf.to_container(cfg, resolve=False)
-    if isinstance(cfg, dict):
-        for key, value in cfg.items():
-            name = f"{where}.{key}" if where else str(key)
-            if key == "_target_":
-                _check_target(value, name)
-            else:
-                check_targets(value, name)
-    elif isinstance(cfg, list):
-        for i, value in enumerate(cfg):
-            check_targets(value, f"{where}[{i}]")
-
-
-def _check_target(target: Any, key: str) -> None:
-    allowed = ", ".join(f"{p}." for p in ALLOWED_TARGET_PACKAGES)
-    refusal = ConfigError(f"{key}={target!r} is not allowed: a run folder's config.yaml builds only classes "
-                          f"of the project's own packages ({allowed})")
-    if not isinstance(target, str) or target.split(".", 1)[0] not in ALLOWED_TARGET_PACKAGES:
-        raise refusal
-    module_name, _, attr = target.rpartition(".")
-    if not (module_name and all(part.isidentifier() for part in target.split("."))):
-        raise refusal
-    try:  # the module itself, not an attribute path through it (runs.checkpoint.os.system)
-        module = importlib.import_module(module_name)
-    except Exception:  # noqa: BLE001 - no such module in the project
-        raise refusal from None
-    obj = getattr(module, attr, None)
-    if not (isinstance(obj, type)
-            and str(obj.__module__).split(".", 1)[0] in ALLOWED_TARGET_PACKAGES):
-        raise refusal
-
-
 def _learner_kind(cfg: DictConfig) -> str | None:
-    """The ``kind`` of the learner class ``cfg.learner._target_`` names (after :func:`check_targets`)."""
+    """The ``kind`` of the learner class ``cfg.learner._target_`` names (after :func:`runs.settings.check_targets`)."""
     target = OmegaConf.select(cfg, "learner._target_")
     if not isinstance(target, str):
         return None
@@ -166,14 +121,11 @@ def _learner_kind(cfg: DictConfig) -> str | None:
     kind = getattr(getattr(importlib.import_module(module_name), attr, None), "kind", None)
     return kind if isinstance(kind, str) else None
 
-
 def _tensors(state: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
     return {k: torch.from_numpy(np.array(v, copy=True)) for k, v in state.items()}
 
-
 def _arrays(state: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
     return {k: v.numpy().copy() for k, v in state.items()}
-
 
 def env_state(env) -> dict:
     """Physics, counters and randomness of a ``RobotTaskEnv``."""
@@ -191,7 +143,6 @@ def env_state(env) -> dict:
         "robot": _tensors(env.task.robot.state_dict()),
     }
 
-
 def load_env_state(env, state: dict, path: Path) -> None:
     if state["num_envs"] != env.num_envs or state["nstate"] != env.physics.nstate:
         raise CheckpointError(
@@ -208,7 +159,6 @@ def load_env_state(env, state: dict, path: Path) -> None:
     env.task.load_state_dict(_arrays(state["task"]))
     env.task.robot.load_state_dict(_arrays(state["robot"]))
 
-
 def global_rng_state() -> dict:
     kind, keys, pos, has_gauss, cached = np.random.get_state()
     return {
@@ -217,11 +167,9 @@ def global_rng_state() -> dict:
         "python": _python_rng_state(),
     }
 
-
 def _python_rng_state() -> list:
     version, internal, gauss = random.getstate()
     return [version, torch.tensor(internal, dtype=torch.int64), gauss]
-
 
 def load_global_rng_state(state: dict) -> None:
     torch.set_rng_state(state["torch"])
@@ -229,7 +177,6 @@ def load_global_rng_state(state: dict) -> None:
     np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, cached))
     version, internal, gauss = state["python"]
     random.setstate((version, tuple(int(v) for v in internal.tolist()), gauss))
-
 
 def save_training_state(path: Path, learner, env, run, td: TensorDictBase) -> None:
     """Writes the run's whole state, with the identity of its run folder, to ``path`` atomically."""
@@ -244,7 +191,6 @@ def save_training_state(path: Path, learner, env, run, td: TensorDictBase) -> No
         "run": run.state_dict(),
         "rng": global_rng_state(),
     })
-
 
 def read_training_state(path: Path | str, run_dir: Path | str, learner_kind: str | None) -> dict:
     """Reads ``path`` and checks it may continue the run in ``run_dir``: readable, this
@@ -270,12 +216,10 @@ def read_training_state(path: Path | str, run_dir: Path | str, learner_kind: str
                               "is another run's")
     return state
 
-
 def check_checkpoint(run_dir: Path | str, cfg: DictConfig) -> None:
     """Checks, reading only, that ``run_dir/checkpoint.pt`` may continue the run of ``cfg``
     (its resumed config, after :func:`check_targets`); see :func:`read_training_state`."""
     read_training_state(Path(run_dir) / "checkpoint.pt", run_dir, _learner_kind(cfg))
-
 
 @contextlib.contextmanager
 def _fits(path: Path | str):
@@ -289,7 +233,6 @@ def _fits(path: Path | str):
     except (KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError) as err:
         raise CheckpointError(f"checkpoint {path} does not fit this run ({type(err).__name__}: "
                               f"{str(err).splitlines()[0] if str(err) else ''})") from None
-
 
 def restore_training_state(path: Path | str, run_dir: Path | str, learner, env) -> dict:
     """Reads and checks ``path`` (:func:`read_training_state`) and loads its env and learner
@@ -307,7 +250,6 @@ def restore_training_state(path: Path | str, run_dir: Path | str, learner, env) 
         if len(state["run"]["ret"]) != env.num_envs:
             raise ValueError(f"the checkpoint has {len(state['run']['ret'])} copies, this run {env.num_envs}")
     return state
-
 
 def load_training_state(path: Path, learner, env, run, state: dict | None = None) -> TensorDictBase:
     """Restores what :func:`save_training_state` wrote; returns the next step's input.
@@ -331,7 +273,6 @@ def load_training_state(path: Path, learner, env, run, state: dict | None = None
             leftover.unlink(missing_ok=True)
         run.reopen()
     return td
-
 
 def seed_everything(seed: int) -> torch.Generator:
     """Seeds torch, numpy and Python's ``random`` globals; returns a dedicated torch generator."""

@@ -25,7 +25,8 @@ from torchrl.envs.utils import step_mdp
 
 from runs.checkpoint import load_model
 from runs.console import OneLineParser
-from runs.training_state import check_targets, load_run_config
+from runs.settings import check_targets
+from runs.training_state import load_run_config
 from runs.settings import check_run_config, upgraded
 from tasks.factory import build_env
 

@@ -138,6 +138,7 @@ def made(tmp_path_factory) -> dict[str, str]:
     (base / "foreign").mkdir()
     (base / "foreign" / "notes.txt").write_text("not a run\n")
     (base / "link").symlink_to(finished)
+    torch.jit.save(torch.jit.script(torch.nn.Sequential()), str(base / "script.pt"))  # a TorchScript archive
     (base / "conf" / "tuned").mkdir(parents=True)
     (base / "conf" / "tuned" / "latin1.yaml").write_bytes(b"# @package _global_\nlearner:\n  alpha: 0.\xe93\n")
     return {"finished": str(finished), "base": str(base), "foreign": str(base / "foreign")}
@@ -156,6 +157,15 @@ MADE = [  # (arguments, what the one line must say); {name} is made[name]
     (["hydra.run.dir={finished}/x/../../finished"], "hydra.run.dir={finished} already holds a run"),
     (["mode=eval", "checkpoint={finished}", "eval_episodes=0"], "mode=eval with eval_episodes=0 would evaluate nothing"),
     (["-m", "hydra.sweep.dir={finished}/sweep"], "hydra.sweep.dir={finished}/sweep is inside the run folder"),
+    # issue 63: library warnings inside the line, values as given, no cut message, +hydra.<unknown>
+    (["mode=eval", "checkpoint={base}/script.pt"], "checkpoint {base}/script.pt cannot be read"),
+    (["learner.alpha=1e-320"], "learner.alpha must be a finite number in (0, 1]; got 1e-320, below the smallest"),
+    (["learner=dqn", "learner.epsilon._target_=subprocess.Popen"],
+     "learner.epsilon._target_='subprocess.Popen' is not allowed: a run builds only classes of the project's "
+     "own packages (robots., tasks., learners.)"),
+    (["+hydra.foo=1"], "hydra.foo is not a setting of Hydra; allowed under hydra: defaults, mode,"),
+    (["++hydra.job.foo=1"], "hydra.job.foo is not a setting of Hydra; allowed under hydra.job: name, chdir,"),
+    (["resume={base}/link/../nowhere"], "resume={base}/link/../nowhere is not a run folder"),
     (["hydra.searchpath=[file://{base}/conf]", "tuned=latin1"],
      "conf/tuned/latin1.yaml is not valid UTF-8 (byte 0xe9 at position 40)"),
     (["-m", "seed=-1,-2"], "every job of the sweep failed (2); the first, 0_cartpole_qlearn_seed-1: seed must be "
@@ -191,6 +201,25 @@ def test_a_bad_input_that_needs_files_is_one_line_and_writes_nowhere(args, words
     assert len(err) == 1 and err[0].startswith("error: ") and words.format(**made) in err[0], err
     assert _listing(made["base"]) == before, "a refused command wrote into a folder not its own"
     assert not (tmp_path / "s.db").exists() and not (tmp_path / "run" / "config.yaml").exists()
+
+
+def test_resume_through_a_symlink_and_dotdot_goes_where_the_file_system_goes(made, tmp_path, monkeypatch, capsys):
+    """``resume=L/../K`` with L a link to ``deep/sub``: the run ``deep/K`` (the text alone would
+    say ``K`` beside L)."""
+    import shutil
+    from pathlib import Path
+
+    run = tmp_path / "deep" / "K"
+    shutil.copytree(made["finished"], run, ignore=shutil.ignore_patterns(".lock"))
+    (run / "summary.json").unlink()  # a run stopped after its last checkpoint
+    (tmp_path / "deep" / "sub").mkdir()
+    (tmp_path / "L").symlink_to(tmp_path / "deep" / "sub")
+    monkeypatch.chdir(tmp_path)
+    GlobalHydra.instance().clear()
+    monkeypatch.setattr(train, "_IN_JOB", False)
+    monkeypatch.setattr(sys, "argv", ["train.py", "resume=L/../K", "hydra/job_logging=none", "hydra/hydra_logging=none"])
+    train.cli()  # returns: the run finished
+    assert (run / "summary.json").is_file() and not Path("K").exists()
 
 
 def _listing(folder: str) -> dict[str, int]:

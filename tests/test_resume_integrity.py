@@ -16,7 +16,8 @@ import torch
 from omegaconf import OmegaConf
 
 from runs.checkpoint import CheckpointError, content_checksum, load_checkpoint, save_checkpoint
-from runs.training_state import check_targets, new_run_identity, read_run_json, run_identity
+from runs.settings import check_targets
+from runs.training_state import new_run_identity, read_run_json, run_identity
 from params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

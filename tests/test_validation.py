@@ -244,7 +244,9 @@ def _is_int(x) -> bool:
 
 
 def _is_real(x) -> bool:
-    return not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x)
+    """A finite number, a float 0 or of normal size (a subnormal one counts as 0 in training)."""
+    return not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) \
+        and (isinstance(x, int) or x == 0 or abs(x) >= sys.float_info.min)
 
 
 def integer_in(low, high=math.inf):
