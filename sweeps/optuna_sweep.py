@@ -40,6 +40,15 @@ from tasks.factory import build_task
 OWN = ("seed", "trial", "max_env_steps", "max_episodes", "stop_when_solved")
 
 
+def continued_seed(sampler_seed: int, held: int) -> int:
+    """The sampler's seed for a study continued with ``held`` trials: ``sampler_seed`` mixed
+    with ``held`` (numpy's ``SeedSequence``), so a continued study never draws the values its
+    first sweep drew from ``sampler_seed``, and the same continuation draws the same values."""
+    import numpy as np
+
+    return int(np.random.SeedSequence([int(sampler_seed), int(held)]).generate_state(1)[0])
+
+
 class TuningSweep:
     """Asks Optuna for trials, launches each as one job per seed, tells it the mean of their objective."""
 
@@ -375,6 +384,13 @@ class TuningSweep:
                                                  constant_liar=True)
         study = optuna.create_study(study_name=self.study_name, storage=storage, sampler=sampler,
                                     pruner=make_pruner(self.pruner), direction="maximize", load_if_exists=True)
+        held = len(study.get_trials(deepcopy=False))
+        if held and self.sampler_seed is not None:  # continued: not the first sweep's draws again
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                study.sampler = optuna.samplers.TPESampler(
+                    n_startup_trials=self.startup_trials, seed=continued_seed(self.sampler_seed, held),
+                    constant_liar=True)
         known = study.user_attrs.get("measure")  # a study of an earlier version names only its measure
         names = study.metric_names
         if known not in (None, plan.measure) or names not in (None, [plan.objective]):

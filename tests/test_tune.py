@@ -850,3 +850,32 @@ def test_a_study_of_a_task_other_than_the_robots_default_writes_the_tasks_tuned_
         assert OmegaConf.create(text).learner.gamma == 0.95
         assert f"cp {folder / f'tuned_{written}.yaml'} {conf_dir() / 'tuned' / f'{written}.yaml'}" in out
         assert ("for task wall only: applied on top of turtlebot_qlearn.yaml" in text) == (task == "wall")
+
+
+def _asked(url: str, trials: int) -> list[float]:
+    """The values a sweep with ``sampler_seed=0`` asks of study ``s`` in ``url`` (told at once)."""
+    from types import SimpleNamespace
+
+    from sweeps.optuna_sweep import TuningSweep
+
+    sweep = TuningSweep(study="s", storage=url, sampler_seed=0, pruner=None)
+    sweep._check_settings()
+    study = sweep._open_study(SimpleNamespace(measure="length", objective="success_and_speed"))
+    space = {"x": optuna.distributions.FloatDistribution(0.0, 1.0)}
+    values = []
+    for _ in range(trials):
+        trial = study.ask(space)
+        values.append(trial.params["x"])
+        study.tell(trial, trial.params["x"])
+    return values
+
+
+def test_a_continued_study_with_a_fixed_sampler_seed_asks_new_values(tmp_path):
+    """Issue 63: a second sweep on a study, with the same ``sampler_seed``, asked the first
+    sweep's values again (its sampler restarted from that seed). Its sampler's seed now mixes
+    in the trials the study holds: new values, and a fresh study with that seed still asks
+    the first sweep's values."""
+    first = _asked(f"sqlite:///{tmp_path / 'a.db'}", 3)
+    again = _asked(f"sqlite:///{tmp_path / 'a.db'}", 3)
+    assert not set(again) & set(first), (first, again)
+    assert _asked(f"sqlite:///{tmp_path / 'b.db'}", 3) == first  # a fresh study: the seed's own draws
