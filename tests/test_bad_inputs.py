@@ -135,6 +135,7 @@ def made(tmp_path_factory) -> dict[str, str]:
     table = unchecked["table"].clone()
     table[0, 0] = float("nan")
     save_checkpoint(base / "nan.pt", {**unchecked, "table": table})
+    save_checkpoint(base / "reshaped.pt", {**unchecked, "table": unchecked["table"].reshape(-1, 1)})
     (base / "foreign").mkdir()
     (base / "foreign" / "notes.txt").write_text("not a run\n")
     (base / "link").symlink_to(finished)
@@ -158,6 +159,8 @@ MADE = [  # (arguments, what the one line must say); {name} is made[name]
     (["mode=eval", "checkpoint={finished}", "eval_episodes=0"], "mode=eval with eval_episodes=0 would evaluate nothing"),
     (["-m", "hydra.sweep.dir={finished}/sweep"], "hydra.sweep.dir={finished}/sweep is inside the run folder"),
     # issue 63: library warnings inside the line, values as given, no cut message, +hydra.<unknown>
+    (["mode=eval", "checkpoint={base}/reshaped.pt"], "checkpoint {base}/reshaped.pt does not fit this run: table is"),
+    (["checkpoint={base}/reshaped.pt"], "checkpoint {base}/reshaped.pt does not fit this run: table is"),
     (["mode=eval", "checkpoint={base}/script.pt"], "checkpoint {base}/script.pt cannot be read"),
     (["learner.alpha=1e-320"], "learner.alpha must be a finite number in (0, 1]; got 1e-320, below the smallest"),
     (["learner=dqn", "learner.epsilon._target_=subprocess.Popen"],
