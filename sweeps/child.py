@@ -7,7 +7,8 @@ alone (``kill -INT <pid>``) goes on training unseen. Here each child runs in its
 session, so the caller passes each SIGINT on exactly once to every child running: the
 first asks ``train.py`` to stop after its step and save a checkpoint, a second to abort
 without saving; the caller starts no more children, waits for those running to exit,
-then stops too.
+then stops too. A SIGTERM of the caller is passed on the same way (:class:`Stopped` says
+which signal it was).
 """
 
 from __future__ import annotations
@@ -17,9 +18,35 @@ import os
 import signal
 import subprocess
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import IO
+
+
+class Stopped(KeyboardInterrupt):
+    """The caller was signalled (``signum``: SIGINT or SIGTERM); every child, passed the
+    signal, has exited."""
+
+    def __init__(self, signum: int = signal.SIGINT) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _sigterm_as_stop() -> Iterator[dict]:
+    """Inside, a SIGTERM raises :class:`Stopped` (where this is the main thread)."""
+    def stop(signum, frame):
+        raise Stopped(signum)
+
+    try:
+        before = signal.signal(signal.SIGTERM, stop)
+    except ValueError:  # not the main thread: the caller's handler stays
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 def cores() -> int:
@@ -42,7 +69,7 @@ def call(cmd: Sequence[str], cwd: Path, stdout: IO | None = None, poll: Callable
         The child's exit code.
 
     Raises:
-        KeyboardInterrupt: after the child, passed the caller's SIGINT, has exited.
+        Stopped: after the child, passed the caller's SIGINT or SIGTERM, has exited.
     """
     return call_all([cmd], cwd, 1, [stdout], poll=poll, every=every)[0]
 
@@ -70,8 +97,13 @@ def call_all(cmds: Sequence[Sequence[str]], cwd: Path, jobs: int, stdouts: Seque
         Each command's exit code; None for one never started.
 
     Raises:
-        KeyboardInterrupt: after every child, passed the caller's SIGINT, has exited.
+        Stopped: after every child, passed the caller's SIGINT or SIGTERM, has exited.
     """
+    with _sigterm_as_stop():
+        return _call_all(cmds, cwd, jobs, stdouts, started, ended, poll, every)
+
+
+def _call_all(cmds, cwd, jobs, stdouts, started, ended, poll, every) -> list[int | None]:
     stdouts = list(stdouts or [None] * len(cmds))
     codes: list[int | None] = [None] * len(cmds)
     running: dict[int, subprocess.Popen] = {}
@@ -102,11 +134,11 @@ def call_all(cmds: Sequence[Sequence[str]], cwd: Path, jobs: int, stdouts: Seque
             time.sleep(every)
             if poll is not None:
                 poll()
-        except KeyboardInterrupt:
-            interrupted = True
+        except KeyboardInterrupt as stop:
+            interrupted = getattr(stop, "signum", signal.SIGINT)
             for proc in running.values():
                 if proc.poll() is None:
-                    proc.send_signal(signal.SIGINT)
+                    proc.send_signal(interrupted)
     if interrupted:
-        raise KeyboardInterrupt
+        raise Stopped(interrupted)
     return codes

@@ -52,14 +52,14 @@ def shown(args: Sequence[str]) -> str:
 
 def run_never_started(commands: Sequence[Sequence[str]], folder: Path) -> None:
     """Runs each of ``commands`` (:func:`never_started`) as its own ``train.py``, in turn; a
-    Ctrl-C stops the one running (it saves) and starts no more: the stop is reported and the
-    process exits 130."""
+    Ctrl-C (or SIGTERM) stops the one running (it saves) and starts no more: the stop is
+    reported and the process exits 130 (143)."""
     for args in commands:
         print(f"starting a job that never started: {shown(args)}", flush=True)
         try:
             code = child.call([*_train_command(), *args], Path.cwd(), every=0.2)
-        except KeyboardInterrupt:
-            code = 128 + signal.SIGINT
+        except KeyboardInterrupt as stop:  # (child.Stopped) SIGINT or SIGTERM, passed on to the job
+            code = 128 + getattr(stop, "signum", signal.SIGINT)
         if code >= 128:
             report_stopped_sweep(folder)
             raise SystemExit(code)

@@ -270,11 +270,12 @@ STOPPER = """
 import pathlib, signal, sys, time
 out, got = pathlib.Path(sys.argv[1]), []
 signal.signal(signal.SIGINT, lambda *a: got.append(1))
+signal.signal(signal.SIGTERM, lambda *a: got.append(15))
 (out / "ready").write_text("")
 while not got:
     time.sleep(0.01)
 time.sleep(0.5)  # saving its checkpoint
-(out / "saved").write_text(str(len(got)))
+(out / "saved").write_text(" ".join(map(str, got)))
 sys.exit(130)
 """
 
@@ -284,26 +285,29 @@ sys.path.insert(0, {root!r})
 from sweeps import child
 try:
     child.call([sys.executable, "-c", {stopper!r}, {out!r}], cwd={out!r})
-except KeyboardInterrupt:
-    print("stopped")
+except child.Stopped as stop:
+    print("stopped", int(stop.signum))
     sys.exit(3)
 """
 
 
-def test_a_ctrl_c_of_the_caller_reaches_its_child_once_and_waits_for_it(tmp_path):
-    """``kill -INT`` of the benchmark alone: its child gets exactly one SIGINT (train.py's
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_ctrl_c_of_the_caller_reaches_its_child_once_and_waits_for_it(tmp_path, sig):
+    """``kill -INT`` (or ``-TERM``) of the caller alone (a benchmark, ``resume=<sweep>``
+    running a job that never started): its child gets exactly that signal once (train.py's
     'stop after this step and save'), is given the time it takes, and the caller stops after
-    it; ``subprocess.call`` had killed it a quarter of a second later, before it saved."""
+    it; ``subprocess.call`` had killed it a quarter of a second later, before it saved, and a
+    SIGTERM had left it running alone."""
     script = CALLER.format(root=str(ROOT), stopper=STOPPER, out=str(tmp_path))
     caller = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while not (tmp_path / "ready").exists():
         assert time.monotonic() < deadline and caller.poll() is None
         time.sleep(0.05)
-    os.kill(caller.pid, signal.SIGINT)
+    os.kill(caller.pid, sig)
     out, _ = caller.communicate(timeout=60)
-    assert caller.returncode == 3 and out.strip() == "stopped"
-    assert (tmp_path / "saved").read_text() == "1"
+    assert caller.returncode == 3 and out.strip() == f"stopped {int(sig)}"
+    assert (tmp_path / "saved").read_text() == ("1" if sig == signal.SIGINT else "15")
 
 
 POOL = """
