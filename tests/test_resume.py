@@ -9,6 +9,8 @@ import time
 from pathlib import Path
 
 import pytest
+
+from inprocess import run_train
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,8 +48,7 @@ def resume(run_dir: Path, *extra: str) -> subprocess.CompletedProcess:
     """``train.py resume=<run_dir>``; a path that is no run folder would get a fresh
     outputs/ folder, so those go below the test's tmp folder."""
     where = [] if (run_dir / "config.yaml").is_file() else [f"hydra.run.dir={run_dir.parent / 'fresh'}"]
-    return subprocess.run([sys.executable, "train.py", f"resume={run_dir}", *where, *extra],
-                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    return run_train(f"resume={run_dir}", *where, *extra)
 
 
 def weights(run_dir: Path) -> dict[str, torch.Tensor]:

@@ -15,6 +15,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from inprocess import run_train
 from runs.checkpoint import CheckpointError, content_checksum, load_checkpoint, save_checkpoint
 from runs.settings import check_targets
 from runs.training_state import new_run_identity, read_run_json, run_identity
@@ -25,8 +26,7 @@ QLEARN = ["learner=qlearn", "num_envs=1", "max_episodes=160", "checkpoint_every=
 
 
 def resume(run_dir: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "train.py", f"resume={run_dir}"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    return run_train(f"resume={run_dir}")
 
 
 @pytest.fixture(scope="module")

@@ -8,10 +8,18 @@ from pathlib import Path
 
 import pytest
 
+from inprocess import run_train
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def train(tmp_path: Path, *overrides: str, name: str = "run") -> subprocess.CompletedProcess:
+    """``train.py`` in this process (tests/inprocess.py); the run folder test starts a real one."""
+    return run_train(f"hydra.run.dir={tmp_path / name}", "quiet=true", *overrides)
+
+
+def train_process(tmp_path: Path, *overrides: str, name: str = "run") -> subprocess.CompletedProcess:
+    """``python train.py`` in a fresh interpreter: the wiring end to end."""
     cmd = [sys.executable, "train.py", f"hydra.run.dir={tmp_path / name}", "quiet=true", *overrides]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)
@@ -26,7 +34,7 @@ def verdict(stdout: str) -> dict:
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("train")
-    proc = train(tmp, "max_episodes=30", "eval_episodes=3", "seed=1")
+    proc = train_process(tmp, "max_episodes=30", "eval_episodes=3", "seed=1")
     assert proc.returncode == 0, proc.stderr[-2000:]
     return tmp, proc
 
@@ -190,8 +198,8 @@ def test_evaluations_every_so_many_env_steps(tmp_path):
 
 def test_a_diverging_model_keeps_training_and_says_so(tmp_path):
     """Effort control with a 1e9 N push per action: MuJoCo flags the state unstable."""
-    proc = train(tmp_path, "task.control_type=effort", "task.pos_step=1e9", "max_episodes=40",
-                 "eval_episodes=0", "num_envs=1")
+    proc = train_process(tmp_path, "task.control_type=effort", "task.pos_step=1e9", "max_episodes=40",
+                         "eval_episodes=0", "num_envs=1")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert verdict(proc.stdout)["episodes"] == "40"
     assert "warning: the physics diverged 40 times" in proc.stdout

@@ -16,6 +16,8 @@ from functools import lru_cache
 from pathlib import Path
 
 import pytest
+
+from inprocess import run_train
 from hydra import compose, initialize_config_dir
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
@@ -323,9 +325,7 @@ def test_values_over_a_keys_range(key, value):
 
 # -- end to end: the command line prints one line and exits 2 -------------------------------
 def _train(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "train.py", f"hydra.run.dir={tmp_path}", "quiet=true", *overrides]
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
+    return run_train(f"hydra.run.dir={tmp_path}", "quiet=true", *overrides)
 
 
 

@@ -1,0 +1,35 @@
+"""``python train.py <args>`` run in the test's own process: torch, TorchRL and MuJoCo are
+imported once per worker instead of once per command (about 4 s each on this machine). A few
+tests keep a real subprocess to prove the wiring (signals, exit codes, a fresh interpreter)."""
+
+from __future__ import annotations
+
+import io
+import subprocess
+import sys
+from contextlib import redirect_stderr, redirect_stdout
+
+from hydra.core.global_hydra import GlobalHydra
+
+import train
+
+QUIET_HYDRA = ["hydra/job_logging=none", "hydra/hydra_logging=none"]  # Hydra keeps no test's stream
+
+
+def run_train(*args: str) -> subprocess.CompletedProcess:
+    """``train.py <args>`` in this process: its exit code, stdout and stderr, as
+    :func:`subprocess.run` gives them."""
+    GlobalHydra.instance().clear()
+    argv, in_job = sys.argv, train._IN_JOB
+    sys.argv = ["train.py", *args, *QUIET_HYDRA]
+    train._IN_JOB = False
+    out, err, code = io.StringIO(), io.StringIO(), 0
+    try:
+        with redirect_stdout(out), redirect_stderr(err):
+            train.cli()
+    except SystemExit as stop:
+        code = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 1)
+    finally:
+        sys.argv, train._IN_JOB = argv, in_job
+        GlobalHydra.instance().clear()
+    return subprocess.CompletedProcess(["train.py", *args], code, out.getvalue(), err.getvalue())
