@@ -5,6 +5,7 @@ tests keep a real subprocess to prove the wiring (signals, exit codes, a fresh i
 from __future__ import annotations
 
 import io
+import logging
 import subprocess
 import sys
 from contextlib import redirect_stderr, redirect_stdout
@@ -24,12 +25,18 @@ def run_train(*args: str) -> subprocess.CompletedProcess:
     sys.argv = ["train.py", *args, *QUIET_HYDRA]
     train._IN_JOB = False
     out, err, code = io.StringIO(), io.StringIO(), 0
+    root, level = logging.getLogger(), logging.getLogger().level
+    logged = logging.StreamHandler(out)  # Hydra's default job logging: INFO and up on the console
+    root.addHandler(logged)
+    root.setLevel(logging.INFO)
     try:
         with redirect_stdout(out), redirect_stderr(err):
             train.cli()
     except SystemExit as stop:
         code = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 1)
     finally:
+        root.removeHandler(logged)
+        root.setLevel(level)
         sys.argv, train._IN_JOB = argv, in_job
         GlobalHydra.instance().clear()
     return subprocess.CompletedProcess(["train.py", *args], code, out.getvalue(), err.getvalue())

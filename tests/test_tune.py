@@ -13,6 +13,7 @@ import optuna
 import pytest
 from omegaconf import OmegaConf
 
+from inprocess import run_train
 from runs.settings import check_run_config
 from sweeps.tuning import (TrialLink, batch_size, check_space, current_trial, load_space, open_storage, parse_space,
                              tuned_text)
@@ -24,6 +25,8 @@ LEARNERS = sorted(p.stem for p in (conf_dir() / "learner").glob("*.yaml"))
 
 
 def cli(*args: str, cwd: Path = ROOT, timeout: int = 600) -> subprocess.CompletedProcess:
+    if cwd == ROOT:  # in this process (tests/inprocess.py); a project copy needs its own
+        return run_train(*args)
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     return subprocess.run([sys.executable, "train.py", *args], cwd=cwd, capture_output=True, text=True,
                           timeout=timeout, env=env)
@@ -203,6 +206,8 @@ def tuning(tmp_path: Path, study: str, folder: str, kill: str | None = None, *ex
             "hydra.sweeper.budget_steps=1500", "hydra.sweeper.pruner=null", "hydra.sweeper.sampler_seed=0",
             f"hydra.sweeper.storage=sqlite:///{tmp_path / 's.db'}", f"hydra.sweeper.study={study}",
             f"hydra.sweep.dir={tmp_path / folder}", *extra]
+    if not kill and cwd == ROOT:
+        return run_train(*args)
     script = ["tests/kill_at.py", kill] if kill else ["train.py"]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     return subprocess.run([sys.executable, *script, *args], cwd=cwd, capture_output=True, text=True,
