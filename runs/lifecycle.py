@@ -57,7 +57,6 @@ from runs.signals import stop_on_signals
 from runs.summary import verdict_lines
 from runs.training_state import (load_training_state, restore_training_state, save_training_state,
                                  seed_everything)
-from runs.video import record_video
 from tasks.base import Success
 from tasks.env import RobotTaskEnv
 from tasks.factory import build_env
@@ -845,6 +844,8 @@ def report(session: Session, summary: dict, result: dict | None) -> None:
         summary["eval"] = result
     session.evaluator.close()
     if cfg.video:  # the greedy policy on a fresh one-copy env
+        from runs.video import record_video  # loaded when a video is asked for
+
         video_env = build_env(cfg, 1, int(cfg.seed) + VIDEO_SEED_OFFSET)
         with session.learner.greedy():
             record_video(video_env, session.learner.policy, run_dir / "policy.mp4", n_steps=int(cfg.video_steps))

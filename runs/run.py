@@ -38,7 +38,6 @@ from runs.metrics_files import Episode
 from runs.evaluate import measure_of
 from runs.loggers import csv_sizes, cut_csv_files, finish_log, log_episode, log_evaluation, log_train
 from runs.metrics_files import MetricsFiles
-from runs.plot import plot_reward_curve
 from runs.summary import run_summary
 from tasks.base import Success
 
@@ -567,6 +566,8 @@ class Run:
         summary = self.summary()
         self.log_train(final=True)
         finish_log(self.logger, summary)
+        from runs.plot import plot_reward_curve  # matplotlib loads when the curve is drawn, not at the start
+
         plot_reward_curve(self.run_dir / "metrics.csv", self.run_dir / "reward_curve.png",
                           self.success, self.run_dir / "evals.csv")
         return summary

@@ -364,6 +364,7 @@ def test_the_pool_runs_its_commands_jobs_at_a_time_and_stops_starting_after_a_ki
     assert child.call_all([killer, cmds[0]], cwd=tmp_path, jobs=1, every=0.05) == [-9, None]
 
 
+@pytest.mark.slow  # a benchmark run by hand; the signal to its children: the sweeps.child tests above
 def test_a_benchmark_stopped_by_ctrl_c_saves_and_goes_on(tmp_path):
     """SIGINT to the benchmark while a pair trains: its seeds stop after their step with a
     checkpoint (train.py's own stop), no process is left, and the same command finishes them."""

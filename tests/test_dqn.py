@@ -140,6 +140,7 @@ def test_dqn_learns_cartpole(tmp_path):
     assert greedy >= 5 * random, (greedy, random)
 
 
+@pytest.mark.slow  # a learning check: CI's sibling is test_dqn_learns_cartpole
 def test_n1try_learns_cartpole(tmp_path):
     greedy = train_and_eval(variant("n1try"), tmp_path, num_envs=1, episodes=300)
     random = random_baseline(10_000)

@@ -146,6 +146,7 @@ def random_policy(n_actions, seed):
     return act
 
 
+@pytest.mark.slow  # a learning check: CI's sibling is the default run (tests/test_success.py), solved
 def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
     from hydra import compose, initialize_config_dir
     from hydra.utils import instantiate

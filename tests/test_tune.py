@@ -457,6 +457,7 @@ def project_copy(tmp_path):
     return copy
 
 
+@pytest.mark.slow  # the benchmark's grid (run by hand, 39 s); its studies are the sweeper's, tested here
 def test_the_grid_command_tunes_each_pair_once_and_resumes_to_its_count(project_copy):
     """``python -m bench.benchmark --tune``: a pair's study asks its trials, writes the pair's
     tuned file with the study in its header and keeps its record in bench/studies/; the

@@ -383,6 +383,7 @@ def test_top_camera_frames_the_maze_and_robot():
         env.close()
 
 
+@pytest.mark.slow  # a learning check (27 s): bench/benchmark.py's maze rows judge it on ten seeds
 def test_q_learning_drives_round_the_ring_far_longer_than_random(tmp_path):
     """The first 200 of the tuned run's 500 episodes (``train.py robot=turtlebot
     learner=qlearn``), on 4 copies with seed 0: greedy 476 steps and 77.6 m round the loop
