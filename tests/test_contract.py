@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import types
 
 import numpy as np
@@ -21,6 +22,7 @@ TASKS = sorted(p.stem for p in (catalog.conf_dir() / "task").glob("*.yaml"))
 ROBOTS = catalog.robot_names()
 
 
+@functools.cache  # every robot built once per task and worker, not once per test (160 tests use it)
 def robot_of(task: str) -> str:
     """The one robot ``task`` fits (the others are refused with a config error)."""
     fits = []

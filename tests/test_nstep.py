@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from inprocess import run_train
 import torch
 
 from learners.dqn import Transitions, pack, td_terms, unpack
@@ -73,6 +75,8 @@ def test_the_td_target_of_an_n_step_row_discounts_by_gamma_to_the_k():
 
 
 def train(*args: str, kill: str | None = None) -> subprocess.CompletedProcess:
+    if not kill:  # in this process (tests/inprocess.py); a kill needs a process of its own
+        return run_train(*args)
     script = ["tests/kill_at.py", kill] if kill else ["train.py"]
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     return subprocess.run([sys.executable, *script, *args], cwd=ROOT, capture_output=True, text=True,

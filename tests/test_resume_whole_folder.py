@@ -22,6 +22,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from inprocess import run_train
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,7 +34,11 @@ WALL_CLOCK_FIELDS = {"summary.json": ("wall_s", "first_step_s")}
 RESUME_RECORD = ".hydra-resume"
 
 
-def train(*args: str, kill_at: str | None = None) -> subprocess.CompletedProcess:
+def train(*args: str, kill_at: str | None = None, process: bool = False) -> subprocess.CompletedProcess:
+    """``train.py <args>``: in this process unless it is killed or ``process`` (a folder made
+    by a process of its own, Hydra's logging record as a user's holds it)."""
+    if not kill_at and not process:  # in this process (tests/inprocess.py); a kill needs a process of its own
+        return run_train(*args)
     script = ["tests/kill_at.py", kill_at] if kill_at else ["train.py"]
     return subprocess.run([sys.executable, *script, *args], cwd=ROOT, capture_output=True, text=True,
                           timeout=600)
@@ -41,7 +47,7 @@ def train(*args: str, kill_at: str | None = None) -> subprocess.CompletedProcess
 @pytest.fixture(scope="module")
 def whole(tmp_path_factory) -> Path:
     run_dir = tmp_path_factory.mktemp("whole") / "run"
-    done = train(*RUN, f"hydra.run.dir={run_dir}")
+    done = train(*RUN, f"hydra.run.dir={run_dir}", process=True)  # as the killed runs' first part
     assert done.returncode == 0, done.stderr[-1500:]
     return run_dir
 

@@ -15,6 +15,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from inprocess import run_train
 import torch
 
 from learners.qlearn import QLearn
@@ -408,9 +410,8 @@ def test_a_batch_of_unlike_jobs_is_refused_before_any_work(tmp_path, change, mes
 
 
 def run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=600)
+    """``train.py <args>`` in this process (tests/inprocess.py); every folder is given."""
+    return run_train(*args)
 
 
 def test_a_multirun_trains_its_seeds_in_one_batch_per_group(tmp_path):

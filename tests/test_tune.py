@@ -526,6 +526,7 @@ def test_a_study_of_an_earlier_objective_is_not_asked_to_value_the_learners_own_
     assert not defaults_valued(None)
 
 
+@pytest.mark.slow  # 27 s; two sweeps sharing a study run in CI (test_two_sweeps_at_once_share_one_study...)
 def test_two_workers_share_one_study_and_the_next_run_uses_its_tuned_file(project_copy, tmp_path):
     url = f"sqlite:///{tmp_path / 'studies.db'}"
     (project_copy / "conf" / "tuned" / "cartpole_n1try.yaml").unlink(missing_ok=True)  # a pair without a file
