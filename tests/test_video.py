@@ -182,3 +182,16 @@ def test_cli_on_a_damaged_config_is_one_line(run_folder, capsys, text, words):
     err = capsys.readouterr().err.splitlines()
     assert exit_.value.code == 2 and len(err) == 1 and words in err[0], err
     assert not (run_folder / "policy.mp4").exists()
+
+
+def test_python_m_runs_video_renders_headless_without_mujoco_gl_set(run_folder, tmp_path):
+    """``python -m runs.video <run>`` as a user types it on a machine without a display and
+    without ``MUJOCO_GL``: ``torchrl.envs.utils`` imports MuJoCo first, so ``runs`` sets the
+    headless backend when it is imported (it crashed with ``gladLoadGL error``)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM", "DISPLAY")}
+    out = tmp_path / "headless.mp4"
+    proc = subprocess.run([sys.executable, "-m", "runs.video", str(run_folder), "--out", str(out), "--steps", "5",
+                           "--width", "64", "--height", "48"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    assert read_frames(out).shape[0] == 6
