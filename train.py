@@ -46,12 +46,9 @@ from tasks.catalog import (GROUPS, compose, locate_model, names, run_choices, un
                           with_tuned_layers)
 from runs.folder import (WRITE_FAILED, MadeFolders, cannot_write, check_new_run, check_output_folder, eval_config,
                          resumed_config, run_folder_of, taken, with_run_choices, write_hydra_record)
-from runs.layout import is_run_folder, is_sweep_folder
+from runs.layout import BATCH_JOB, is_run_folder, is_sweep_folder
 from runs.settings import check_hydra_key, check_no_empty_mappings, check_run_config, moved, moved_to
 from runs.signals import hold_early
-from sweeps.state import (SWEEP, SweepRefused, end_failed_sweep, end_stopped_sweep, end_sweep, let_siblings_save,
-                          sibling_should_exit, stop_sweep, sweep_dir, sweep_stopped)
-from sweeps.tuning import trial_link
 
 if TYPE_CHECKING:
     from runs.lifecycle import Job
@@ -131,12 +128,13 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     check_no_empty_mappings(cfg, overrides)
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
     from runs.lifecycle import Job, batchable, execute  # torch, TorchRL, MuJoCo: every check passed
-    from sweeps.seed_batch import COLLECT
 
     run_dir.mkdir(parents=True, exist_ok=True)
     job = Job(cfg, run_dir, choices, overrides, changes)
-    if in_sweep and not resume and batchable(cfg) and hydra_cfg.job.env_set.get(COLLECT):
+    if in_sweep and not resume and batchable(cfg) and hydra_cfg.job.env_set.get(BATCH_JOB):
         if cfg.get("trial") is not None:  # a tuning trial's job reports to its study from the batch
+            from sweeps.tuning import trial_link
+
             job.progress = trial_link(cfg, run_dir, hydra_cfg.sweeper)
         return job  # the seeds launcher trains it with the other jobs of its group
     if not resume:
@@ -148,8 +146,11 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
             record()
         with tee_console(run_dir / "train.log"):
             # A resumed trial job trains without reporting: its study has moved on.
-            trial = not resume and cfg.get("trial") is not None
-            progress = trial_link(cfg, run_dir, hydra_cfg.sweeper) if trial else None
+            progress = None
+            if not resume and cfg.get("trial") is not None:  # only a tuning sweep's job reports to a study
+                from sweeps.tuning import trial_link
+
+                progress = trial_link(cfg, run_dir, hydra_cfg.sweeper)
             return execute(cfg, run_dir, resume=resume, choices=choices, changes=changes,
                            overrides=overrides, progress=progress)
 
@@ -164,8 +165,11 @@ def main(cfg: DictConfig) -> Job | None:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     if in_sweep and os.getpid() != _LAUNCHER_PID:
         hold_early()  # a worker's job: a signal before its training starts is kept for it
-    if in_sweep and sweep_stopped():
-        return  # the sweep was stopped before this job began: it never starts
+    if in_sweep:
+        from sweeps.state import sweep_stopped  # a single run imports nothing of sweeps/
+
+        if sweep_stopped():
+            return  # the sweep was stopped before this job began: it never starts
     try:
         summary = _job(cfg, run_dir, overrides, in_sweep)
         if not isinstance(summary, dict):  # a runs.lifecycle.Job
@@ -185,7 +189,7 @@ def main(cfg: DictConfig) -> Job | None:
         print(trace, file=sys.stderr)
         (run_dir / "error.txt").write_text(trace)
         return
-    if summary.get("interrupted") and in_sweep and os.getpid() != _LAUNCHER_PID and sibling_should_exit():
+    if summary.get("interrupted") and in_sweep and os.getpid() != _LAUNCHER_PID and _sibling_should_exit():
         # A sibling of a worker that died: saved, it ends its worker (the launcher waits for it).
         sys.stdout.flush()
         sys.stderr.flush()
@@ -194,6 +198,12 @@ def main(cfg: DictConfig) -> Job | None:
         # In a sweep too: Ctrl-C stops the sweep, not just this job (cli reports the jobs). A job
         # in a worker process (joblib) just returns: its launcher has the signal as well.
         sys.exit(128 + int(summary.get("signal", signal.SIGINT)))
+
+
+def _sibling_should_exit() -> bool:
+    from sweeps.state import sibling_should_exit
+
+    return sibling_should_exit()
 
 
 def cli() -> None:
@@ -229,19 +239,21 @@ def cli() -> None:
         sys.exit(2)
     run_dirs = [a.split("=", 1)[1] for a in sys.argv[1:] if a.startswith("hydra.run.dir=")]
     _MADE = MadeFolders(run_dirs[-1] if run_dirs else None, Path.cwd())
-    if sweep:
-        SWEEP["signal"] = None  # a new sweep: an earlier one's stop in this process (a test's) is not its own
+    if sweep:  # a single run imports nothing of sweeps/
+        from sweeps import state
+
+        state.SWEEP["signal"] = None  # a new sweep: an earlier one's stop in this process (a test's) is not its own
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, stop_sweep)
-        let_siblings_save()
+            signal.signal(sig, state.stop_sweep)
+        state.let_siblings_save()
     try:
         main()
-    except SweepRefused as err:  # before any job started: nothing was written
+    except (state.SweepRefused if sweep else ()) as err:  # before any job started: nothing was written
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
     except SystemExit as stop:  # a job in this process was stopped: the sweep stops too
         if sweep and stop.code in (128 + signal.SIGINT, 128 + signal.SIGTERM):
-            SWEEP["signal"] = stop.code - 128
+            state.SWEEP["signal"] = stop.code - 128
         else:
             raise
     except ConfigError as err:  # a launcher's or sweeper's own check, before any job starts
@@ -251,10 +263,10 @@ def cli() -> None:
         if _IN_JOB:
             raise
         print(f"error: {_hydra_error(err)}", file=sys.stderr)
-        sys.exit(1 if sweep and end_failed_sweep() else 2)
+        sys.exit(1 if sweep and state.end_failed_sweep() else 2)
     if sweep:
-        status = end_stopped_sweep()
-        sys.exit(end_sweep() if status is None else status)
+        status = state.end_stopped_sweep()
+        sys.exit(state.end_sweep() if status is None else status)
 
 
 _VALUED = ("--config-dir", "-cd", "--config-name", "-cn", "--config-path", "-cp", "--cfg", "-c", "--package",

@@ -6,6 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+# The seeds launcher sets this in its jobs' ``hydra.job.env_set``: such a job is checked and
+# handed back to the launcher to train with the others, not trained by itself.
+BATCH_JOB = "RL_SEED_BATCH_JOB"
+
 
 def is_run_folder(path) -> bool:
     """Whether ``path`` holds a run of this project (its ``run.json`` and ``config.yaml``)."""

@@ -25,12 +25,13 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
 from params.private_api import apply_value_overrides, overrides_dirname
+from runs.layout import BATCH_JOB
 from runs.lifecycle import Job, batch_key, run_jobs, same_batch
 
 log = logging.getLogger(__name__)
 # The key a batch's job is run with in its ``hydra.job.env_set`` (the job's own config, which
 # every launcher's schema leaves open): it hands its checked Job back instead of training.
-COLLECT = "RL_SEED_BATCH_JOB"
+COLLECT = BATCH_JOB  # set in a job's hydra.job.env_set: train.py hands the job back
 # ``launch_fed``'s source of jobs: (the jobs that ended: index and folder, members free
 # beyond those waiting) -> the next jobs (index, overrides).
 Feed = Callable[[Sequence[tuple[int, Path]], int], Sequence[tuple[int, Sequence[str]]]]
