@@ -20,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from params import ConfigError
 from tasks.catalog import GROUPS
 from params import CheckpointError
-from runs.layout import is_run_folder
+from runs.layout import is_run_folder, train_command
 from runs.settings import upgraded
 
 # Overrides a resumed run accepts; everything else comes from the run's own config.yaml.
@@ -173,7 +173,7 @@ def cannot_write(err: OSError, run_dir: Path) -> str:
     line = f"error: cannot write {err.filename or run_dir}: {err.strerror or err}"
     if (run_dir / "checkpoint.pt").is_file():
         line += (f"; the last checkpoint is intact: once there is room, resume with: "
-                 f"python train.py resume={run_dir}")
+                 f"{train_command()} resume={run_dir}")
     return line
 
 

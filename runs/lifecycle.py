@@ -50,6 +50,7 @@ from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.console import Tee, banner_lines, copies
 from runs.evaluate import GreedyEvaluator, MemberEvaluations, describe_evaluation, measure_of
 from runs.folder import cannot_write, model_path, run_lock, start_run
+from runs.layout import train_command
 from runs.loggers import log_hparams, make_logger, run_scalar_names
 from runs.loop import train
 from runs.run import Hooks, Progress, Run
@@ -826,7 +827,7 @@ def close_run(session: Session, run: Run, finished: bool) -> dict:
 def stopped(session: Session, run: Run, summary: dict, signum: int) -> dict:
     """A run stopped by ``signum``: how to resume it, and its summary saying so."""
     print(f"stopped after episode {run.n_episodes}; the whole training state is in "
-          f"{session.state_path}\nresume with: python train.py resume={session.run_dir}")
+          f"{session.state_path}\nresume with: {train_command()} resume={session.run_dir}")
     summary["interrupted"] = True
     summary["signal"] = signum
     (session.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))

@@ -60,6 +60,7 @@ from typing import ClassVar
 import numpy as np
 from omegaconf import OmegaConf
 
+from runs.layout import train_command
 from runs.metrics_files import rolling_field
 
 # A run's status: "ok" (finished: summary.json without "interrupted"), "interrupted"
@@ -291,7 +292,7 @@ def _unfinished(run_dir: Path, why: str) -> dict:
 def _interrupted(run_dir: Path, why: str) -> dict:
     """An interrupted run, with the command that resumes it where checkpoint.pt allows."""
     if (run_dir / "checkpoint.pt").is_file():
-        resume = f"python train.py resume={run_dir}"
+        resume = f"{train_command()} resume={run_dir}"
         return {"status": "interrupted", "error": f"{why}; resume with: {resume}", "resume": resume}
     return {"status": "interrupted", "error": f"{why}; no checkpoint.pt to resume from: run it again"}
 

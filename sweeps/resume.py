@@ -24,7 +24,7 @@ from params import ConfigError
 from runs.lifecycle import Job, run_jobs, same_batch
 from runs.checkpoint import CheckpointError
 from runs.folder import is_finished, resumed_config
-from runs.layout import is_run_folder
+from runs.layout import is_run_folder, train_command
 from runs.training_state import read_run_json
 from runs.settings import check_run_config
 from sweeps import child
@@ -47,7 +47,7 @@ def never_started(folder: Path) -> list[list[str]]:
 
 def shown(args: Sequence[str]) -> str:
     """``python train.py <args>``, quoted for a shell."""
-    return " ".join(["python train.py", *(shlex.quote(a) for a in args)])
+    return " ".join([train_command(), *(shlex.quote(a) for a in args)])
 
 
 def run_never_started(commands: Sequence[Sequence[str]], folder: Path) -> None:

@@ -23,6 +23,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 
 from params import ConfigError
+from runs.layout import train_command
 from runs.signals import HELD, say
 from runs.summary import summarize_run
 from sweeps.folder import job_folders, sweep_jobs
@@ -128,7 +129,7 @@ def report_stopped_sweep(folder: Path) -> None:
             not_started += 1
     if resumable > 1 or not_started:
         print(f"or the whole rest of the sweep in one command (stopped jobs resumed, seeds of one setting "
-              f"together, jobs not started run): python train.py resume={folder}")
+              f"together, jobs not started run): {train_command()} resume={folder}")
     record = folder / "multirun.yaml"
     if record.is_file() and "rl_optuna_sweeper" in record.read_text(errors="replace"):
         print("or the same tuning command again: the next sweep of the study resumes the trials this "

@@ -66,11 +66,11 @@ def assert_same_end(a: Path, b: Path) -> None:
 def uninterrupted(tmp_path_factory) -> dict[str, Path]:
     """Reference runs, never stopped."""
     base = tmp_path_factory.mktemp("uninterrupted")
-    procs = {name: start(base / name, *overrides) for name, overrides in (("qlearn", QLEARN), ("dqn", DQN))}
-    for name, proc in procs.items():
-        code, _, err = finish(proc)
-        assert code == 0, err[-1500:]
-    return {name: base / name for name in procs}
+    runs = {"qlearn": QLEARN, "dqn": DQN}
+    for name, overrides in runs.items():  # in this process (tests/inprocess.py): only the stopped runs need their own
+        done = run_train("quiet=true", "eval_episodes=0", "seed=3", f"hydra.run.dir={base / name}", *overrides)
+        assert done.returncode == 0, done.stderr[-1500:]
+    return {name: base / name for name in runs}
 
 
 @pytest.mark.parametrize("learner,overrides", [("qlearn", QLEARN), ("dqn", DQN)])

@@ -137,3 +137,20 @@ def test_a_killed_joblib_worker_lets_its_healthy_sibling_save(tmp_path):
     assert not (victim / "checkpoint.pt").exists()
     assert (sibling / "checkpoint.pt").is_file() and (sibling / "model.pt").is_file(), out[-2000:] + err[-2000:]
     assert f"resume with: python train.py resume={sibling}" in out.splitlines()
+
+
+@pytest.mark.parametrize("argv0, command", [("/home/u/.venv/bin/mujoco-rl-train", "mujoco-rl-train"),
+                                            ("train.py", "python train.py"), ("/src/train.py", "python train.py")])
+def test_printed_commands_start_with_the_command_the_user_ran(tmp_path, monkeypatch, argv0, command):
+    """An installed user typed ``mujoco-rl-train``: the resume commands printed for a stopped
+    run or sweep say so, not ``python train.py`` of a checkout."""
+    from runs.layout import train_command
+    from runs.summary import summarize_run
+
+    monkeypatch.setattr(sys, "argv", [argv0, "robot=cube"])
+    assert train_command() == command
+    (tmp_path / "run.json").write_text("{}")
+    (tmp_path / "config.yaml").write_text("seed: 0\n")
+    (tmp_path / "metrics.csv").write_text("episode,return\n0,1.0\n")
+    (tmp_path / "checkpoint.pt").write_bytes(b"")
+    assert summarize_run(tmp_path).get("resume") == f"{command} resume={tmp_path}"

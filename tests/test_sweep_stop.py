@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from inprocess import run_train
 from runs.console import Tee
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,9 +43,8 @@ def ends(sweep: Path) -> dict[str, tuple[bytes, torch.Tensor]]:
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory) -> dict:
     sweep = tmp_path_factory.mktemp("uninterrupted") / "sweep"
-    proc = train("-m", *JOBS, f"hydra.sweep.dir={sweep}")
-    _, err = proc.communicate(timeout=300)
-    assert proc.returncode == 0, err[-2000:]
+    done = run_train("-m", *JOBS, f"hydra.sweep.dir={sweep}")  # in this process: only the stopped sweeps need their own
+    assert done.returncode == 0, done.stderr[-2000:]
     return ends(sweep)
 
 
@@ -65,8 +65,7 @@ def test_one_ctrl_c_stops_the_sweep_and_one_command_finishes_it(tmp_path, launch
         assert not (sweep / "3_cartpole_qlearn_seed3" / "run.json").exists()
     finish = re.search(r"^or the whole rest of the sweep in one command .*: (python train\.py resume=\S+)$", out, re.M)
     assert finish is not None and finish.group(1) == f"python train.py resume={sweep}", out[-3000:]
-    done = subprocess.run([sys.executable, str(ROOT / "train.py"), f"resume={sweep}"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=600)
+    done = run_train(f"resume={sweep}")  # the printed command, in this process (its never-started jobs in their own)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     got = ends(sweep)
     assert got.keys() == uninterrupted.keys()
