@@ -8,10 +8,14 @@ from pathlib import Path
 
 import pytest
 
+from inprocess import run_train
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def run(args: list[str], timeout: int = 600) -> subprocess.CompletedProcess:
+    if args[0] == "train.py" and "-m" not in args:  # a single run: in this process (tests/inprocess.py)
+        return run_train(*args[1:])
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True,
                           timeout=timeout, env=env)
