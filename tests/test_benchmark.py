@@ -251,6 +251,7 @@ def goes_on(args: list[str], job: benchmark.Job, out: Path) -> None:
     assert all(int(r["env_steps"]) >= 1600 for r in seeds)
 
 
+@pytest.mark.slow  # a benchmark run by hand (15 s); a run resumed from its checkpoints: tests/test_resume*.py
 def test_a_pair_stopped_part_way_continues_from_its_checkpoints(tmp_path):
     """A benchmark killed while a pair trains (its seeds' checkpoints on disk, no record of
     the pair): the same command resumes those seeds (``train.py resume=<the pair's sweep>``)

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from inprocess import run_train
 from omegaconf import OmegaConf
 
 import compare
@@ -417,10 +419,8 @@ def test_a_real_two_learner_three_seed_sweep_ends_with_its_comparison(tmp_path, 
     """train.py -m over two learners and three seeds prints the comparison last; compare.py
     re-runs it to the same comparison.csv (the intervals are seeded)."""
     sweep = tmp_path / "sweep"
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    proc = subprocess.run([sys.executable, "train.py", "-m", "learner=qlearn,n1try", "seed=0,1,2",
-                           "max_episodes=5", "eval_episodes=0", "quiet=true", f"hydra.sweep.dir={sweep}"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)
+    proc = run_train("-m", "learner=qlearn,n1try", "seed=0,1,2", "max_episodes=5", "eval_episodes=0", "quiet=true",
+                     f"hydra.sweep.dir={sweep}")  # in this process (tests/inprocess.py)
     assert proc.returncode == 0, proc.stderr[-2000:]
     tail = proc.stdout.rsplit("VERDICT", 1)[1].splitlines()[2:]
     assert tail[0].split()[:5] == ["robot/task", "learner", "swept", "headline", "IQM"]

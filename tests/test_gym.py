@@ -224,14 +224,14 @@ def test_sb3_dqn_trains_on_the_bare_id_in_subprocess_workers(tmp_path):
         if __name__ == "__main__":
             venv = make_vec_env("MujocoRL/CartPoleStayUp-v0", n_envs=2, seed=0,
                                 vec_env_cls=SubprocVecEnv)
-            model = DQN("MlpPolicy", venv, learning_starts=500, seed=0, device="cpu")
-            model.learn(3000)
+            model = DQN("MlpPolicy", venv, learning_starts=200, seed=0, device="cpu")
+            model.learn(800)  # 600 steps of updates: it trains there, which is what is asked
             workers = {type(p).__name__ for p in venv.processes if p.pid != os.getpid()}
             print(model.num_timesteps, len(venv.processes), *workers)
             print(*sorted({spec.id for spec in venv.get_attr("spec")}))
             venv.close()
         """)
-    assert out[-2].split() == ["3000", "2", "ForkServerProcess"]  # SB3's default: no fork
+    assert out[-2].split() == ["800", "2", "ForkServerProcess"]  # SB3's default: no fork
     assert out[-1] == "MujocoRL/CartPoleStayUp-v0"
 
 

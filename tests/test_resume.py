@@ -135,6 +135,7 @@ def test_resume_mistakes_are_one_clear_line(tmp_path, uninterrupted):
         assert len(lines) == 1 and lines[0].startswith("error:") and expected in lines[0], proc.stderr[-800:]
 
 
+@pytest.mark.slow  # 13 s; in CI: a kill at the final evaluation, then resume (test_resume_whole_folder.py)
 def test_greedy_evaluations_survive_a_kill_and_resume(tmp_path):
     """A greedily judged run (stay_up judged on the greedy policy, never solved) evaluated
     every 10 episodes: killed mid-run and resumed, it ends with the same metrics.csv and

@@ -149,7 +149,8 @@ def same_run_files(together: Path, alone: Path) -> None:
 
 @pytest.mark.parametrize("learner, settings", [
     ("qlearn", ["learner.alpha=0.3", "learner.number_splits=6", "eval_every=7"]),
-    ("dqn", ["learner.lr=0.003", "learner.batch_size=16", "learner.buffer_size=600"]),
+    pytest.param("dqn", ["learner.lr=0.003", "learner.batch_size=16", "learner.buffer_size=600"],
+                 marks=pytest.mark.slow),  # 19 s; a dqn member renewed as fresh in CI: tests/test_members.py
 ])
 def test_freed_members_train_the_next_jobs_each_as_its_run_alone(tmp_path, learner, settings):
     """A batch of two members handed three more jobs as its members free (another trial's
@@ -262,7 +263,8 @@ def test_a_job_that_fails_to_start_in_a_freed_member_fails_alone(tmp_path, monke
 
 @pytest.mark.parametrize("learner, settings", [
     ("qlearn", ["learner.alpha=0.3", "learner.gamma=0.9", "learner.epsilon_discount=0.99"]),
-    ("dqn", ["learner.lr=0.003", "learner.tau=0.05", "learner.updates=3"]),
+    pytest.param("dqn", ["learner.lr=0.003", "learner.tau=0.05", "learner.updates=3"],
+                 marks=pytest.mark.slow),  # 17 s; dqn trials side by side in CI: the own-sizes case below
     # each run's own schedules (a searched eval_every) and a DQN's own buffer and minibatch sizes
     ("qlearn", ["learner.alpha=0.3", "eval_every=7", "checkpoint_every=9", "log_every=5"]),
     ("dqn", ["learner.batch_size=16", "learner.buffer_size=600", "learner.lr=0.003", "eval_every=9"]),

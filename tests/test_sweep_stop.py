@@ -48,7 +48,11 @@ def uninterrupted(tmp_path_factory) -> dict:
     return ends(sweep)
 
 
-@pytest.mark.parametrize("launcher", LAUNCHERS)
+# basic runs its jobs in turn in the launching process, as joblib does in its workers (no job
+# starts after the signal: the joblib case); its own bug, a Tee that closed stderr, is tested
+# below: slow (30 s), run with pytest -m slow.
+@pytest.mark.parametrize("launcher", [pytest.param(name, marks=pytest.mark.slow) if name == "basic" else name
+                                      for name in LAUNCHERS])
 def test_one_ctrl_c_stops_the_sweep_and_one_command_finishes_it(tmp_path, launcher, uninterrupted):
     sweep = tmp_path / "sweep"
     proc = train("-m", *LAUNCHERS[launcher], *JOBS, f"hydra.sweep.dir={sweep}", start_new_session=True)
