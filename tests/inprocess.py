@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import logging
+import signal
 import subprocess
 import sys
 from contextlib import redirect_stderr, redirect_stdout
@@ -22,6 +23,7 @@ def run_train(*args: str) -> subprocess.CompletedProcess:
     :func:`subprocess.run` gives them."""
     GlobalHydra.instance().clear()
     argv, in_job = sys.argv, train._IN_JOB
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}  # a sweep sets its own
     sys.argv = ["train.py", *args, *QUIET_HYDRA]
     train._IN_JOB = False
     out, err, code = io.StringIO(), io.StringIO(), 0
@@ -38,5 +40,7 @@ def run_train(*args: str) -> subprocess.CompletedProcess:
         root.removeHandler(logged)
         root.setLevel(level)
         sys.argv, train._IN_JOB = argv, in_job
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
         GlobalHydra.instance().clear()
     return subprocess.CompletedProcess(["train.py", *args], code, out.getvalue(), err.getvalue())
