@@ -458,7 +458,9 @@ def _greedy_line(s: dict, greedy: str, greedy_return: str) -> str:
     """The verdict's line on the greedy policy: its final evaluation's numbers; a run its
     tuning study pruned makes none, so its last evaluation's, if any."""
     if s.get("pruned_at") is None:
-        return f"  greedy policy, final evaluation ({s['evaluations']} evaluations in all): {greedy}, {greedy_return}"
+        n = s["evaluations"]
+        return (f"  greedy policy, final evaluation ({n} evaluation{'' if n == 1 else 's'} in all): {greedy}, "
+                f"{greedy_return}")
     if not s["evaluations"]:
         return "  greedy policy: not evaluated (pruned before its first evaluation; a pruned run makes no final one)"
     return (f"  greedy policy, its last evaluation before it was pruned ({s['evaluations']} in all; a pruned run "

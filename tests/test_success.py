@@ -272,3 +272,11 @@ def test_a_training_rule_met_without_the_greedy_policy_says_so(tmp_path):
     assert line == ("not solved after 150 episodes: needs steps balanced >= 250 steps (judged on training "
                     "episodes, and the greedy policy's too, after at least 100 episodes); got 300 steps "
                     "(the training rule was met, the greedy policy never: 180 steps at the final evaluation)")
+
+
+def test_the_verdicts_count_of_evaluations_reads_as_english():
+    """Issue 67's wording slip: '(1 evaluations in all)'."""
+    from runs.summary import _greedy_line
+
+    assert "final evaluation (1 evaluation in all): g, r" in _greedy_line({"evaluations": 1}, "g", "r")
+    assert "final evaluation (16 evaluations in all): g, r" in _greedy_line({"evaluations": 16}, "g", "r")
