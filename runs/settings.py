@@ -114,16 +114,16 @@ def check_hydra_key(override: str) -> None:
 
 def check_run_config(cfg: DictConfig) -> None:
     """Raises :class:`ConfigError` (one line) for the first bad value in ``cfg``."""
-    try:  # Hydra's own node (present with return_hydra_config) is Hydra's business
-        conf = OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]),
-                                      resolve=True)
+    own = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])  # Hydra's node is Hydra's business
+    try:  # (present with return_hydra_config)
+        conf = OmegaConf.to_container(own, resolve=True)
     except OmegaConfBaseException as err:
         raise ConfigError(f"config does not resolve: {_first_line(err)}") from None
     for old in MOVED:  # a key of an older config, in a config file or a run folder's
         value = OmegaConf.select(cfg, old, default=_ABSENT)
         if value is not _ABSENT:
             raise ConfigError(moved(old, value))
-    check_targets(OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]))
+    check_targets(own)
     _check_top_level(conf)
     if conf.get("mode") == "train" and not conf.get("max_episodes") and not conf.get("max_env_steps"):
         raise ConfigError("max_episodes and max_env_steps are both 0 (no limit), so training would never "

@@ -33,7 +33,7 @@ class Stopped(KeyboardInterrupt):
 
 
 @contextlib.contextmanager
-def _sigterm_as_stop() -> Iterator[dict]:
+def _sigterm_as_stop() -> Iterator[None]:
     """Inside, a SIGTERM raises :class:`Stopped` (where this is the main thread)."""
     def stop(signum, frame):
         raise Stopped(signum)
