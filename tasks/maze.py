@@ -123,7 +123,7 @@ class MazeTask(Task):
         full = robot.laser_fov >= 2 * math.pi - 1e-6
         need = math.ceil(robot.laser_fov / MAX_RAY_GAP - 1e-6) + (0 if full else 1)
         require(robot.laser_rays >= need, f"task maze judges a collision by the laser, so it needs rays at "
-                f"most 10 deg apart: robot.laser_rays >= {need} for robot.laser_fov={robot.laser_fov:.4g}",
+                f"most 10 deg apart: robot.laser_rays >= {need} for robot.laser_fov={robot.laser_fov!r}",
                 robot.laser_rays)
 
     def _check_speeds(self) -> None:
