@@ -194,7 +194,9 @@ def switch_times(rounds: int) -> dict[str, float]:
 
 def dqn_parts(learner) -> dict[str, Callable[[], object]]:
     """The update and its parts as calls on one sampled minibatch."""
-    from learners.dqn import _DISTANCES, adam_step, td_terms, unpack
+    from learners.dqn import _DISTANCES, td_terms
+    from learners.member import adam_step
+    from learners.transitions import unpack
 
     buffer, stored = learner.buffers[0], len(learner.buffers[0])
     batch = unpack(buffer.sample_rows(stored).unsqueeze(0))
@@ -241,7 +243,7 @@ def denormal_times(rounds: int) -> dict[str, float]:
     file's sizes, one member) whose first moment holds denormal numbers where the gradient
     is 0 (a dead unit's weights: 68% of them, the share a trained run's large layers held),
     inside :func:`runs.lifecycle.denormals_flushed` and outside, alternating chunks of 100."""
-    from learners.dqn import adam_step
+    from learners.member import adam_step
     from runs.lifecycle import denormals_flushed
 
     learner = instantiate(compose(robot="cartpole", learner="rainbow").learner, _convert_="all")

@@ -12,7 +12,7 @@ in the lowest layer, ``params``, so that every package may use it.)
 - tensordict ``TensorDictBase._set_str``, ``_get_str``, ``_has_names``: the env's one-pass
   step sets and reads entries by a plain string key without the checks of ``set``/``get``.
 - TorchRL ``ReplayBuffer._storage``: every path of a ``ReplayBuffer`` (length, sample,
-  extend, state) reads its storage through this attribute; :class:`learners.dqn.
+  extend, state) reads its storage through this attribute; :class:`learners.member.
   RowReplayBuffer` makes it a property that first writes the rows it queued.
 - TorchRL ``EnvBase._step_and_maybe_reset``, ``_post_step_mdp_hooks``, ``_step_proc_data``
   and the ``_torchrl_native_autoreset`` flag: the env's one-pass step overrides the method

@@ -11,7 +11,8 @@ from tensordict import TensorDict
 
 from runs.checkpoint import CheckpointError, load_model, save_model
 from learners.base import StateMismatch
-from learners.dqn import DQN, Transitions, unpack
+from learners.dqn import DQN
+from learners.transitions import Transitions, unpack
 from runs.evaluate import evaluate
 from runs.loop import train_single
 from runs.run import Run
@@ -218,7 +219,7 @@ def test_queued_rows_land_as_one_extend_per_put_would():
     ``stored`` tells the length they will make without writing them."""
     from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 
-    from learners.dqn import RowReplayBuffer
+    from learners.member import RowReplayBuffer
 
     ours = RowReplayBuffer(50, 3, batch_size=4)
     theirs = ReplayBuffer(storage=TensorStorage(torch.zeros(50, 3)), sampler=RandomSampler())

@@ -9,7 +9,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from learners.dqn import UpdateStats
+from learners.member import UpdateStats
 from runs.evaluate import greedy_evaluation
 from runs.loggers import csv_sizes, flat_config, log_hparams, make_logger, run_scalar_names
 from runs.loop import train_single

@@ -15,7 +15,8 @@ import pytest
 from inprocess import run_train
 import torch
 
-from learners.dqn import Transitions, pack, td_terms, unpack
+from learners.dqn import td_terms
+from learners.transitions import Transitions, pack, unpack
 from learners.nstep import NStep
 
 ROOT = Path(__file__).resolve().parents[1]

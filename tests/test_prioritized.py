@@ -88,7 +88,8 @@ def test_an_update_minimises_the_importance_weighted_loss_and_writes_back_the_er
     generator.set_state(learner.generators[0].get_state())
     index, weight = buffer.priorities.sample(stored, 16, 0.5, generator)
     params = learner.params.clone().requires_grad_(True)
-    from learners.dqn import td_terms, unpack
+    from learners.dqn import td_terms
+    from learners.transitions import unpack
     batch = unpack(buffer.rows[index].unsqueeze(0))
     layers = learner.net.layers(params)
     target_layers = learner.net.layers(learner.target)

@@ -24,7 +24,7 @@ def test_unchecked_tensordicts_hold_their_entries():
 
 
 def test_torchrl_replay_buffer_reads_its_storage_through_the_attribute():
-    from learners.dqn import RowReplayBuffer
+    from learners.member import RowReplayBuffer
 
     buffer = RowReplayBuffer(8, 3, batch_size=2)
     assert private_api.REPLAY_BUFFER_STORAGE in type(buffer).__dict__  # our property overrides it

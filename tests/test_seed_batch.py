@@ -507,7 +507,7 @@ def test_a_run_updates_with_denormal_numbers_flushed_and_leaves_the_process_as_i
     """Adam's first moment of a dead unit's weights sticks in denormal numbers, where the
     CPU's arithmetic is ~5x slower: a run's updates compute them as 0
     (``denormals_flushed``); after the run a product below float32's normal range is kept."""
-    import learners.dqn as dqn_module
+    import learners.member as dqn_module
 
     real_adam, flushed = dqn_module.adam_step, []
 

@@ -1,0 +1,924 @@
+"""The member axis: one layer under every learner, so that a learner reads as its algorithm.
+
+A member is one independent learning run: a seed of a seed batch, a tuning trial's seed,
+or the one seed of a single run (a batch of one). A learner (:mod:`learners.qlearn`,
+:mod:`learners.dqn`) writes its algorithm for one member: its settings, its table or
+network, its acting rule, its loss. This module holds what it has once per member, laid out
+so that every member's arithmetic is one call:
+
+- :class:`MemberLearner`: the members' random streams and settings (a member-wise setting
+  reaches the algorithm as a number where every member has the same, else a
+  ``[members, 1]`` tensor: :meth:`MemberLearner.own`), and the contract's member-wise calls
+  (:class:`learners.base.Learner`: acting with the live members' streams, a member seen alone);
+- :class:`StackedTable`: every member's table, the rows of one tensor (tabular learners);
+- :class:`StackedNet`: every member's network, its parameters one ``[members, P]`` tensor,
+  each linear layer one batched product;
+- :class:`StackedAdam`: Adam's moments and step counts per member, one step for all;
+- :class:`RowReplayBuffer`: one member's replay storage, TorchRL's buffer over one tensor;
+- :class:`ReplayLearner`: a replay-buffer learner's members: their buffers (and n-step
+  queues, priorities), update credit, rounds of updates, gradient clip, optimizer and target
+  network steps, statistics, and saving, loading and renewing one member. Its algorithm
+  gives the network (``template``), the loss (``terms``) and the acting rule (``choose``).
+
+Each member's arithmetic is the same kernels whatever the number of members (a batched
+product computes each matrix alone, a reduction each row alone), and every random draw is
+made from the member's own generator outside the batched call, so a member of a batch
+learns bit for bit as alone (``tests/test_members.py``). ``bench/update_rate.py`` prices the
+batched products against ``torch.vmap`` of one member's module.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import time
+import warnings
+from typing import Any, Callable, Mapping, Sequence
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
+from torchrl.modules import NoisyLinear
+
+from learners.base import Member, StateMismatch, check_state, everyone, member_settings, per_member, single
+from learners.nstep import NStep
+from learners.priority import Priorities, annealed_beta
+from learners.transitions import Transitions, pack, unpack
+from params import require
+from params.private_api import with_entries
+
+# The layers' gradients are views of one tensor (StackedNet.layers), strided as their
+# parameters are; autograd adds into them in place and notes that this is not its layout.
+warnings.filterwarnings("ignore", message="grad and param do not obey the gradient layout contract")
+ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8  # torch.optim.Adam's defaults
+
+
+class MemberLearner:
+    """The members of a learner: their random streams (``generators``), their settings
+    (``settings``: the learner itself, or each member's own variant) and the calls of the
+    contract every learner answers alike."""
+
+    members = 0
+    MEMBER_WISE = ()  # settings members of one batch may differ in (the learner says)
+
+    def _members(self, generators: torch.Generator | Sequence[torch.Generator] | None,
+                 variants: Sequence[Any] | None) -> None:
+        """One member per generator, with its variant's settings (None: this learner's)."""
+        self.generators = single(generators)
+        self.members = len(self.generators)
+        self.settings = member_settings(self, variants, self.members)
+
+    def own(self, name: str, members: Sequence[int] | None = None, dtype: torch.dtype = torch.float32,
+            device: Any = "cpu") -> float | torch.Tensor:
+        """Setting ``name`` of ``members`` (None: all), as the algorithm's arithmetic takes it:
+        a number where they agree, else a ``[members, 1]`` tensor (:func:`per_member`)."""
+        return per_member([getattr(self.settings[b], name) for b in everyone(self, members)], dtype, device)
+
+    def member(self, b: int) -> Member:
+        return Member(self, b)
+
+    def begin(self) -> None:
+        """Before the first step of a training session (a fresh run or a resumed one)."""
+
+    def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
+        """Every member's exploring actions on its block; only ``live`` members draw."""
+        if live is None or len(live) == self.members:
+            return self.act_members(td, None, False, self.generators)
+        live = set(live)
+        return self.act_members(td, None, False, [g if b in live else None for b, g in enumerate(self.generators)])
+
+    def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
+                    generators: Sequence[torch.Generator | None]) -> TensorDictBase:
+        raise NotImplementedError
+
+
+def draws(generators: Sequence[torch.Generator | None], size: int, draw: Callable[..., None],
+          dtype: torch.dtype = torch.float32, fill: float = 0.0) -> torch.Tensor:
+    """``[k, size]``: row ``j`` filled by ``draw(generator, out=row)`` from ``generators[j]``
+    (one member's draw, outside any batched call), ``fill`` for a row without a generator."""
+    found = torch.full((len(generators), size), fill, dtype=dtype)
+    for j, generator in enumerate(generators):
+        if generator is not None:
+            draw(generator, out=found[j])
+    return found
+
+
+class StackedTable:
+    """Every member's ``[states, actions]`` table as rows of one tensor, member ``b``'s
+    ``sizes[b]`` rows from its start; ``visited`` flags alike."""
+
+    def __init__(self, sizes: Sequence[int], actions: int, fills: Sequence[float]) -> None:
+        self.starts = [sum(sizes[:b]) for b in range(len(sizes))]
+        self.values = torch.empty((sum(sizes), actions), dtype=torch.float64)
+        self.seen = torch.zeros((sum(sizes), actions), dtype=torch.bool)
+        self.table = [self.values[start:start + size] for start, size in zip(self.starts, sizes)]
+        self.visited = [self.seen[start:start + size] for start, size in zip(self.starts, sizes)]
+        for part, fill in zip(self.table, fills):
+            part.fill_(float(fill))
+        self._offsets: torch.Tensor | None = None
+
+    def offset(self, members: Sequence[int] | None, n: int) -> torch.Tensor | int:
+        """Each row's member's first row in the table, ``n`` rows a member of ``members``
+        (None: all, kept between steps; one member: one number)."""
+        if members is None:
+            if self._offsets is None or len(self._offsets) != len(self.starts) * n:
+                self._offsets = torch.as_tensor(self.starts).repeat_interleave(n)
+            return self._offsets
+        if len(members) == 1:
+            return self.starts[members[0]]
+        return torch.as_tensor([self.starts[b] for b in members]).repeat_interleave(n)
+
+
+class ObsScale(nn.Module):
+    """Multiplies each observation entry by a fixed factor before a network's layers
+    (inputs of one size: a wheel speed of 100 beside an angle of 0.1 drowns the angle)."""
+
+    def __init__(self, scale: torch.Tensor) -> None:
+        super().__init__()
+        self.register_buffer("scale", scale)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * self.scale
+
+
+_FUNCTIONS = {nn.Tanh: torch.tanh, nn.ReLU: torch.relu}
+
+
+class StackedNet:
+    """The networks of every member, all their parameters one ``[members, P]`` tensor laid out
+    as ``torch.nn.utils.parameters_to_vector`` lays out one member's ``template`` (its linear
+    layers' weight and bias in order, after an optional :class:`ObsScale`).
+
+    ``q(params, x)``: each member's network on its ``x`` (``[k, n, inputs]`` with ``params``
+    ``[k, P]``): every linear layer one ``baddbmm``, each member's product computed alone
+    whatever ``k``. Other layers of the template: an activation, a module whose ``forward``
+    maps the last dimension (such as a dueling head), or an ``nn.Unflatten`` (skipped: the
+    saved model's shape, not the stacked one's).
+
+    A TorchRL ``NoisyLinear`` (Fortunato et al. 2018) holds its mean and standard deviation
+    weights (``weight_mu``, ``weight_sigma``, ``bias_mu``, ``bias_sigma``, its parameters'
+    order); ``q`` uses the mean weights unless given factorised noise (:meth:`noise`):
+    ``w = mu_w + sigma_w * f(e_out) f(e_in)^T``, ``b = mu_b + sigma_b * f(e_out)``,
+    ``f(x) = sign(x) sqrt|x|``, as ``NoisyLinear.reset_noise`` draws it."""
+
+    def __init__(self, template: nn.Sequential, device: torch.device | str = "cpu") -> None:
+        self.template = template  # on the CPU
+        self.scale: torch.Tensor | None = None
+        self.plan: list = []  # a linear layer's parameters ((start, end, shape), ...), or a function
+        self.noisy_sizes: list[tuple[int, int]] = []  # (in, out) of each noisy layer
+        offset = 0
+        for layer in template:
+            if isinstance(layer, ObsScale):
+                self.scale = layer.scale.to(device)
+            elif isinstance(layer, nn.Linear):
+                out, inp = layer.out_features, layer.in_features
+                noisy = isinstance(layer, NoisyLinear)
+                shapes = [(out, inp), (out, inp), (out,), (out,)] if noisy else [(out, inp), (out,)]
+                slots = []
+                for shape in shapes:
+                    slots.append((offset, offset + math.prod(shape), shape))
+                    offset += math.prod(shape)
+                self.plan.append(tuple(slots))
+                if noisy:
+                    self.noisy_sizes.append((inp, out))
+            elif type(layer) in _FUNCTIONS:
+                self.plan.append(_FUNCTIONS[type(layer)])
+            elif not isinstance(layer, nn.Unflatten):
+                self.plan.append(layer.forward)
+        self.size = offset
+
+    def layers(self, params: torch.Tensor, grads: torch.Tensor | None = None) -> list:
+        """Each linear layer's ``(weight [k, out, in], bias [k, 1, out])`` (a noisy layer's
+        ``(weight_mu, weight_sigma, bias_mu, bias_sigma)``) as views of ``params`` (``[k, P]``).
+        With ``grads`` (``[k, P]``) they are autograd leaves whose gradients are views of
+        ``grads``: a backward adds every layer's gradient into that one tensor (zero it first),
+        where clipping and Adam take them all at once."""
+        k, found = len(params), []
+        for layer in self.plan:
+            if callable(layer):
+                continue
+            views = []
+            for start, end, shape in layer:
+                view = params[:, start:end].view(k, *shape)
+                if grads is not None:
+                    view.requires_grad_(True)
+                    view.grad = grads[:, start:end].view(k, *shape)
+                views.append(view if len(shape) == 2 else view.unsqueeze(1))
+            found.append(tuple(views))
+        return found
+
+    def noise(self, generators: Sequence[torch.Generator | None], device: torch.device | str) -> list:
+        """Factorised noise of each noisy layer for ``k`` members, ``(f(e_in) [k, in],
+        f(e_out) [k, out])``, member ``j``'s drawn from ``generators[j]`` (None: zero noise,
+        the mean weights)."""
+        total = sum(inp + out for inp, out in self.noisy_sizes)
+        drawn = draws(generators, total, lambda g, out: torch.randn(total, generator=g, out=out))
+        drawn = drawn.sign().mul_(drawn.abs().sqrt_()).to(device)
+        found, offset = [], 0
+        for inp, out in self.noisy_sizes:
+            found.append((drawn[:, offset:offset + inp], drawn[:, offset + inp:offset + inp + out]))
+            offset += inp + out
+        return found
+
+    def q(self, params: torch.Tensor | list, x: torch.Tensor, noise: list | None = None) -> torch.Tensor:
+        """Each member's network on its ``x`` (``[k, n, inputs]``); ``params``: ``[k, P]`` or
+        its :meth:`layers`; ``noise``: the noisy layers' (:meth:`noise`; None: mean weights)."""
+        layers = self.layers(params) if isinstance(params, torch.Tensor) else params
+        if self.noisy_sizes:
+            layers = self.with_noise(layers, noise)
+        layers = iter(layers)
+        if self.scale is not None:
+            x = x * self.scale
+        for layer in self.plan:
+            if callable(layer):
+                x = layer(x)
+                continue
+            weight, bias = next(layers)
+            x = torch.baddbmm(bias, x, weight.transpose(1, 2))
+        return x
+
+    def with_noise(self, layers: list, noise: list | None) -> list:
+        """:meth:`layers` with each noisy layer's ``(weight, bias)`` for ``noise`` (None: its
+        mean weights); a network evaluated twice with one noise makes them once."""
+        noises, found = iter(noise or ()), []
+        for parts in layers:
+            if len(parts) == 2:
+                found.append(parts)
+            elif noise is None:
+                found.append((parts[0], parts[2]))
+            else:
+                (weight_mu, weight_sigma, bias_mu, bias_sigma), (e_in, e_out) = parts, next(noises)
+                found.append((weight_mu + weight_sigma * (e_out.unsqueeze(2) * e_in.unsqueeze(1)),
+                              bias_mu + bias_sigma * e_out.unsqueeze(1)))
+        return found
+
+    def vector(self) -> torch.Tensor:
+        """The template's parameters as one ``[P]`` vector."""
+        return nn.utils.parameters_to_vector(self.template.parameters()).detach().clone()
+
+    def load(self, vector: torch.Tensor) -> nn.Sequential:
+        """The template holding ``vector``'s parameters."""
+        nn.utils.vector_to_parameters(vector.detach().cpu(), self.template.parameters())
+        return self.template
+
+    def initial(self, generator: torch.Generator) -> torch.Tensor:
+        """Fresh parameters of the template's layers drawn from ``generator`` (their own
+        ``reset_parameters``, as on torch's global stream)."""
+        with torch.random.fork_rng(devices=[]):
+            torch.set_rng_state(generator.get_state())
+            for layer in self.template:
+                if isinstance(layer, nn.Linear):
+                    layer.reset_parameters()
+            generator.set_state(torch.get_rng_state())
+        return self.vector()
+
+    def state(self, vector: torch.Tensor) -> dict:
+        """The template's ``state_dict`` holding ``vector``, copied."""
+        return {k: v.clone() for k, v in self.load(vector).state_dict().items()}
+
+    def vector_of(self, state: Mapping, device: torch.device | str) -> torch.Tensor:
+        """The ``[P]`` vector of a template's ``state_dict``."""
+        self.template.load_state_dict(state)
+        return self.vector().to(device)
+
+
+class StackedAdam:
+    """Adam (``torch.optim.Adam``'s arithmetic, default betas and eps) of every member's
+    ``[P]`` row of parameters: the moments ``[members, P]``, each member's step count."""
+
+    def __init__(self, params: torch.Tensor) -> None:
+        self.exp_avg = torch.zeros_like(params)
+        self.exp_avg_sq = torch.zeros_like(params)
+        self.steps = [0] * len(params)
+
+    def step(self, rows: torch.Tensor | None, params: torch.Tensor, grads: torch.Tensor,
+             members: Sequence[int], lrs: Sequence[float]) -> None:
+        """One step of ``members`` (``rows``: their rows, None for all, whose tensors
+        ``params`` and ``grads`` then are), ``lrs`` their learning rates; in place."""
+        for b in members:
+            self.steps[b] += 1
+        exp_avg = self.exp_avg if rows is None else self.exp_avg.index_select(0, rows)
+        exp_avg_sq = self.exp_avg_sq if rows is None else self.exp_avg_sq.index_select(0, rows)
+        adam_step(params, grads, exp_avg, exp_avg_sq, [self.steps[b] for b in members], lrs)
+        if rows is not None:
+            self.exp_avg.index_copy_(0, rows, exp_avg)
+            self.exp_avg_sq.index_copy_(0, rows, exp_avg_sq)
+
+    def reset(self, b: int) -> None:
+        """Member ``b`` before its first step."""
+        self.exp_avg[b].zero_()
+        self.exp_avg_sq[b].zero_()
+        self.steps[b] = 0
+
+    def state_dict(self, b: int, shapes: Sequence[torch.Size], lr: float, initial_lr: float) -> dict:
+        """Member ``b``'s state in ``torch.optim.Adam``'s ``state_dict`` layout (one tensor
+        per parameter of ``shapes``)."""
+        state, offset = {}, 0
+        for i, shape in enumerate(shapes):
+            size = math.prod(shape)
+            if self.steps[b]:
+                state[i] = {"step": torch.tensor(float(self.steps[b])),
+                            "exp_avg": self.exp_avg[b, offset:offset + size].reshape(shape).clone(),
+                            "exp_avg_sq": self.exp_avg_sq[b, offset:offset + size].reshape(shape).clone()}
+            offset += size
+        group = {"lr": lr, "betas": ADAM_BETAS, "eps": ADAM_EPS, "weight_decay": 0,
+                 "amsgrad": False, "maximize": False, "foreach": None, "capturable": False,
+                 "differentiable": False, "fused": True, "decoupled_weight_decay": False,
+                 "initial_lr": initial_lr, "params": list(range(len(shapes)))}
+        return {"state": state, "param_groups": [group]}
+
+    @torch.no_grad()
+    def load_state_dict(self, b: int, state: Mapping, steps: int) -> None:
+        """Member ``b``'s moments from an Adam ``state_dict`` (none before a first step)."""
+        moments = state.get("state", {})
+        self.exp_avg[b].zero_()
+        self.exp_avg_sq[b].zero_()
+        if moments:
+            self.exp_avg[b] = torch.cat([moments[i]["exp_avg"].reshape(-1) for i in sorted(moments)])
+            self.exp_avg_sq[b] = torch.cat([moments[i]["exp_avg_sq"].reshape(-1) for i in sorted(moments)])
+        self.steps[b] = int(steps)
+
+
+def adam_step(params: torch.Tensor, grads: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor,
+              steps: Sequence[int], lrs: Sequence[float]) -> None:
+    """One Adam step (``torch.optim.Adam``'s arithmetic, default betas and eps) of each row of
+    ``params`` (``[k, P]``, a member each), ``steps[j]`` its step count after this step and
+    ``lrs[j]`` its learning rate; in place."""
+    beta1, beta2 = ADAM_BETAS
+    size = [[lr / (1 - beta1 ** s)] for lr, s in zip(lrs, steps)]
+    root = [[math.sqrt(1 - beta2 ** s)] for s in steps]
+    step_size = torch.tensor(size, dtype=params.dtype, device=params.device)
+    correction = torch.tensor(root, dtype=params.dtype, device=params.device)
+    exp_avg.lerp_(grads, 1 - beta1)
+    exp_avg_sq.mul_(beta2).addcmul_(grads, grads, value=1 - beta2)
+    denom = (exp_avg_sq.sqrt() / correction).add_(ADAM_EPS)
+    params.sub_(exp_avg / denom * step_size)
+
+
+def clip_norms(grads: torch.Tensor, clip: float | torch.Tensor) -> torch.Tensor:
+    """Each row of ``grads`` (``[k, P]``) scaled to a norm of at most ``clip`` (a number, or
+    ``[k, 1]`` per member; 0: no clip), in place; the norms before."""
+    norms = torch.linalg.vector_norm(grads, dim=1)
+    if isinstance(clip, torch.Tensor):  # members' own clips; 0 (none) scales by 1
+        clip = clip.squeeze(1)
+        factor = torch.where(clip > 0, (clip / (norms + 1e-6)).clamp_(max=1.0), 1.0)
+        grads.mul_(factor.unsqueeze(1))
+    elif clip > 0:
+        grads.mul_((clip / (norms + 1e-6)).clamp_(max=1.0).unsqueeze(1))
+    return norms
+
+
+class RowReplayBuffer(ReplayBuffer):
+    """One member's replay storage: TorchRL's ``ReplayBuffer`` over a ``TensorStorage`` of one
+    pre-allocated float tensor, ``rows``, a row per transition (:func:`pack`).
+
+    ``extend``, ``sample``, indexing and ``state_dict`` are TorchRL's. An update draws the
+    indices itself (:meth:`sample_rows`), the very draw of TorchRL's ``RandomSampler``
+    (``torch.randint``), from the member's generator, and indexes ``rows``
+    (``bench/update_rate.py`` times it against ``sample()``).
+
+    :meth:`put` queues rows instead of writing them: TorchRL's ``extend`` has a cost per call
+    whatever its size, and a learner adds a few rows per env step but reads the buffer only
+    when it updates. The queue is written by one ``extend`` of its rows, in order, as soon
+    as anything touches the storage (every path of ``ReplayBuffer`` goes through
+    ``_storage``), and before it would hold more rows than the buffer, so the buffer never
+    sees the difference. :meth:`stored` gives the length without writing them (TorchRL's
+    ``extend`` was ~12% of a cart-pole dqn run).
+    """
+
+    def __init__(self, capacity: int, width: int, batch_size: int,
+                 device: torch.device | str = "cpu") -> None:
+        self._queue: list[torch.Tensor] = []
+        self._queued = 0
+        self.priorities: Priorities | None = None  # prioritized replay: each written row gets one
+        self._capacity = int(capacity)
+        rows = torch.zeros(capacity, width, device=device)
+        super().__init__(storage=TensorStorage(rows, device=device), sampler=RandomSampler(),
+                         batch_size=batch_size)
+        self.empty()  # a TensorStorage made from a tensor counts it full
+        self._rows = rows
+
+    @property
+    def _storage(self):
+        if self._queued:
+            self.flush()
+        return self.__dict__.get("_storage_")
+
+    @_storage.setter
+    def _storage(self, storage) -> None:
+        self.__dict__["_storage_"] = storage
+
+    @property
+    def rows(self) -> torch.Tensor:
+        """The storage tensor, queued rows written."""
+        if self._queued:
+            self.flush()
+        return self._rows
+
+    def put(self, rows: torch.Tensor) -> None:
+        """Adds ``rows`` (``[n, width]``) after those stored, as ``extend`` would, by the
+        next time the buffer is read."""
+        if self._queued + len(rows) > self._capacity:
+            self.flush()  # one extend never wraps onto its own rows
+        self._queue.append(rows)
+        self._queued += len(rows)
+
+    def stored(self) -> int:
+        """``len(self)`` once the queued rows are written, without writing them."""
+        return min(len(self.__dict__["_storage_"]) + self._queued, self._capacity)
+
+    def flush(self) -> None:
+        """Writes the queued rows (one ``extend``)."""
+        queue, self._queue, self._queued = self._queue, [], 0
+        if queue:
+            index = self.extend(queue[0] if len(queue) == 1 else torch.cat(queue))
+            if self.priorities is not None:
+                self.priorities.added(index)
+
+    def sample_rows(self, stored: int, generator: torch.Generator | None = None,
+                    out: torch.Tensor | None = None) -> torch.Tensor:
+        """A minibatch of rows drawn uniformly from the first ``stored`` rows (``len(self)``)."""
+        index = torch.randint(0, stored, (self.batch_size,), generator=generator)
+        rows = self.rows
+        return torch.index_select(rows, 0, index.to(rows.device), out=out)
+
+    def sample_prioritized(self, stored: int, beta: float, generator: torch.Generator | None = None,
+                           out: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(rows, index, weight)``: a minibatch drawn by :attr:`priorities` from the first
+        ``stored`` rows, their indices and importance weights (``beta``)."""
+        rows = self.rows
+        index, weight = self.priorities.sample(stored, self.batch_size, beta, generator)
+        return torch.index_select(rows, 0, index.to(rows.device), out=out), index, weight
+
+    def sample_transitions(self, stored: int, generator: torch.Generator | None = None) -> Transitions:
+        """:meth:`sample_rows` as :class:`Transitions`."""
+        return unpack(self.sample_rows(stored, generator))
+
+    def transitions(self) -> Transitions:
+        """Every stored transition, in storage order."""
+        return unpack(self.rows[: len(self)])
+
+
+class UpdateStats:
+    """One member's losses, Q of the taken actions, TD targets and gradient norms since the
+    last :meth:`read`. Per update it only keeps the tensors (no host sync, no arithmetic);
+    they are reduced to sums every ``FOLD`` updates and when read."""
+
+    FOLD = 256
+
+    def __init__(self) -> None:
+        self.latest: dict[str, float] = {}
+        self.restart(0)
+
+    def restart(self, updates: int) -> None:
+        """A new interval, starting now after ``updates`` optimizer steps."""
+        self.pending: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+        self.norms: list[torch.Tensor] = []
+        self.loss_sum = self.q_sum = self.td_sum = self.norm_sum = 0.0
+        self.count = self.values = self.n_norms = 0
+        self.since, self.t0 = updates, time.perf_counter()
+
+    def add(self, loss: torch.Tensor | float, q: torch.Tensor, target: torch.Tensor,
+            grad_norm: torch.Tensor | None) -> None:
+        """One update: its loss, ``q`` and ``target`` (detached), its gradient norm if known."""
+        self.count += 1
+        self.pending.append((torch.as_tensor(loss, device=q.device), q, target))
+        if grad_norm is not None:
+            self.norms.append(grad_norm)
+        if len(self.pending) >= self.FOLD:
+            self._fold()
+
+    def _fold(self) -> None:
+        if self.pending:
+            losses, q, target = zip(*self.pending)
+            q, target = torch.cat(q), torch.cat(target)
+            sums = torch.stack((torch.stack(losses).sum(), q.sum(), (target - q).abs_().sum()))
+            loss_sum, q_sum, td_sum = sums.tolist()
+            self.loss_sum, self.q_sum, self.td_sum = (self.loss_sum + loss_sum, self.q_sum + q_sum,
+                                                      self.td_sum + td_sum)
+            self.values += q.numel()
+            self.pending.clear()
+        if self.norms:
+            self.norm_sum += float(torch.stack(self.norms).sum())
+            self.n_norms += len(self.norms)
+            self.norms.clear()
+
+    def read(self, updates: int, reset: bool = True) -> dict[str, float]:
+        """The interval's means (``loss``, ``q_mean``, ``td_error``, ``grad_norm``), the
+        ``updates`` so far and ``updates_per_s``; ``reset``: start a new interval."""
+        self._fold()
+        if self.count:
+            self.latest = {"loss": self.loss_sum / self.count, "q_mean": self.q_sum / self.values,
+                           "td_error": self.td_sum / self.values}
+        if self.n_norms:
+            self.latest["grad_norm"] = self.norm_sum / self.n_norms
+        rate = (updates - self.since) / max(time.perf_counter() - self.t0, 1e-9)
+        stats = {**self.latest, "updates": float(updates), "updates_per_s": rate}
+        if reset:
+            self.restart(updates)
+        return stats
+
+
+# The replay training state's layout. 2: the replay buffer holds one float row per
+# transition (``pack``) and there is no ``last_loss``; 1 (unmarked): a TensorDict storage.
+FORMAT = 2
+
+
+class ReplayLearner(MemberLearner):
+    """The members of a replay-buffer learner with one network (and its target network).
+
+    The algorithm (a subclass, a dataclass of its settings) gives:
+
+    - ``template(task)``: one member's network on the CPU (an ``nn.Sequential`` of
+      :class:`StackedNet`'s layers), and ``actor(template)``: it as ``model.pt`` holds it;
+    - ``arch()``: what a saved state must match (shapes), and ``kind``;
+    - ``terms(q, target_q, batch, gamma)``: the loss of a minibatch, one row per transition
+      ``(loss, q, target, error)``, ``error`` what prioritized replay keeps (``q`` and
+      ``target_q``: the networks as functions of observations);
+    - ``choose(q, explore, draws)``: actions from the network's outputs, and ``draw(generator,
+      copies, out)``: one member's random numbers for one step (``explore`` says how many);
+    - ``transitions_of(td, own)``: the transitions a member with settings ``own`` stores.
+
+    Its settings read here: ``lr``, ``lr_decay``, ``gamma``, ``tau``, ``target_update``,
+    ``grad_clip``, ``updates``, ``train_every``, ``learning_starts``, ``buffer_size``,
+    ``batch_size``, ``n_step``, ``prioritized`` (``priority_*``), ``noisy``, ``epsilon`` (a
+    schedule), ``device``.
+
+    When it trains (``train_every``): ``episode``: ``updates`` minibatches after each finished
+    episode; ``step``: ``updates`` minibatches per collected transition (fractions carried
+    over), once the buffer holds ``learning_starts``. The updates owed run in rounds: a round
+    updates every member that still owes one, the others' parameters and optimizer state
+    untouched.
+    """
+
+    # -- building ------------------------------------------------------------
+    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None,
+              variants: Sequence[Any] | None = None) -> None:
+        """The networks, optimizer state and replay buffers of one member per generator: its
+        stream initialises its network (as ``nn.Linear`` does from torch's global stream) and
+        then draws its exploration and minibatches; ``variants``: each member's own settings."""
+        self._members(generators, variants)
+        self._one_target_kind(self.settings)
+        self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
+        with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
+            template = self.template(task)
+        self.net = StackedNet(template, self.device)
+        self.actor = self.actor_of(template)
+        self.params = torch.stack([self.net.initial(g) for g in self.generators]).to(self.device)
+        self.has_target = bool(self.target_update or self.tau)
+        self.target = self.params.clone() if self.has_target else self.params
+        self.adam = StackedAdam(self.params)
+        self.grads = torch.zeros_like(self.params)  # each member's latest gradients
+        # Every member's layers, and the target network's (without one: the online network
+        # values the next state), as views (an update's autograd leaves are made anew each
+        # round: a leaf whose storage Adam changed in place would not stay one).
+        self._online = self.net.layers(self.params)
+        self._valued = self.net.layers(self.target)
+        self.credit = [0.0] * self.members  # updates owed, fractions carried over
+        self.owed = [0] * self.members  # whole updates owed, run by settle
+        self.schedules = [v.epsilon if b == 0 else copy.deepcopy(v.epsilon) for b, v in enumerate(self.settings)]
+        self.trackers = [UpdateStats() for _ in range(self.members)]
+        self.buffers = [self._buffer(v) for v in self.settings]
+        self._minibatch = self._minibatches()
+        self.nsteps: list[NStep] = []  # each member's queues, made at its first step (copies known then)
+
+    @staticmethod
+    def _one_target_kind(settings: Sequence[Any]) -> None:
+        """One line unless the members of ``settings`` all have a target network or none."""
+        require(len({bool(v.target_update or v.tau) for v in settings}) == 1,
+                "learner.tau and learner.target_update: members of one batch must all have a target network or none",
+                [(v.tau, v.target_update) for v in settings])
+
+    @property
+    def steps(self) -> list[int]:
+        """Each member's optimizer steps."""
+        return self.adam.steps
+
+    @property
+    def exp_avg(self) -> torch.Tensor:
+        return self.adam.exp_avg
+
+    @property
+    def exp_avg_sq(self) -> torch.Tensor:
+        return self.adam.exp_avg_sq
+
+    def _row_width(self) -> int:
+        """A replay row's numbers (:func:`pack`); n-step rows carry their steps."""
+        return 2 * self.n_obs + 3 + (self.n_step > 1)
+
+    def _buffer(self, own: Any) -> RowReplayBuffer:
+        """An empty replay buffer of a member with settings ``own`` (its priorities too)."""
+        buffer = RowReplayBuffer(own.buffer_size, self._row_width(), own.batch_size, self.device)
+        if self.prioritized:
+            buffer.priorities = Priorities(own.buffer_size, own.priority_alpha, own.priority_eps, self.device)
+        return buffer
+
+    def _minibatches(self) -> dict[int, torch.Tensor]:
+        """A round's minibatches, per minibatch size among the members: as many as members of it."""
+        sizes = [v.batch_size for v in self.settings]
+        return {size: torch.empty(sizes.count(size), size, self._row_width(), device=self.device) for size in sizes}
+
+    @torch.no_grad()
+    def renew(self, b: int, generator: torch.Generator, variant: Any | None = None) -> None:
+        """Member ``b`` made anew from ``generator`` and ``variant`` (None: this learner's
+        settings), as :meth:`build` makes a member: a batch's freed member given another trial
+        x seed. The other members are left as they are."""
+        own = self if variant is None else member_settings(self, [variant], 1)[0]
+        self._one_target_kind([self.settings[0], own])
+        self.generators[b], self.settings[b] = generator, own
+        self.params[b] = self.net.initial(generator)
+        if self.has_target:
+            self.target[b] = self.params[b]
+        self.adam.reset(b)
+        self.grads[b].zero_()
+        self.credit[b], self.owed[b] = 0.0, 0
+        self.schedules[b] = dataclasses.replace(own.epsilon)  # at its start, whatever own's has done
+        self.trackers[b] = UpdateStats()
+        self.buffers[b] = self._buffer(own)
+        self._minibatch = self._minibatches()
+        if self.nsteps:
+            self.nsteps[b] = NStep(self.n_step, len(self.nsteps[b].count), self.n_obs, own.gamma)
+
+    def lr_of(self, b: int, steps: int | None = None) -> float:
+        """Member ``b``'s learning rate after ``steps`` updates (default: its updates so far;
+        Keras' legacy decay: lr / (1 + decay * updates))."""
+        own, steps = self.settings[b], self.steps[b] if steps is None else steps
+        return own.lr * (1.0 / (1.0 + own.lr_decay * steps)) if own.lr_decay else own.lr
+
+    def stats(self, b: int) -> dict[str, float]:
+        epsilon = 0.0 if self.noisy else float(self.schedules[b].value)
+        return {"alpha": self.lr_of(b), "gamma": self.settings[b].gamma, "epsilon": epsilon}
+
+    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
+        """``train/*`` of member ``b``: ``loss``, ``q_mean`` (of the taken actions),
+        ``td_error`` (mean absolute) and ``grad_norm`` (before clipping), means over the
+        updates since the last reset (the previous values if none ran; absent before the
+        first update), but with ``grad_clip=0`` ``grad_norm`` is the latest update's;
+        ``epsilon``, ``lr``, ``updates`` (optimizer steps so far) and ``updates_per_s`` (per
+        wall-clock second since the last reset). ``reset=False`` reads without starting a
+        new interval (for a progress bar shown between the logger's reads)."""
+        stats = self.trackers[b].read(self.steps[b], reset)
+        if self.settings[b].grad_clip == 0 and self.steps[b]:
+            stats["grad_norm"] = float(torch.linalg.vector_norm(self.grads[b]))
+        return {**stats, "epsilon": float(self.schedules[b].value), "lr": self.lr_of(b)}
+
+    # -- acting --------------------------------------------------------------
+    def begin(self) -> None:
+        for b, tracker in enumerate(self.trackers):
+            tracker.restart(self.steps[b])
+
+    def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
+                    generators: Sequence[torch.Generator | None]) -> TensorDictBase:
+        """The actions of ``members`` (None: all) on their blocks of ``td`` (block ``j`` is
+        member ``members[j]``'s), ``generators[j]`` drawing its noise and exploration
+        (:meth:`choose`); greedy: the mean weights and no exploration. Returns a new
+        tensordict of ``td``'s entries and ``action``."""
+        params = self._online if members is None else self.params[list(members)]
+        members = range(self.members) if members is None else list(members)
+        k = len(members)
+        noise = self.net.noise(generators, self.device) if self.noisy and not greedy else None
+        with torch.no_grad():
+            q = self.net.q(params, td.get("observation").reshape(k, -1, self.n_obs).to(self.device), noise)
+        n = q.shape[1]
+        explore = None if greedy or self.noisy else torch.tensor([[float(self.schedules[b].value)] for b in members])
+        drawn = None if explore is None else self.draw_all(generators, n)
+        action = self.choose(q, explore, drawn)
+        return with_entries(td, action=action.reshape(td.batch_size))
+
+    def draw_all(self, generators: Sequence[torch.Generator | None], n: int) -> list[torch.Tensor]:
+        """Each block's :meth:`draw` for ``n`` copies, stacked (a block without a generator:
+        the algorithm's ``undrawn``)."""
+        found = [self.draw(g, n) if g is not None else self.undrawn(n) for g in generators]
+        return [torch.stack(parts) for parts in zip(*found)]
+
+    # -- learning ------------------------------------------------------------
+    def store(self, td: TensorDictBase, live: Sequence[int] | None = None) -> int:
+        """Each live member adds its block's transitions to its replay buffer (with
+        ``n_step`` > 1, the n-step rows that leave its queues); the block size."""
+        n = td.numel() // self.members
+        flat = td.reshape(-1)
+        if self.n_step > 1:
+            self._queues(n)
+            done = flat.get(("next", "done")).reshape(-1)
+            for b in everyone(self, live):
+                block = slice(b * n, (b + 1) * n)
+                rows = self.nsteps[b].push(self.transitions_of(flat[block], self.settings[b]), done[block])
+                if rows is not None:
+                    self.buffers[b].put(pack(rows).to(self.device))
+            return n
+        alike = all(v is self.settings[0] for v in self.settings)
+        rows = pack(self.transitions_of(td, self)).to(self.device) if alike else None
+        for b in everyone(self, live):
+            block = rows[b * n:(b + 1) * n] if alike else pack(
+                self.transitions_of(flat[b * n:(b + 1) * n], self.settings[b])).to(self.device)
+            self.buffers[b].put(block)
+        return n
+
+    def _queues(self, copies: int) -> None:
+        """Each member's n-step queues for ``copies`` copies (made at the first step or the
+        first loaded state, when the copies are known)."""
+        if not self.nsteps:
+            self.nsteps = [NStep(self.n_step, copies, self.n_obs, own.gamma) for own in self.settings]
+
+    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
+        """Each live member stores its block's transitions and counts them (schedule, update
+        credit with ``train_every=step``); then the updates owed run."""
+        n = self.store(td, live)
+        for b in everyone(self, live):
+            self.schedules[b].step(n)
+            if self.train_every == "step":
+                self._owe(b, self.settings[b].updates * n)
+        self.settle()
+
+    def optimize(self, n: int, members: Sequence[int] | None = None) -> None:
+        """``n`` updates of each of ``members`` (all by default) on its replay buffer, now."""
+        for b in everyone(self, members):
+            self.owed[b] += n
+        self.settle()
+
+    def end_episodes(self, ended: Mapping[int, int]) -> None:
+        """After each finished episode of a member: the schedule's episode step and, with
+        ``train_every=episode``, its updates; then the updates owed run."""
+        for b, count in ended.items():
+            for _ in range(count):
+                self.schedules[b].episode_end()
+                if self.train_every == "episode":
+                    self._owe(b, self.settings[b].updates)
+        self.settle()
+
+    def _owe(self, b: int, updates: float) -> None:
+        """Adds ``updates`` to member ``b``'s credit once its buffer holds ``learning_starts``
+        transitions; the whole ones are owed."""
+        if self.buffers[b].stored() < max(self.settings[b].learning_starts, 1):
+            return
+        self.credit[b] += updates
+        whole = int(self.credit[b])
+        self.credit[b] -= whole
+        self.owed[b] += whole
+
+    def settle(self) -> None:
+        """Runs the updates the members owe, in rounds: a round updates every member that still
+        owes one (each member's updates in its order, as alone), those of one minibatch size
+        together."""
+        owed, self.owed = self.owed, [0] * self.members
+        stored = {b: len(self.buffers[b]) for b in range(self.members) if owed[b]}
+        for done in range(max(owed)):
+            due = [b for b in stored if owed[b] > done]
+            for size in sorted({self.settings[b].batch_size for b in due}):
+                self._update([b for b in due if self.settings[b].batch_size == size], stored, self._minibatch[size])
+
+    def _sample(self, due: list[int], stored: Mapping[int, int], minibatch: torch.Tensor) -> tuple[list, list]:
+        """Each due member's minibatch into ``minibatch``'s rows, drawn from its own stream;
+        with prioritized replay, their rows' indices and importance weights."""
+        drawn, weights = [], []
+        for j, b in enumerate(due):
+            if self.prioritized:
+                v = self.settings[b]
+                beta = annealed_beta(v.priority_beta, self.steps[b], v.priority_beta_updates)
+                _, index, weight = self.buffers[b].sample_prioritized(stored[b], beta, self.generators[b],
+                                                                      out=minibatch[j])
+                drawn.append(index)
+                weights.append(weight)
+            else:
+                self.buffers[b].sample_rows(stored[b], self.generators[b], out=minibatch[j])
+        return drawn, weights
+
+    def _update(self, due: list[int], stored: Mapping[int, int], minibatch: torch.Tensor) -> None:
+        """One update of each member of ``due`` (all of one minibatch size): its minibatch,
+        the algorithm's loss (:meth:`terms`), gradients by autograd, its clipped norm, its
+        Adam step and its target network's."""
+        k = len(due)
+        drawn, weights = self._sample(due, stored, minibatch)
+        batch = unpack(minibatch[:k])
+        if k == self.members:  # every member: its own tensors, in place
+            rows, params, target, grads, valued = None, self.params, self.target, self.grads, self._valued
+            grads.zero_()
+        else:  # the due members' rows, written back after the step
+            rows = torch.tensor(due, device=self.params.device)
+            params = self.params.index_select(0, rows)
+            grads = torch.zeros_like(params)
+            target = self.target.index_select(0, rows) if self.has_target else params
+            valued = self.net.layers(target)
+        online = self.net.layers(params, grads)
+        if self.noisy:  # fresh noise for each update: the online network's, then the target's
+            streams = [self.generators[b] for b in due]
+            noise = self.net.noise(streams, self.device)
+            target_noise = self.net.noise(streams, self.device) if self.has_target else noise
+            online, valued = self.net.with_noise(online, noise), self.net.with_noise(valued, target_noise)
+        gamma = self.own("gamma", due, params.dtype, params.device)
+        gamma = gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma
+        loss, q, td_target, errors = self.terms(lambda x: self.net.q(online, x), lambda x: self.net.q(valued, x),
+                                                batch, gamma)
+        if self.prioritized:  # importance-weighted; the rows take their new errors
+            loss = loss * torch.stack(weights).to(loss.device).unsqueeze(-1)
+            for j, b in enumerate(due):
+                self.buffers[b].priorities.update(drawn[j], errors[j])
+        loss = loss.mean((1, 2))
+        loss.sum().backward()
+        with torch.no_grad():
+            norms = clip_norms(grads, self.own("grad_clip", due, params.dtype, params.device))
+            self.adam.step(rows, params, grads, due, [self.lr_of(b, self.steps[b]) for b in due])
+            self._follow(due, params, target)
+            if rows is not None:
+                self.params.index_copy_(0, rows, params)
+                self.grads.index_copy_(0, rows, grads)
+                if self.has_target:
+                    self.target.index_copy_(0, rows, target)
+        for j, b in enumerate(due):
+            self.trackers[b].add(loss[j].detach(), q[j].detach(), td_target[j],
+                                 norms[j] if self.settings[b].grad_clip > 0 else None)
+
+    def _follow(self, due: list[int], params: torch.Tensor, target: torch.Tensor) -> None:
+        """The target networks of ``due`` after their step: Polyak averaging by ``tau``, a
+        hard copy every ``target_update`` steps."""
+        tau = self.own("tau", due, params.dtype, params.device)
+        if isinstance(tau, torch.Tensor) or tau:  # (a member with tau 0 moves by 0: exactly not)
+            target.lerp_(params, tau)
+        for j, b in enumerate(due):
+            every = self.settings[b].target_update
+            if every and self.steps[b] % every == 0:
+                target[j].copy_(params[j])
+
+    # -- persistence ---------------------------------------------------------
+    def _optimizer_state(self, b: int) -> dict:
+        shapes = [p.shape for p in self.net.template.parameters()]
+        return self.adam.state_dict(b, shapes, self.lr_of(b), self.settings[b].lr)
+
+    def _check_arch(self, arch: dict, where: str) -> None:
+        if arch != self.arch():
+            raise StateMismatch(f"checkpoint {where} does not fit this run: it has network {arch}, "
+                                f"this run builds {self.arch()}")
+
+    def training_state(self, b: int) -> dict:
+        """Everything member ``b``'s next update depends on, replay buffer and random stream
+        included (for resuming)."""
+        return {
+            "format": FORMAT, "arch": self.arch(), "net": self.net.state(self.params[b]),
+            "target_net": self.net.state(self.target[b]), "optimizer": self._optimizer_state(b),
+            "lr_schedule": {"base_lrs": [self.settings[b].lr],
+                            "last_epoch": self.steps[b] if self.settings[b].lr_decay else 0,
+                            "_last_lr": [self.lr_of(b)]},
+            "schedule": self.schedules[b].state_dict(), "optimizer_steps": self.steps[b],
+            "credit": self.credit[b], "buffer": self.buffers[b].state_dict(),
+            "generator": self.generators[b].get_state(),
+            **({"n_step_queues": self.nsteps[b].state_dict()} if self.nsteps else {}),
+            **({"priorities": self.buffers[b].priorities.state_dict()} if self.prioritized else {}),
+        }
+
+    @torch.no_grad()
+    def load_training_state(self, b: int, state: Mapping) -> None:
+        if state.get("format", 1) != FORMAT:
+            raise StateMismatch(
+                f"the training checkpoint holds a {self.kind.upper()} state of format {state.get('format', 1)}, "
+                f"this code reads format {FORMAT} (its replay buffer changed); resume it with "
+                "the version that wrote it, or start the run afresh")
+        own = {k: v for k, v in self.training_state(b).items() if k not in ("generator", "lr_schedule")}
+        check_state(state, own, "the training checkpoint")
+        self._check_arch(state["arch"], "the training checkpoint")
+        check_state(state, own, "the training checkpoint", deep=("net", "target_net"))
+        self.params[b] = self.net.vector_of(state["net"], self.device)
+        if self.has_target:
+            self.target[b] = self.net.vector_of(state["target_net"], self.device)
+        self.adam.load_state_dict(b, state["optimizer"], state["optimizer_steps"])
+        self.schedules[b].load_state_dict(state["schedule"])
+        self.credit[b] = float(state["credit"])
+        self.buffers[b].load_state_dict(state["buffer"])
+        if self.prioritized:
+            self.buffers[b].priorities.load_state_dict(state["priorities"])
+        if self.n_step > 1 and "n_step_queues" in state:
+            queues = state["n_step_queues"]
+            self._queues(len(queues["count"]))
+            self.nsteps[b].load_state_dict(queues)
+        if "generator" in state:  # a checkpoint of an earlier version: the run's torch stream
+            self.generators[b].set_state(state["generator"])
+
+    def model_state(self, b: int) -> dict:
+        """Member ``b``'s trained network, its optimiser and schedule (``model.pt``)."""
+        self.net.load(self.params[b])
+        return {
+            "kind": self.kind, "arch": self.arch(),
+            "actor": {k: v.clone() for k, v in self.actor.state_dict().items()},
+            "optimizer": self._optimizer_state(b), "schedule": self.schedules[b].state_dict(),
+            "optimizer_steps": self.steps[b],
+        }
+
+    @torch.no_grad()
+    def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
+        """Loads saved weights (and optimiser, schedule) into member ``b``; ``where`` names the
+        state's origin in a :class:`StateMismatch`."""
+        own = self.model_state(b)
+        check_state(ckpt, own, where)  # every key there, before its values are read
+        self._check_arch(ckpt["arch"], where)
+        check_state(ckpt, own, where, deep=("actor",))
+        self.actor.load_state_dict(ckpt["actor"])
+        self.params[b] = self.net.vector().to(self.device)
+        self.adam.load_state_dict(b, ckpt["optimizer"], ckpt["optimizer_steps"])
+        self.schedules[b].load_state_dict(ckpt["schedule"])
+        if self.has_target:
+            self.target[b] = self.params[b]
+
+
+__all__ = ["FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "StackedAdam",
+           "StackedNet", "StackedTable", "UpdateStats", "adam_step", "clip_norms", "draws"]
