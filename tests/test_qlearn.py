@@ -7,7 +7,8 @@ from tensordict import TensorDict
 
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.evaluate import evaluate
-from learners.qlearn import Discretizer, QLearn
+from learners.discretizer import Discretizer
+from learners.qlearn import QLearn
 from runs.loop import train_single
 from runs.run import Run
 from runs.training_state import seed_everything
