@@ -83,4 +83,29 @@ class Discretizer:
         }
 
 
-__all__ = ["MAX_SPLITS", "Discretizer"]
+class MemberDiscretizers:
+    """Each member's :class:`Discretizer` (members may have their own ``number_splits``),
+    those of equal splits one object; :meth:`__call__` maps every member's rows at once."""
+
+    def __init__(self, bounds: Bounds, splits: Sequence[int | Sequence[int] | Mapping[str, int]]) -> None:
+        made: dict[str, Discretizer] = {}
+        self.each = [made.setdefault(repr(s), Discretizer(bounds, s)) for s in splits]
+        self.alike = len(made) == 1
+        self._rows: tuple[torch.Tensor, ...] | None = None  # every member's rows' bins, kept between steps
+
+    def __call__(self, observation: torch.Tensor, members: Sequence[int] | None, n: int) -> torch.Tensor:
+        """The state index of each row of ``observation``, ``n`` rows a member of ``members``
+        (None: all), each by its member's own discretizer."""
+        first = self.each[0]
+        if self.alike:
+            return first(observation)
+        if members is None:
+            if self._rows is None or len(self._rows[0]) != len(self.each) * n:
+                self._rows = Discretizer.rows_of(self.each, torch.arange(len(self.each)).repeat_interleave(n))
+            return first(observation, self._rows)
+        if len(members) == 1:  # a member's own policy (its greedy evaluations): its own bins
+            return self.each[members[0]](observation)
+        return first(observation, Discretizer.rows_of(self.each, torch.as_tensor(list(members)).repeat_interleave(n)))
+
+
+__all__ = ["MAX_SPLITS", "Discretizer", "MemberDiscretizers"]

@@ -33,7 +33,7 @@ import torch
 from tensordict import TensorDictBase
 
 from learners.base import StateMismatch, check_state
-from learners.discretizer import MAX_SPLITS, Discretizer
+from learners.discretizer import MAX_SPLITS, MemberDiscretizers
 from learners.member import MemberLearner, StackedTable, draws
 from params import require
 from params.declare import check_fields, param
@@ -96,12 +96,10 @@ class QLearn(MemberLearner):
     def _lay_out(self, kept: Mapping[int, tuple[torch.Tensor, torch.Tensor]] | None = None) -> None:
         """Every member's discretizer and its table, fresh (at its ``initial_q``, unvisited)
         but the members of ``kept`` (index: their table and visited flags, copied in)."""
-        made: dict[str, Discretizer] = {}  # one per distinct number_splits
-        self.discretizers = [made.setdefault(repr(own.number_splits), Discretizer(self._bounds, own.number_splits))
-                             for own in self.settings]
+        self._states = MemberDiscretizers(self._bounds, [own.number_splits for own in self.settings])
+        self.discretizers = self._states.each
         self.discretizer = self.discretizers[0]
         self.n_states = self.discretizer.n_states
-        self._alike = len(made) == 1
         largest = max(self.discretizers, key=lambda d: d.n_states)
         table_bytes = largest.n_states * self.n_actions * 9  # float64 values + visited flags
         # A run's table (a member's); a batch's members together: runs.lifecycle's memory check.
@@ -115,21 +113,6 @@ class QLearn(MemberLearner):
         for b, (values, seen) in (kept or {}).items():
             self.table[b].copy_(values)
             self.visited[b].copy_(seen)
-        self._rows: tuple[torch.Tensor, ...] | None = None  # every member's rows' bins, kept between steps
-
-    def _states(self, observation: torch.Tensor, members: Sequence[int] | None, n: int) -> torch.Tensor:
-        """The state index of each row of ``observation``, ``n`` rows a member of ``members``
-        (None: all), each by its member's own discretizer."""
-        if self._alike:
-            return self.discretizer(observation)
-        if members is None:
-            if self._rows is None or len(self._rows[0]) != self.members * n:
-                self._rows = Discretizer.rows_of(self.discretizers, torch.arange(self.members).repeat_interleave(n))
-            return self.discretizer(observation, self._rows)
-        if len(members) == 1:  # a member's own policy (its greedy evaluations): its own bins
-            return self.discretizers[members[0]](observation)
-        owner = torch.as_tensor(list(members)).repeat_interleave(n)
-        return self.discretizer(observation, Discretizer.rows_of(self.discretizers, owner))
 
     def stats(self, b: int) -> dict[str, float]:
         own = self.settings[b]
