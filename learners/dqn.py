@@ -33,7 +33,6 @@ from torch import nn
 from torchrl.modules import MLP, DistributionalQValueActor, NoisyLinear, QValueActor
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
-from learners.distributional import c51_terms, expected, support
 from learners.member import ObsScale, ReplayLearner
 from learners.transitions import Transitions
 from params import require
@@ -236,10 +235,13 @@ class DQN(ReplayLearner):
         from torchrl.data import Categorical
 
         spec = Categorical(self.n_actions, dtype=torch.int64)
-        self.z = support(self.atoms, self.v_min, self.v_max).to(self.device) if self.distributional else None
-        if self.distributional:
-            return DistributionalQValueActor(template, support=self.z.cpu(), in_keys=["observation"], spec=spec)
-        return QValueActor(template, in_keys=["observation"], spec=spec)
+        if not self.distributional:
+            self.z = None
+            return QValueActor(template, in_keys=["observation"], spec=spec)
+        from learners.distributional import support  # C51 loads where it is used
+
+        self.z = support(self.atoms, self.v_min, self.v_max).to(self.device)
+        return DistributionalQValueActor(template, support=self.z.cpu(), in_keys=["observation"], spec=spec)
 
     # -- one member's acting and loss ----------------------------------------
     def draw(self, generator: torch.Generator, n: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -255,6 +257,8 @@ class DQN(ReplayLearner):
         """The Q-values' argmax (C51: of their means), or with probability ``epsilon`` (None:
         greedy) the random action drawn."""
         if self.distributional:
+            from learners.distributional import expected
+
             q = expected(q, self.z)
         action = q.argmax(-1).cpu()
         if epsilon is None:
@@ -268,6 +272,8 @@ class DQN(ReplayLearner):
         cross-entropy to the projected target), the taken actions' values, their targets, and
         the error prioritized replay keeps."""
         if self.distributional:
+            from learners.distributional import c51_terms
+
             loss, value, target, _ = c51_terms(q, target_q, batch, gamma, self.double_dqn, self.z)
             return loss, value, target, loss.detach()
         value, target = td_terms(q, target_q, batch, gamma, self.double_dqn)

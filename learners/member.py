@@ -45,8 +45,6 @@ from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 from torchrl.modules import NoisyLinear
 
 from learners.base import Member, StateMismatch, check_state, everyone, member_settings, per_member, single
-from learners.nstep import NStep
-from learners.priority import Priorities, annealed_beta
 from learners.transitions import Transitions, pack, unpack
 from params import require
 from params.private_api import with_entries
@@ -411,7 +409,7 @@ class RowReplayBuffer(ReplayBuffer):
                  device: torch.device | str = "cpu") -> None:
         self._queue: list[torch.Tensor] = []
         self._queued = 0
-        self.priorities: Priorities | None = None  # prioritized replay: each written row gets one
+        self.priorities = None  # prioritized replay (learners.priority.Priorities): each written row gets one
         self._capacity = int(capacity)
         rows = torch.zeros(capacity, width, device=device)
         super().__init__(storage=TensorStorage(rows, device=device), sampler=RandomSampler(),
@@ -601,7 +599,7 @@ class ReplayLearner(MemberLearner):
         self.trackers = [UpdateStats() for _ in range(self.members)]
         self.buffers = [self._buffer(v) for v in self.settings]
         self._minibatch = self._minibatches()
-        self.nsteps: list[NStep] = []  # each member's queues, made at its first step (copies known then)
+        self.nsteps: list = []  # each member's n-step queues (learners.nstep), made at its first step
 
     @staticmethod
     def _one_target_kind(settings: Sequence[Any]) -> None:
@@ -630,7 +628,9 @@ class ReplayLearner(MemberLearner):
     def _buffer(self, own: Any) -> RowReplayBuffer:
         """An empty replay buffer of a member with settings ``own`` (its priorities too)."""
         buffer = RowReplayBuffer(own.buffer_size, self._row_width(), own.batch_size, self.device)
-        if self.prioritized:
+        if self.prioritized:  # Rainbow's parts load where they are used
+            from learners.priority import Priorities
+
             buffer.priorities = Priorities(own.buffer_size, own.priority_alpha, own.priority_eps, self.device)
         return buffer
 
@@ -658,6 +658,8 @@ class ReplayLearner(MemberLearner):
         self.buffers[b] = self._buffer(own)
         self._minibatch = self._minibatches()
         if self.nsteps:
+            from learners.nstep import NStep
+
             self.nsteps[b] = NStep(self.n_step, len(self.nsteps[b].count), self.n_obs, own.gamma)
 
     def lr_of(self, b: int, steps: int | None = None) -> float:
@@ -739,6 +741,8 @@ class ReplayLearner(MemberLearner):
         """Each member's n-step queues for ``copies`` copies (made at the first step or the
         first loaded state, when the copies are known)."""
         if not self.nsteps:
+            from learners.nstep import NStep
+
             self.nsteps = [NStep(self.n_step, copies, self.n_obs, own.gamma) for own in self.settings]
 
     def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
@@ -792,6 +796,8 @@ class ReplayLearner(MemberLearner):
         """Each due member's minibatch into ``minibatch``'s rows, drawn from its own stream;
         with prioritized replay, their rows' indices and importance weights."""
         drawn, weights = [], []
+        if self.prioritized:
+            from learners.priority import annealed_beta
         for j, b in enumerate(due):
             if self.prioritized:
                 v = self.settings[b]
