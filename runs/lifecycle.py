@@ -47,9 +47,10 @@ from tensordict import TensorDict, TensorDictBase
 from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
-from runs.console import Tee, banner_lines, copies
+from runs.console import Tee, banner_lines, copies, tee_console
 from runs.evaluate import GreedyEvaluator, MemberEvaluations, describe_evaluation, measure_of
-from runs.folder import cannot_write, model_path, run_lock, start_run
+from runs.folder import cannot_write, check_new_run, model_path, run_lock, start_run, taken
+from runs.job import NOT_BATCHED, Job, batchable
 from runs.layout import train_command
 from runs.loggers import log_hparams, make_logger, run_scalar_names
 from runs.loop import train
@@ -64,30 +65,12 @@ from tasks.factory import build_env
 
 EVAL_SEED_OFFSET = 10_000  # greedy evaluations start from seed + this (never the training streams)
 VIDEO_SEED_OFFSET = 20_000  # the policy video's env
-# Settings a batched job may not have: each makes a run that is not a fresh training run.
-NOT_BATCHED = ("resume", "checkpoint")
 # Keys in which the jobs of one batch may differ, besides the learner's MEMBER_WISE settings:
 # what names the run, and when its own Run evaluates, saves and prints (a searched
 # ``eval_every`` no longer splits a study's trials into a batch per value).
 OWN_KEYS = ("seed", "resume", "trial", "eval_every", "eval_every_steps", "checkpoint_every", "log_every")
 # ``run_jobs``'s source of jobs for freed members: (the jobs that ended, members free) -> new jobs.
 More = Callable[[Sequence["Job"], int], Sequence["Job"]]
-
-
-@dataclasses.dataclass
-class Job:
-    """One run to make: its checked config, folder, choices (for the banner and run.json),
-    command-line overrides and what its tuned file changed; ``resume``: it continues the
-    stopped run in ``run_dir`` (its cfg: the folder's, resume= set); ``progress``: a tuning
-    trial's report."""
-
-    cfg: DictConfig
-    run_dir: Path
-    choices: Mapping[str, str | None]
-    overrides: Sequence[str] = ()
-    changes: Sequence[str] | None = None
-    resume: bool = False
-    progress: Progress | None = None
 
 
 @dataclasses.dataclass
@@ -119,12 +102,6 @@ class Session:
 
 
 # -- what may share a batch ----------------------------------------------------
-def batchable(cfg: DictConfig) -> bool:
-    """Whether a job with ``cfg`` can train in a batch (a fresh training run, a tuning
-    trial's included)."""
-    return cfg.mode == "train" and not any(cfg.get(key) not in (None, "", False) for key in NOT_BATCHED)
-
-
 def check_batch(jobs: Sequence[Job]) -> None:
     """One line unless ``jobs`` are fresh (or resumed) training runs whose configs differ only
     in an integer seed, a tuning trial, their own Run's schedules (:data:`OWN_KEYS`) and the
@@ -320,6 +297,32 @@ def execute(cfg: DictConfig, run_dir: Path, resume: bool = False, choices: Mappi
     run.json) once every part is built. The caller holds the folder's lock and console."""
     job = Job(cfg, run_dir, dict(choices or {}), overrides, changes, resume, progress)
     return run_jobs([job], solo=True)[0]
+
+
+def train_alone(job: Job, record: Callable[[], None] | None, refusals: tuple[type[BaseException], ...],
+                progress: Callable[[], Progress | None] = lambda: None) -> dict:
+    """Makes ``job`` as a single run: its folder locked (a refusal leaves it as it was), Hydra's
+    record of the command written (``record``; None: the sweep wrote it), its console teed
+    to ``train.log``; the run's summary.
+
+    Args:
+        job: a job of :func:`runs.job.compose_job`.
+        record: writes Hydra's record of the command into the folder, once locked.
+        refusals: the errors that leave the folder byte for byte as it was.
+        progress: makes the run's tuning report, inside its console (None: it reports to none).
+    """
+    run_dir = job.run_dir
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if not job.resume:
+        check_new_run(run_dir)  # before the lock too: a finished run's .lock is not touched
+    with taken(run_dir, refusals):  # one run's record per folder: nothing written before the lock
+        if not job.resume:
+            check_new_run(run_dir)
+        if record is not None:
+            record()
+        with tee_console(run_dir / "train.log"):
+            return execute(job.cfg, run_dir, resume=job.resume, choices=job.choices, changes=job.changes,
+                           overrides=job.overrides, progress=progress())
 
 
 @contextmanager

@@ -5,7 +5,7 @@ a study's trials side by side), each group of fresh training runs trained as one
 
 Every job still goes through Hydra's ``run_job`` (its folder, ``.hydra/`` files, logging)
 and ``train.py``'s checks; a job run with ``hydra.job.env_set.RL_SEED_BATCH_JOB`` set (a
-batch's jobs) returns its checked :class:`~runs.lifecycle.Job` instead of training, and the launcher
+batch's jobs) returns its checked :class:`~runs.job.Job` instead of training, and the launcher
 trains the batch of them (:func:`runs.lifecycle.run_jobs`) once all of its group has
 been checked. A group of one, and jobs that are not fresh
 training runs (``resume=``, ``mode=eval``), run alone as with ``hydra/launcher=basic``.
@@ -162,7 +162,7 @@ class SeedBatchLaunch:
 
     def _run(self, idx: int, overrides: Sequence[str], collect: bool = False) -> JobReturn:
         """One job through Hydra's ``run_job``, as the basic launcher runs it; ``collect``: a
-        batchable job returns its checked :class:`~runs.lifecycle.Job` instead of training."""
+        batchable job returns its checked :class:`~runs.job.Job` instead of training."""
         log.info(f"\t#{idx} : {' '.join(filter_overrides(overrides))}")
         composed = self.composed.pop(idx, None)  # launch composed it to group the jobs
         sweep_config = composed if composed is not None else \

@@ -8,6 +8,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import train
+from runs.command import one_line
 from hydra.utils import instantiate
 from tasks import catalog
 from tasks import factory
@@ -50,7 +51,7 @@ def test_task_fits_robot_or_says_which_robot_it_needs(robot, task):
     try:
         factory.build_task(cfg)
     except Exception as err:  # noqa: BLE001 - a mismatch must name the robot needed
-        message = train._one_line(err)
+        message = one_line(err)
         # A declared task on another model names what the model lacks (tests/test_mjcf_robot.py).
         assert ("needs robot=" in message or "the model has no" in message), message
         assert len(message.splitlines()) == 1
@@ -129,7 +130,7 @@ def test_bad_values_give_one_line_naming_the_key(override, key):
         learner = instantiate(cfg.learner, _convert_="all")
         env = factory.build_env(cfg, num_envs=1, seed=0)
         learner.build(env.task)
-    message = train._one_line(err.value)
+    message = one_line(err.value)
     assert key in message and "got" in message, message
     assert isinstance(err.value, ConfigError) or isinstance(err.value.__cause__, ConfigError)
 

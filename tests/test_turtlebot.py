@@ -27,7 +27,7 @@ from tasks.maze_arena import Maze
 
 ROOT = Path(__file__).resolve().parents[1]
 from tasks.factory import build_env, build_task
-from train import _one_line
+from runs.command import one_line
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 ALL = np.array([True])

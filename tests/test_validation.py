@@ -26,6 +26,7 @@ from hypothesis import strategies as st
 from omegaconf import OmegaConf
 
 import train
+from runs.command import one_line
 from tasks import factory
 from runs.settings import check_run_config
 from params import ConfigError
@@ -67,7 +68,7 @@ def one_line_error(cfg, parts: str = "all") -> str:
         build(cfg, parts)
     if isinstance(err.value, InstantiationException):
         assert isinstance(err.value.__cause__, ConfigError), repr(err.value.__cause__)
-    message = train._one_line(err.value)
+    message = one_line(err.value)
     assert message == str(err.value.__cause__ or err.value).strip(), "more than one line"
     return message
 
