@@ -28,7 +28,6 @@ keeps the trace), since they share its state.
 from __future__ import annotations
 
 import traceback
-from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
 
 import torch
@@ -196,33 +195,3 @@ def _sound(lanes: list[Lane]) -> list[Lane]:
 
 def _indices(lanes: list[Lane]) -> list[int]:
     return [lane.index for lane in lanes]
-
-
-@dataclass
-class Solo:
-    """A single run's lane: member ``index`` (0: the learner's only one), its failures raised."""
-
-    run: Run
-    env: object
-    index: int = 0
-    failed: str | None = None
-
-    @property
-    def done(self) -> bool:
-        return self.run.done
-
-    def guarded(self, work: Callable[[], object]) -> bool:
-        work()
-        return True
-
-    def fail(self, error: BaseException, trace: str) -> None:
-        raise error
-
-
-def train_single(learner: Learner, env, run: Run) -> None:
-    """:func:`train` of a single run: ``learner``'s one member on ``env``, booked by ``run``."""
-    train(learner, env, [Solo(run, env)], _unfinished)
-
-
-def _unfinished(live: list[Lane]) -> list[Lane]:
-    return [lane for lane in live if not lane.done]

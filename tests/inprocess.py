@@ -44,3 +44,23 @@ def run_train(*args: str) -> subprocess.CompletedProcess:
             signal.signal(sig, handler)
         GlobalHydra.instance().clear()
     return subprocess.CompletedProcess(["train.py", *args], code, out.getvalue(), err.getvalue())
+
+
+def train_in_process(run_dir, *args: str):
+    """``train.py <args> hydra.run.dir=<run_dir>`` in this process (the product's path from the
+    command line), which must succeed; the trained learner's member as its ``model.pt`` holds
+    it, built from the run's ``config.yaml``."""
+    from hydra.utils import instantiate
+
+    from runs.checkpoint import load_model
+    from runs.training_state import load_run_config
+    from tasks.factory import build_task
+
+    done = run_train(*args, f"hydra.run.dir={run_dir}")
+    assert done.returncode == 0, done.stderr[-2000:]
+    cfg = load_run_config(run_dir)
+    learner = instantiate(cfg.learner, _convert_="all")
+    learner.build(build_task(cfg))
+    member = learner.member(0)
+    load_model(run_dir / "model.pt", member)
+    return member

@@ -13,7 +13,7 @@ from torchrl.envs.utils import check_env_specs
 
 from runs.evaluate import evaluate
 from learners.qlearn import QLearn
-from runs.loop import train_single
+from tests.inprocess import train_in_process
 from runs.run import Run
 from runs.training_state import seed_everything
 from robots.cartpole import CartPole
@@ -363,19 +363,14 @@ def mean_y(env, policy) -> float:
 
 
 def train_and_evaluate(tmp_path, weight: float) -> float:
-    generator = seed_everything(0)
-    learner = QLearn(alpha=0.1, gamma=0.7, epsilon=0.9, epsilon_discount=0.999,
-                     number_splits=[21, 5, 3])
-    task = lambda: OneDiskWalk(Cube(), y_linear_speed_reward_weight=weight, max_episode_steps=200)
-    env = RobotTaskEnv(task(), num_envs=4, seed=0)
-    learner.build(env.task, generator)
-    run = Run(tmp_path / f"w{weight}", env.num_envs, 300,
-              dataclasses.replace(env.task.success, threshold=math.inf), quiet=True)
-    train_single(learner, env, run)
-    run.close()
-    env.close()
-    eval_env = RobotTaskEnv(task(), num_envs=8, seed=10_000)
-    member = learner.member(0)
+    """300 episodes of q-learning on 4 copies, rewarded by ``weight`` per m/s along +y, through
+    ``train.py``; the greedy policy's mean walk along y on 8 fresh starts."""
+    member = train_in_process(
+        tmp_path / f"w{weight}", "robot=cube", "learner=qlearn", "~tuned", "seed=0", "num_envs=4",
+        "max_episodes=300", "eval_episodes=0", "stop_when_solved=false", "quiet=true", "learner.alpha=0.1",
+        "learner.gamma=0.7", "learner.epsilon=0.9", "learner.epsilon_discount=0.999",
+        "learner.number_splits=[21,5,3]", f"task.y_linear_speed_reward_weight={weight}", "task.max_episode_steps=200")
+    eval_env = RobotTaskEnv(OneDiskWalk(Cube(), max_episode_steps=200), num_envs=8, seed=10_000)
     with member.greedy():
         y = mean_y(eval_env, member.policy)
     eval_env.close()

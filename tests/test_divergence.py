@@ -2,6 +2,7 @@
 truncated, is reset alone and counted, and training goes on."""
 
 import csv
+import json
 import logging
 
 import mujoco
@@ -10,7 +11,6 @@ import pytest
 import torch
 
 from learners.qlearn import QLearn
-from runs.loop import train_single
 from runs.run import Run
 from robots.physics import BatchedPhysics
 
@@ -146,14 +146,24 @@ def test_batched_physics_rolls_diverged_copies_back_to_their_state_before_the_st
     physics.close()
 
 
-def test_qlearning_keeps_training_on_an_unstable_cartpole(make_cartpole_env, tmp_path):
-    env = unstable_cartpole(make_cartpole_env, 4)
-    q, episodes = QLearn(alpha=0.5, gamma=0.9, epsilon=0.5, number_splits=4), 300
-    q.build(env.task, torch.Generator().manual_seed(0))
-    run = Run(tmp_path, env.num_envs, episodes, env.task.success, quiet=True,
-              extra_fields=tuple(q.stats(0)))
-    train_single(q, env, run)
-    summary = run.close()
+def test_qlearning_keeps_training_on_an_unstable_cartpole(tmp_path, monkeypatch):
+    """A run through ``train.py`` whose effort-controlled cart-pole has a huge motor gear."""
+    from runs import lifecycle
+    from tests.inprocess import train_in_process
+
+    def unstable(*args, **kwargs):
+        env = real(*args, **kwargs)
+        env.model.actuator_gear[:, 0] = HUGE_GAIN
+        made.append(env)
+        return env
+
+    real, made, episodes = lifecycle.build_env, [], 300
+    monkeypatch.setattr(lifecycle, "build_env", unstable)
+    member = train_in_process(tmp_path, "~tuned", "seed=0", "num_envs=4", f"max_episodes={episodes}",
+                              "task.control_type=effort", "eval_episodes=0", "stop_when_solved=false", "quiet=true",
+                              "learner.alpha=0.5", "learner.gamma=0.9", "learner.epsilon=0.5", "learner.number_splits=4")
+    env, q = made[0], member.learner
+    summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["episodes"] == episodes  # ran to the end of its budget
     assert env.divergences > 20
     # Diverged episodes are recorded as truncated (not terminated) ones.

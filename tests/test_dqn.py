@@ -14,7 +14,7 @@ from learners.base import StateMismatch
 from learners.dqn import DQN
 from learners.transitions import Transitions, unpack
 from runs.evaluate import evaluate
-from runs.loop import train_single
+from tests.inprocess import train_in_process
 from runs.run import Run
 from learners.schedules import LinearEpsilon
 from runs.training_state import seed_everything
@@ -120,30 +120,26 @@ def random_baseline(seed: int, episodes: int = 20) -> float:
     return evaluate(env, act)["mean_length"]
 
 
-def train_and_eval(learner: DQN, tmp_path, num_envs: int, episodes: int, seed: int = 0) -> float:
-    gen = seed_everything(seed)
-    task = StayUp(CartPole())
-    env = RobotTaskEnv(task, num_envs=num_envs, seed=seed)
-    learner.build(task, gen)
-    run = Run(tmp_path, num_envs, episodes, task.success, quiet=True,
-              extra_fields=("alpha", "gamma", "epsilon"))
-    train_single(learner, env, run)
-    run.close()
-    member = learner.member(0)
+def train_and_eval(learner: str, tmp_path, num_envs: int, episodes: int, seed: int = 0) -> float:
+    """``learner`` (its conf/learner file, untuned) trained for ``episodes`` episodes through
+    ``train.py``; its greedy policy's mean episode length on 20 fresh starts."""
+    member = train_in_process(tmp_path / "run", f"learner={learner}", "~tuned", f"seed={seed}",
+                              f"num_envs={num_envs}", f"max_episodes={episodes}", "eval_episodes=0",
+                              "stop_when_solved=false", "quiet=true")
     with member.greedy():
         return evaluate(RobotTaskEnv(StayUp(CartPole()), num_envs=20, seed=seed + 10_000),
                         member.policy)["mean_length"]
 
 
 def test_dqn_learns_cartpole(tmp_path):
-    greedy = train_and_eval(variant("dqn"), tmp_path, num_envs=8, episodes=400)
+    greedy = train_and_eval("dqn", tmp_path, num_envs=8, episodes=400)
     random = random_baseline(10_000)
     assert greedy >= 5 * random, (greedy, random)
 
 
 @pytest.mark.slow  # a learning check: CI's sibling is test_dqn_learns_cartpole
 def test_n1try_learns_cartpole(tmp_path):
-    greedy = train_and_eval(variant("n1try"), tmp_path, num_envs=1, episodes=300)
+    greedy = train_and_eval("n1try", tmp_path, num_envs=1, episodes=300)
     random = random_baseline(10_000)
     assert greedy >= 5 * random, (greedy, random)
 

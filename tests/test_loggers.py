@@ -12,7 +12,7 @@ from omegaconf import OmegaConf
 from learners.member import UpdateStats
 from runs.evaluate import greedy_evaluation
 from runs.loggers import csv_sizes, flat_config, log_hparams, make_logger, run_scalar_names
-from runs.loop import train_single
+from tests.inprocess import train_in_process
 from runs.run import Hooks, Run
 from runs.training_state import seed_everything
 from tasks.factory import build_env
@@ -25,29 +25,10 @@ DQN_SHORT = ["max_episodes=24", "learner.learning_starts=32", "learner.batch_siz
 
 
 def train(run_dir: Path, learner: str, logger: str, overrides: list[str]):
-    """``train.py``'s training path in miniature: the learner, env, Run and logger of the
-    composed config, the hyperparameters logged first; returns the trained learner."""
-    cfg = compose(learner=learner, overrides=[f"logger={logger}", "eval_episodes=2", *overrides])
-    env = build_env(cfg, int(cfg.num_envs), int(cfg.seed))
-    eval_env = build_env(cfg, 2, int(cfg.seed) + 10_000)
-    learner = instantiate(cfg.learner, _convert_="all")
-    learner.build(env.task, seed_everything(int(cfg.seed)))
-    logger = make_logger(cfg.logger.kind, run_dir, exp_name="run")
-    success = env.task.success
-    log_hparams(logger, cfg, run_scalar_names(success.measure, success.window))
-    member = learner.member(0)
-    hooks = Hooks(greedy_eval=lambda: greedy_evaluation(member, eval_env, int(cfg.seed) + 10_000),
-                  train_stats=member.train_stats)
-    record = Run(run_dir, env.num_envs, int(cfg.max_episodes), env.task.success, logger=logger,
-                 extra_fields=tuple(member.stats), quiet=True, eval_every=int(cfg.eval_every),
-                 hooks=hooks)
-    try:
-        train_single(learner, env, record)
-        record.close()
-    finally:
-        env.close()
-        eval_env.close()
-    return learner
+    """A run of ``learner`` logging to ``logger`` through ``train.py``; the trained learner
+    as its ``model.pt`` holds it (its logs under ``logs/<run_dir.name>``)."""
+    return train_in_process(run_dir, f"learner={learner}", f"logger={logger}", "eval_episodes=2", "quiet=true",
+                            *overrides).learner
 
 
 def events(run_dir: Path):
@@ -167,15 +148,15 @@ def test_logging_changes_no_training_result(tmp_path):
         assert (tmp_path / "none" / name).read_bytes() == (tmp_path / "csv" / name).read_bytes()
     assert torch.equal(quiet.params, logged.params)
     assert logged.steps == quiet.steps and quiet.steps[0] > 0
-    scalars = tmp_path / "csv" / "logs" / "run" / "scalars"
+    scalars = tmp_path / "csv" / "logs" / "csv" / "scalars"
     assert (scalars / "train" / "loss.csv").read_text().strip()
-    hparams = (tmp_path / "csv" / "logs" / "run" / "texts" / "hparams0.txt").read_text()
+    hparams = (tmp_path / "csv" / "logs" / "csv" / "texts" / "hparams0.txt").read_text()
     assert f"learner.lr: {TUNED_DQN_LR}" in hparams.splitlines()
 
 
 def test_qlearn_logs_the_visited_fraction_of_its_table(tmp_path):
     train(tmp_path, "qlearn", "csv", ["max_episodes=15", "eval_episodes=0"])
-    scalars = tmp_path / "logs" / "run" / "scalars" / "train"
+    scalars = tmp_path / "logs" / tmp_path.name / "scalars" / "train"
     rows = [line.split(",") for line in (scalars / "visited_fraction.csv").read_text().split()]
     steps, values = [int(s) for s, _ in rows], [float(v) for _, v in rows]
     assert len(rows) >= 3 and steps == sorted(set(steps))

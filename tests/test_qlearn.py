@@ -1,5 +1,7 @@
 """Tabular Q-learning: the state mapping, the update rule and its options, learning."""
 
+import csv
+
 import numpy as np
 import pytest
 import torch
@@ -9,7 +11,7 @@ from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.evaluate import evaluate
 from learners.discretizer import Discretizer
 from learners.qlearn import QLearn
-from runs.loop import train_single
+from tests.inprocess import run_train
 from runs.run import Run
 from runs.training_state import seed_everything
 from robots.cartpole import CartPole
@@ -149,23 +151,11 @@ def random_policy(n_actions, seed):
 
 @pytest.mark.slow  # a learning check: CI's sibling is the default run (tests/test_success.py), solved
 def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
-    from hydra import compose, initialize_config_dir
-    from hydra.utils import instantiate
-    from pathlib import Path
-
-    conf = Path(__file__).resolve().parents[1] / "conf"
-    with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["max_episodes=200"])
     seed = 0
-    gen = seed_everything(seed)
-    task = factory.build_task(cfg)
-    env = RobotTaskEnv(task, num_envs=1, seed=seed)
-    q = instantiate(cfg.learner, _convert_="all")
-    q.build(task, gen)
-    run = Run(tmp_path, 1, int(cfg.max_episodes), task.success, quiet=True, extra_fields=tuple(q.stats(0)))
-    train_single(q, env, run)
-    run.close()
-    trained = np.mean(run.lengths[-50:])
+    done = run_train("max_episodes=200", f"seed={seed}", "quiet=true", f"hydra.run.dir={tmp_path}")
+    assert done.returncode == 0, done.stderr[-2000:]
+    with open(tmp_path / "metrics.csv", newline="") as f:
+        trained = np.mean([float(row["length"]) for row in list(csv.DictReader(f))[-50:]])
     random_env = RobotTaskEnv(StayUp(CartPole()), num_envs=50, seed=seed)
     random = evaluate(random_env, random_policy(2, seed))["mean_length"]
     assert trained >= 3 * random, (trained, random)

@@ -15,7 +15,7 @@ from torchrl.envs.utils import check_env_specs
 
 from runs.evaluate import evaluate
 from learners.qlearn import QLearn
-from runs.loop import train_single
+from tests.inprocess import train_in_process
 from runs.run import Run
 from runs.training_state import seed_everything
 from robots.cartpole import CartPole
@@ -357,7 +357,7 @@ def test_maze_needs_a_turtlebot():
     cfg = compose_cfg("robot=cartpole", "task=maze")
     with pytest.raises((ConfigError, InstantiationException)) as err:
         build_task(cfg)
-    message = _one_line(err.value)
+    message = one_line(err.value)
     assert "task maze needs robot=turtlebot" in message and "\n" not in message
 
 
@@ -389,20 +389,11 @@ def test_q_learning_drives_round_the_ring_far_longer_than_random(tmp_path):
     learner=qlearn``), on 4 copies with seed 0: greedy 476 steps and 77.6 m round the loop
     against random's 24.4 steps and 2.5 m (2026-11-27; the whole run: 500 steps, 88.1 m, in
     twice the time)."""
-    cfg = compose_cfg("robot=turtlebot", "learner=qlearn", "seed=0", "num_envs=4", "max_episodes=200")
-    generator = seed_everything(0)
-    env = build_env(cfg, 4, seed=0)
-    learner = instantiate(cfg.learner, _convert_="all")
-    assert isinstance(learner, QLearn)
-    learner.build(env.task, generator)
-    run = Run(tmp_path, env.num_envs, int(cfg.max_episodes),
-              dataclasses.replace(env.task.success, threshold=math.inf), quiet=True)
-    train_single(learner, env, run)
-    run.close()
-    env.close()
+    args = ("robot=turtlebot", "learner=qlearn", "seed=0", "num_envs=4", "max_episodes=200")
+    cfg = compose_cfg(*args)
+    member = train_in_process(tmp_path / "run", *args, "eval_episodes=0", "stop_when_solved=false", "quiet=true")
     eval_env = build_env(cfg, 20, seed=10_000)
     try:
-        member = learner.member(0)
         with member.greedy():
             greedy = evaluate(eval_env, member.policy)
         rng = np.random.default_rng(0)
