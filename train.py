@@ -135,8 +135,10 @@ def main(cfg: DictConfig) -> Job | None:
             return  # the sweep was stopped before this job began: it never starts
     try:
         summary = _job(cfg, run_dir, overrides, in_sweep)
-        if not isinstance(summary, dict):  # a runs.lifecycle.Job
+        if not isinstance(summary, dict):  # a runs.job.Job
             return summary  # Hydra's JobReturn carries it to the seeds launcher
+        if summary.get("failed") and not in_sweep:  # its line or trace is printed, and in error.txt
+            sys.exit(int(summary.get("status", 1)))
     except REFUSALS as err:
         return _fail(f"error: {one_line(err)}", run_dir, in_sweep)
     except OSError as err:  # the run folder: missing, read-only, full

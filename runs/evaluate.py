@@ -1,14 +1,13 @@
 """Greedy evaluation: one episode in each copy of an env with a fixed policy, and
 what it measured.
 
-:func:`evaluate` runs any policy; :func:`greedy_evaluation` runs a learner's
-greedy policy from the same starts every time (:class:`GreedyEvaluator` keeps a
-run's evaluation envs); :class:`MemberEvaluations` makes several members' at once,
-each on its seed block of one env and each as alone (a batch's periodic evaluations
-beside its training, the final ones of the seeds that end at one step);
-:func:`measure_of` reads the
-task's success measure from the result and :func:`describe_evaluation` puts it
-in one line.
+:class:`MemberEvaluations` is every run's greedy evaluation: a learner's members' greedy
+policies, each on a seed block of one env from its seed's starts (the same starts every
+time), several at once (a batch's periodic evaluations beside its training, the final ones
+of the seeds that end at one step) or one made at once (:meth:`MemberEvaluations.alone`).
+:func:`evaluate` runs any policy (a random one, a benchmark's); :func:`measure_of` reads
+the task's success measure from the result and :func:`describe_evaluation` puts it in one
+line.
 """
 
 from __future__ import annotations
@@ -103,37 +102,10 @@ def measure_of(result: Mapping, measure: str) -> float:
     return float(result["mean_length"] if measure == "length" else result["info_mean"][measure])
 
 
-def greedy_evaluation(learner, env, seed: int) -> dict:
-    """The greedy policy, one episode in each copy of ``env``, from the same starts every time."""
-    env.set_seed(seed)
-    with learner.greedy():
-        return evaluate(env, learner.policy)
-
-
-class GreedyEvaluator:
-    """Greedy evaluations of ``learner`` on envs of the run's config kept for it (one per
-    number of copies, built when first asked for), each from ``seed``'s starts."""
-
-    def __init__(self, cfg: DictConfig, learner, seed: int) -> None:
-        self.cfg, self.learner, self.seed = cfg, learner, int(seed)
-        self.envs: dict[int, RobotTaskEnv] = {}
-
-    def __call__(self, copies: int) -> dict:
-        """One greedy episode in each of ``copies`` copies (:func:`greedy_evaluation`)."""
-        if copies not in self.envs:
-            self.envs[copies] = build_env(self.cfg, copies, self.seed)
-        return greedy_evaluation(self.learner, self.envs[copies], self.seed)
-
-    def close(self) -> None:
-        for env in self.envs.values():
-            env.close()
-
-
 class MemberEvaluations:
-    """Greedy evaluations of a batch's members, each on a seed block of one env of ``blocks``
-    blocks of ``copies`` copies, from its seed's starts: each the result its
-    :class:`GreedyEvaluator` gives alone (a copy's episode depends on its own start, policy
-    and physics only). An evaluation starts when asked (:meth:`start`); every one under way
+    """Greedy evaluations of a learner's members, each on a seed block of one env of ``blocks``
+    blocks of ``copies`` copies, from its seed's starts: each the result it gives alone (a
+    copy's episode depends on its own start, policy and physics only). An evaluation starts when asked (:meth:`start`); every one under way
     takes one step per :meth:`step`, all of them in one physics call. The training loop
     steps a batch's periodic evaluations once a training step while their members'
     training waits (``runs.loop``): alone, an evaluation's episodes are a few hundred
@@ -191,6 +163,15 @@ class MemberEvaluations:
                                            {k: v[block].copy() for k, v in self.info.items()})
                 del self.running[member]
         return results
+
+    def alone(self, member: int, seed: int) -> dict:
+        """``member``'s evaluation from ``seed``'s starts on block 0, made now (none other
+        under way): its result."""
+        self.start(member, seed, 0)
+        while True:
+            results = self.step()
+            if member in results:
+                return results[member]
 
     def drop(self, member: int) -> None:
         """``member``'s evaluation, if one is under way, ends unfinished (its run failed)."""

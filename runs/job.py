@@ -36,7 +36,8 @@ class Job:
     """One run to make: its checked config, folder, choices (for the banner and run.json),
     command-line overrides and what its tuned file changed; ``resume``: it continues the
     stopped run in ``run_dir`` (its cfg: the folder's, resume= set); ``progress``: a tuning
-    trial's report."""
+    trial's report; ``held``: its caller holds the folder's lock and tees its console (a
+    single run of train.py), else the batch that trains it does."""
 
     cfg: DictConfig
     run_dir: Path
@@ -45,6 +46,7 @@ class Job:
     changes: Sequence[str] | None = None
     resume: bool = False
     progress: Progress | None = None
+    held: bool = False
 
 
 def batchable(cfg: DictConfig) -> bool:

@@ -5,12 +5,12 @@
 
 Every run, alone or in a batch, goes through the same steps: build (:func:`_build`: seed
 each member's streams, one learner with a member per seed, one env holding every seed's
-copies as seed blocks, each seed's greedy evaluator; every value checked before the first
+copies as seed blocks, each seed's session; every value checked before the first
 file is written), start (:func:`_start`: each seed's folder, banner and
 :class:`~runs.run.Run`), train (:func:`runs.loop.train`), finish (:func:`_finish`: its
 final greedy evaluation, checkpoint, ``model.pt``, video on request and verdict). A single
-run is a batch of one (``solo``): the process's own console, its failures raised, no
-other seed to hold. What a job is (fresh, resumed, evaluating a checkpoint, reporting to a
+run is a batch of one, on the process's own console (train.py holds its folder and tees
+its console: the job is ``held``). What a job is (fresh, resumed, evaluating a checkpoint, reporting to a
 tuning trial) is a property of the :class:`Job`, not another path.
 
 In a batch each seed keeps its own run with its own folder, files, checkpoints and
@@ -48,8 +48,8 @@ from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.console import Tee, banner_lines, copies, tee_console
-from runs.evaluate import GreedyEvaluator, MemberEvaluations, describe_evaluation, measure_of
-from runs.folder import cannot_write, check_new_run, model_path, run_lock, start_run, taken
+from runs.evaluate import MemberEvaluations, describe_evaluation, measure_of
+from runs.folder import WRITE_FAILED, cannot_write, check_new_run, model_path, run_lock, start_run, taken
 from runs.job import NOT_BATCHED, Job, batchable
 from runs.layout import train_command
 from runs.loggers import log_hparams, make_logger, run_scalar_names
@@ -76,16 +76,28 @@ More = Callable[[Sequence["Job"], int], Sequence["Job"]]
 @dataclasses.dataclass
 class Session:
     """The parts of one seed's run: its config, folder, member of the learner, env (its
-    block of the batch's) and greedy evaluator."""
+    block of the batch's) and the seed its greedy evaluations start from."""
 
     cfg: DictConfig
     run_dir: Path
     learner: Member
     env: RobotTaskEnv
-    evaluator: GreedyEvaluator
+    eval_seed: int
     # A batch's periodic evaluations are made beside its training (runs.evaluate.MemberEvaluations):
-    # this starts the seed's, its run waiting for the result. None: made at once by ``evaluator``.
+    # this starts the seed's, its run waiting for the result. None: made at once by ``evaluate``.
     side_eval: Callable[[], None] | None = None
+    evaluations: dict[int, MemberEvaluations] = dataclasses.field(default_factory=dict)  # by episodes
+
+    def evaluate(self, episodes: int) -> dict:
+        """A greedy evaluation of ``episodes`` episodes from the seed's evaluation starts, made now."""
+        if episodes not in self.evaluations:
+            self.evaluations[episodes] = MemberEvaluations(self.cfg, self.learner.learner, 1, episodes)
+        return self.evaluations[episodes].alone(self.learner.index, self.eval_seed)
+
+    def close_evaluations(self) -> None:
+        for evaluations in self.evaluations.values():
+            evaluations.close()
+        self.evaluations.clear()
 
     @property
     def success(self) -> Success:
@@ -105,7 +117,10 @@ class Session:
 def check_batch(jobs: Sequence[Job]) -> None:
     """One line unless ``jobs`` are fresh (or resumed) training runs whose configs differ only
     in an integer seed, a tuning trial, their own Run's schedules (:data:`OWN_KEYS`) and the
-    learner's member-wise settings (:func:`batch_key`), no two of them the same run."""
+    learner's member-wise settings (:func:`batch_key`), no two of them the same run. A lone
+    job shares its batch with none: any run may be one."""
+    if len(jobs) == 1:
+        return
     seeds = [job.cfg.seed for job in jobs]
     if any(type(s) is not int for s in seeds):
         raise ConfigError(f"seed must be an integer in a seed batch; got {seeds}")
@@ -159,11 +174,10 @@ def same_batch(cfgs: Sequence[DictConfig]) -> list[list[int]]:
 @dataclasses.dataclass
 class _Slot:
     """One seed: its job, member, run, global random streams and console (a
-    :class:`runs.loop.Lane`). ``solo``: a single run's (its failures raised)."""
+    :class:`runs.loop.Lane`)."""
 
     job: Job
     index: int  # its member of the learner, its block of the env
-    solo: bool = False
     session: Session | None = None
     run: Run | None = None
     # The seed's global random streams as its run alone leaves them: torch's (a generator
@@ -171,6 +185,7 @@ class _Slot:
     # learner's members have their own streams); a checkpoint holds them.
     streams: tuple = ()
     failed: str | None = None
+    status: int = 1  # the exit status a failed single run ends with (a write's: WRITE_FAILED)
     result: dict | None = None  # the final greedy evaluation
     summary: dict = dataclasses.field(default_factory=dict)
     console: IO[str] | None = None
@@ -183,7 +198,7 @@ class _Slot:
 
     @property
     def env(self):
-        """Its block of the env (a single run: the env)."""
+        """Its block of the env."""
         return self.session.env
 
     @property
@@ -209,8 +224,8 @@ class _Slot:
                 self.streams = (self.streams[0], np.random.get_state(), random.getstate())
 
     def guarded(self, work: Callable[[], object], full: bool = False) -> bool:
-        """Runs ``work`` in the seed's context; in a batch an exception ends this seed alone
-        (``error.txt``). Whether the seed is still sound. (Twice a step for every seed: the
+        """Runs ``work`` in the seed's context; an exception ends this seed alone (its trace
+        on its console and in ``error.txt``). Whether the seed is still sound. (Twice a step for every seed: the
         console is swapped inline, the random streams only when ``full``.)"""
         if full:
             with self.active(full):
@@ -225,26 +240,21 @@ class _Slot:
             sys.stdout, sys.stderr = out, err
 
     def _run(self, work: Callable[[], object]) -> bool:
-        if self.solo:
-            work()
-            return True
         try:
             work()
         except OSError as err:  # its folder could not be written (a full disk): one line
-            self._failed(cannot_write(err, self.job.run_dir))
+            self._failed(cannot_write(err, self.job.run_dir), WRITE_FAILED)
         except Exception:  # noqa: BLE001 - one seed's failure must not cost the others
             self._failed(traceback.format_exc())
         return self.failed is None
 
     def fail(self, error: BaseException, trace: str) -> None:
-        """A learner call shared with other seeds failed: this seed ends with its trace."""
-        if self.solo:
-            raise error
+        """A learner call (shared with the other seeds) failed: this seed ends with its trace."""
         with self.active():
             self._failed(f"the seeds' learner failed:\n{trace}")
 
-    def _failed(self, trace: str) -> None:
-        self.failed = trace
+    def _failed(self, trace: str, status: int = 1) -> None:
+        self.failed, self.status = trace, status
         print(trace, file=sys.stderr)
         try:
             (self.job.run_dir / "error.txt").write_text(trace)
@@ -295,8 +305,8 @@ def execute(cfg: DictConfig, run_dir: Path, resume: bool = False, choices: Mappi
     ``cfg`` says; returns the summary (and prints the verdict). ``resume``: continue the run
     in ``run_dir`` from its ``checkpoint.pt``; else the folder is started (config.yaml,
     run.json) once every part is built. The caller holds the folder's lock and console."""
-    job = Job(cfg, run_dir, dict(choices or {}), overrides, changes, resume, progress)
-    return run_jobs([job], solo=True)[0]
+    job = Job(cfg, run_dir, dict(choices or {}), overrides, changes, resume, progress, held=True)
+    return run_jobs([job])[0]
 
 
 def train_alone(job: Job, record: Callable[[], None] | None, refusals: tuple[type[BaseException], ...],
@@ -343,39 +353,38 @@ def denormals_flushed() -> Iterator[None]:
         torch.set_flush_denormal(False)
 
 
-def run_jobs(jobs: Sequence[Job], solo: bool = False, more: More | None = None) -> list[dict]:
-    """Makes every run of ``jobs`` (a batch: checked by :func:`check_batch`) in one env;
-    returns each seed's summary, in order (a failed seed's says ``failed``). ``solo``: one
-    job, a single run. ``more(ended, free)``: called at each step where runs ended (their
+def run_jobs(jobs: Sequence[Job], more: More | None = None) -> list[dict]:
+    """Makes every run of ``jobs`` (a batch: checked by :func:`check_batch`; a single run: a
+    batch of one) in one env; returns each seed's summary, in order (a failed seed's says
+    ``failed``, and ``status``: the exit status it ends a single run with). A job's folder
+    is locked and its console teed here unless the job is ``held``. ``more(ended, free)``: called at each step where runs ended (their
     jobs ``ended``) with the number of members then free; the fresh jobs it returns (at most
     ``free``, each fitting this batch) train in the freed members from their first step,
     each as its run alone, their summaries after the first ones' in the order they start."""
-    if not solo:
-        check_batch(jobs)
+    check_batch(jobs)
     torch.set_num_threads(int(jobs[0].cfg.torch_threads))
-    slots = [_Slot(job, b, solo) for b, job in enumerate(jobs)]
+    slots = [_Slot(job, b) for b, job in enumerate(jobs)]
     with ExitStack() as stack:
         stack.enter_context(denormals_flushed())
-        if not solo:
-            _consoles(slots, stack)
+        _consoles(slots, stack)
         learner, env = _build(slots)
         finals = _FinalEvaluations(jobs[0].cfg)
         stack.callback(env.close)
         stack.callback(finals.close)
-        side = None if solo else _side_evaluations(jobs[0].cfg, learner, slots)
+        side = _side_evaluations(jobs[0].cfg, learner, slots)
         if side is not None:
             stack.callback(side.close)
         _start(slots, env)
         if jobs[0].cfg.mode == "eval":
             _evaluate(slots[0])
         else:
-            _train(learner, slots, env, finals, None if solo else more, stack, side)
+            _train(learner, slots, env, finals, more, stack, side)
     return [slot.summary for slot in slots]
 
 
 def _side_evaluations(cfg: DictConfig, learner, slots: list[_Slot]) -> MemberEvaluations | None:
-    """A training batch's periodic evaluations, made beside its training (none without
-    them), each seed's started by its run."""
+    """A training batch's periodic evaluations (a single run's too), made beside its
+    training (none without them), each seed's started by its run."""
     if cfg.mode != "train" or not int(cfg.eval_episodes):
         return None
     side = MemberEvaluations(cfg, learner, learner.members, int(cfg.eval_episodes))
@@ -385,15 +394,17 @@ def _side_evaluations(cfg: DictConfig, learner, slots: list[_Slot]) -> MemberEva
 
 
 def _side_eval(slot: _Slot, side: MemberEvaluations | None) -> None:
-    """The seed's periodic evaluations made by ``side`` (if any), from its evaluator's seed."""
+    """The seed's periodic evaluations made by ``side`` (if any), from its evaluation seed."""
     if side is not None:
-        slot.session.side_eval = partial(side.start, slot.index, slot.session.evaluator.seed)
+        slot.session.side_eval = partial(side.start, slot.index, slot.session.eval_seed)
 
 
 def _consoles(slots: list[_Slot], stack: ExitStack) -> None:
-    """A batch's seeds: each folder locked, each console its train.log and the terminal."""
+    """A batch's seeds: each folder locked, each console its train.log and the terminal (a
+    ``held`` job's are its caller's)."""
     for slot in slots:
-        _console(slot, stack)
+        if not slot.job.held:
+            _console(slot, stack)
 
 
 def _console(slot: _Slot, stack: ExitStack) -> None:
@@ -408,8 +419,8 @@ def _build(slots: list[_Slot]):
     the one env of all seeds and each seed's parts; ``checkpoint=``'s model loaded into a
     fresh run. Writes nothing."""
     generators = [_seeded(slot) for slot in slots]
-    cfg, solo = slots[0].job.cfg, slots[0].solo
-    seeds = slots[0].seed if solo else [slot.seed for slot in slots]
+    cfg = slots[0].job.cfg
+    seeds = [slot.seed for slot in slots]
     try:
         env = build_env(cfg, len(slots) * int(cfg.num_envs), seeds)
     except ConfigError as err:  # "task maze needs ..." for task=wall (a maze layout): say which was picked
@@ -417,8 +428,7 @@ def _build(slots: list[_Slot]):
         if picked and str(err).startswith("task ") and not str(err).startswith(f"task {picked} "):
             raise ConfigError(f"task={picked}: {err}") from None
         raise
-    if not solo:
-        _check_memory(env, [slot.job.cfg for slot in slots])
+    _check_memory(env, [slot.job.cfg for slot in slots])
     learner = instantiate(cfg.learner, _convert_="all")
     alike = all(not _own_settings(slot.job.cfg, cfg) for slot in slots)
     variants = None if alike else [instantiate(slot.job.cfg.learner, _convert_="all") for slot in slots]
@@ -429,7 +439,7 @@ def _build(slots: list[_Slot]):
             load_model(model_path(slot.job.cfg.checkpoint), member)
         elif slot.job.cfg.mode == "eval":
             raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
-        _session(slot, member, env if solo else env.seed_block(slot.index))
+        _session(slot, member, env.seed_block(slot.index))
         if slot.job.resume:  # every tensor checked before the folder is written
             slot.restored = restore_training_state(slot.session.state_path, slot.job.run_dir, member,
                                                    slot.session.env)
@@ -454,9 +464,8 @@ def _own_settings(cfg: DictConfig, learner_cfg: DictConfig) -> bool:
 
 
 def _session(slot: _Slot, member: Member, env) -> None:
-    """The slot's session: its member, its block of the env and its greedy evaluator."""
-    evaluator = GreedyEvaluator(slot.job.cfg, member, slot.seed + EVAL_SEED_OFFSET)
-    slot.session = Session(slot.job.cfg, slot.job.run_dir, member, env, evaluator)
+    """The slot's session: its member, its block of the env and its evaluation seed."""
+    slot.session = Session(slot.job.cfg, slot.job.run_dir, member, env, slot.seed + EVAL_SEED_OFFSET)
 
 
 def available_bytes() -> int | None:
@@ -503,6 +512,10 @@ def _check_memory(env: RobotTaskEnv, cfgs: Sequence[DictConfig]) -> None:
     per_step = physics.nstate + physics.model.nsensordata + physics.model.nu
     need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + sum(member_bytes(env, cfg, sizes) for cfg in cfgs)
     free = available_bytes()
+    if free is not None and need > 0.8 * free and seeds == 1:
+        raise ConfigError(f"this run of {copies(env.block_size)} needs about {need / 2**30:.3g} GiB, more than 80% "
+                          f"of the {free / 2**30:.3g} GiB free: fewer copies (num_envs=...) or a smaller replay "
+                          "buffer or table (learner.buffer_size, learner.number_splits)")
     if free is not None and need > 0.8 * free:
         raise ConfigError(f"a batch of {seeds} seeds x {copies(env.block_size)} needs about {need / 2**30:.3g} "
                           f"GiB, more than 80% of the {free / 2**30:.3g} GiB free: fewer seeds per batch "
@@ -515,7 +528,7 @@ def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
     fresh = slots[0].job.cfg.mode == "train" and not all(slot.job.resume for slot in slots)
     first = env.reset() if fresh else None  # a resumed seed starts from its checkpoint
     for slot in slots:
-        _begin(slot, None if first is None else first if slot.solo else first[env.block(slot.index)])
+        _begin(slot, None if first is None else first[env.block(slot.index)])
 
 
 def _begin(slot: _Slot, first: TensorDictBase | None) -> None:
@@ -655,7 +668,7 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
     logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name, tags=_tags(session.run_dir),
                          **{k: v for k, v in cfg.logger.items() if k != "kind"})
     hooks = Hooks(checkpoint=partial(save or save_training_state, session.state_path, learner, env),
-                  greedy_eval=(session.side_eval or partial(session.evaluator, int(cfg.eval_episodes)))
+                  greedy_eval=(session.side_eval or partial(session.evaluate, int(cfg.eval_episodes)))
                   if cfg.eval_episodes else None,
                   train_stats=learner.train_stats, progress=progress)
     run = Run(session.run_dir, env.num_envs, int(cfg.max_episodes), session.success, logger=logger,
@@ -675,7 +688,7 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
 def _evaluate(slot: _Slot) -> None:
     """``mode=eval``: the checkpoint's greedy policy judged, reported."""
     session = slot.session
-    result = session.evaluator(session.final_episodes) if session.final_episodes > 0 else None
+    result = session.evaluate(session.final_episodes) if session.final_episodes > 0 else None
     report(session, slot.summary, result)
 
 
@@ -684,8 +697,8 @@ def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluat
     """Steps every seed's copies together until each run is done (:func:`runs.loop.train`);
     a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
     done; ``more`` hands freed members new jobs (:class:`_Refill`, their consoles kept open
-    in ``stack``); ``side`` makes the periodic evaluations. A single run stopped by an
-    exception still saves its model and closes its files."""
+    in ``stack``); ``side`` makes the periodic evaluations. A batch stopped by an exception
+    (one that is not a seed's own failure) still saves each seed's model and closes its files."""
     runs = [slot.run for slot in slots]
     with stop_on_signals(runs) as stopped:
         refill = None if more is None else _Refill(more, learner, env, slots, stack, stopped, runs, side)
@@ -693,7 +706,7 @@ def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluat
             train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals), refill, side)
         except BaseException:
             for slot in slots:
-                if slot.solo and not slot.closed:
+                if slot.run is not None and not slot.closed:
                     try:
                         close_run(slot.session, slot.run, finished=False)
                     except OSError:  # (a full disk) the first failure is the one raised
@@ -708,8 +721,7 @@ def _end_done(live: list[_Slot], env: RobotTaskEnv, stopped: dict, finals: _Fina
     results = finals(done)
     for slot in done:
         _finish(slot, stopped["signal"], results.get(slot.index))
-        if not slot.solo:
-            env.physics.hold(env.block_mask(slot.index))
+        env.physics.hold(env.block_mask(slot.index))
     return [slot for slot in live if not slot.done]
 
 
@@ -717,7 +729,7 @@ class _FinalEvaluations:
     """The final greedy evaluations of the seeds that end at the same step (all of a
     budget's seeds, at its last step), made together (:class:`runs.evaluate.MemberEvaluations`
     of their blocks, kept per number of seeds and episodes): each seed's result is the one
-    its own evaluator gives alone."""
+    its own evaluation gives alone."""
 
     def __init__(self, cfg: DictConfig) -> None:
         self.cfg = cfg
@@ -743,7 +755,7 @@ class _FinalEvaluations:
         side, results = self.sides[key], {}
         try:
             for block, slot in enumerate(slots):
-                side.start(slot.index, slot.session.evaluator.seed, block)
+                side.start(slot.index, slot.session.eval_seed, block)
             while side.members:
                 results.update(side.step())
         except Exception:  # noqa: BLE001 - each seed then evaluates alone, a failure its own
@@ -766,10 +778,15 @@ def _finish(slot: _Slot, interrupted: int | None, evaluation: dict | None = None
     if slot.failed is None:
         slot.guarded(lambda: setattr(slot, "result", final_evaluation(session, run, evaluation)), full=True)
     with slot.active(full=True):
-        summary = close_run(session, run, finished=slot.failed is None)
+        try:
+            summary = close_run(session, run, finished=slot.failed is None)
+        except OSError as err:  # (a full disk) its first failure is the one it reports
+            if slot.failed is None:
+                slot._failed(cannot_write(err, slot.job.run_dir), WRITE_FAILED)
+            summary = {}
         slot.closed = True
         if slot.failed is not None:
-            slot.summary = {**summary, "failed": slot.failed.strip().splitlines()[-1]}
+            slot.summary = {**summary, "failed": slot.failed.strip().splitlines()[-1], "status": slot.status}
         elif run.stop_requested:
             slot.summary = stopped(session, run, summary, interrupted or signal.SIGINT)
         else:
@@ -789,7 +806,7 @@ def final_evaluation(session: Session, run: Run, result: dict | None = None) -> 
     if _evaluated_already(session, run):
         return run.last_eval
     if result is None:
-        result = session.evaluator(session.final_episodes)
+        result = session.evaluate(session.final_episodes)
     return run.record_evaluation(result)
 
 
@@ -846,7 +863,7 @@ def report(session: Session, summary: dict, result: dict | None) -> None:
             {"measure": success.measure, "value": measure_of(result, success.measure), **result},
             indent=1))
         summary["eval"] = result
-    session.evaluator.close()
+    session.close_evaluations()
     if cfg.video:  # the greedy policy on a fresh one-copy env
         from runs.video import record_video  # loaded when a video is asked for
 

@@ -10,7 +10,6 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from learners.member import UpdateStats
-from runs.evaluate import greedy_evaluation
 from runs.loggers import csv_sizes, flat_config, log_hparams, make_logger, run_scalar_names
 from tests.inprocess import train_in_process
 from runs.run import Hooks, Run

@@ -721,13 +721,14 @@ def test_a_pruned_run_makes_no_final_evaluation(tmp_path):
         def solved(self, env_steps: int, value: float) -> None:
             raise AssertionError("not solved")
 
-    def evaluator(episodes: int) -> dict:
-        raise AssertionError("a pruned run was evaluated")
+    class Evaluated(Session):
+        def evaluate(self, episodes: int) -> dict:
+            raise AssertionError("a pruned run was evaluated")
 
     run = Run(tmp_path / "run", 1, 1000, Success("length", "steps", "steps balanced", math.inf), quiet=True,
               hooks=Hooks(progress=Prunes()))
-    session = Session(OmegaConf.create({"eval_episodes": 20}), tmp_path / "run", learner=object(), env=None,
-                      evaluator=evaluator)
+    session = Evaluated(OmegaConf.create({"eval_episodes": 20}), tmp_path / "run", learner=object(), env=None,
+                        eval_seed=10_000)
     assert owes_final_evaluation(session, run)  # an unpruned run at its end would be evaluated
     run.episodes.n_episodes, run.episodes.env_steps = 10, 10
     run.episodes.values.append(1.0)
