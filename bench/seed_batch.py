@@ -3,8 +3,8 @@
     python bench/seed_batch.py [--seeds 10] [--learners qlearn dqn] [--num-envs tuned 1]
                                [--qlearn-steps 150000] [--dqn-steps 30000]
 
-Per learner and number of copies a seed (``tuned``: the tuned file's, 8 for qlearn and
-16 for dqn; a number: ``num_envs=<n>``), side by side in this run: one plain process
+Per learner and number of copies a seed (``tuned``: the tuned file's, read from
+``conf/tuned/cartpole_<learner>.yaml``; a number: ``num_envs=<n>``), side by side in this run: one plain process
 ``train.py seed=0`` and one ``train.py -m seed='range(N)'`` (the ``seeds`` launcher: one
 batch of N seeds), each with the same per-seed budget of env steps (``max_env_steps``; an
 episode budget would let the batch wait for its slowest seed), training past "solved" so
@@ -14,7 +14,12 @@ machine the wall time also counts the other jobs' turns); the peak memory is the
 resident set of the process. The load average is printed at the start and the end. The
 physics floor (``physics_floor_s``) is the batch's copy-steps (training and greedy
 evaluations) priced at this machine's rollout cost a copy-step at the batch's widths: no
-batch can go below it here.
+batch can go below it here. A dqn batch also has an update floor (``update_floor_s``): its
+gradient updates (the rounds its members made, read from their ``model.pt``) done as
+plain stacked PyTorch (the same network shapes, minibatch and members: each layer a
+batched product, the TD loss, backward and one ``torch.optim.Adam`` step) with no sampling
+or bookkeeping, timed in the same run; ``target_ratio`` is the batch's time over both
+floors (issue 64's targets: dqn at most 1.3, qlearn at most 1.5 over its physics floor).
 
 Its measurements (with their date and machine) are on the docs' performance page
 (docs/performance.md, "Seeds in one process").
@@ -43,7 +48,14 @@ ROOT = Path(__file__).resolve().parents[1]
 WRAP = ("import resource, subprocess, sys; code = subprocess.call(sys.argv[1:], stdout=subprocess.DEVNULL); "
         "r = resource.getrusage(resource.RUSAGE_CHILDREN); "
         "print(r.ru_maxrss, r.ru_utime + r.ru_stime, file=sys.stderr); sys.exit(code)")
-TUNED = {"qlearn": 8, "dqn": 16}  # conf/tuned/cartpole_<learner>.yaml's num_envs
+
+
+def tuned_copies(learner: str) -> int:
+    """``num_envs`` of cart-pole's tuned file for ``learner`` (conf/tuned/cartpole_<learner>.yaml)."""
+    sys.path.insert(0, str(ROOT))
+    from tasks.catalog import compose
+
+    return int(compose(robot="cartpole", learner=learner).num_envs)
 
 
 def timed(cmd: list[str], cwd: Path = ROOT) -> tuple[float, float, float]:
@@ -89,7 +101,7 @@ def copy_steps(folder: Path) -> tuple[int, int, int]:
 def physics_floor(learner: str, n: str, seeds: int, folder: Path) -> float:
     """Seconds the batch under ``folder`` needs for its physics alone (:func:`floor_of` at
     ``seeds`` x the copies a seed)."""
-    copies_a_seed = TUNED[learner] if n == "tuned" else int(n)
+    copies_a_seed = tuned_copies(learner) if n == "tuned" else int(n)
     return floor_of("cartpole", folder, seeds * copies_a_seed)
 
 
@@ -121,6 +133,56 @@ def per_copy_step(robot: str, copies: int, seconds: float = 2.0) -> float:
     return (time.perf_counter() - start) / (calls * copies)
 
 
+def update_floor(folder: Path, seeds: int, rounds: int = 300) -> float:
+    """Seconds the dqn batch under ``folder`` needs for its gradient updates alone: the update
+    rounds its members made (the most optimizer steps of a member, from the ``model.pt``
+    files), each priced at one plain stacked PyTorch update of ``seeds`` members (the
+    members' network shapes and minibatch, from a job's ``config.yaml``: each linear layer
+    one ``baddbmm``, the double-DQN Huber TD loss, ``backward`` and one ``torch.optim.Adam``
+    step; no sampling, clipping or bookkeeping), timed over ``rounds`` updates."""
+    import torch
+    from omegaconf import OmegaConf
+
+    models = list(folder.rglob("model.pt"))
+    if not models:
+        return 0.0
+    steps = max(int(torch.load(m, weights_only=False)["optimizer_steps"]) for m in models)
+    cfg = OmegaConf.load(models[0].parent / "config.yaml")
+    state = torch.load(models[0], weights_only=False)["actor"]
+    shapes = [tuple(v.shape) for k, v in state.items() if k.endswith("weight")]  # [out, in] per linear layer
+    batch, activation = int(cfg.learner.batch_size), torch.relu if cfg.learner.activation == "relu" else torch.tanh
+    gen = torch.Generator().manual_seed(0)
+    layers = [(torch.randn(seeds, o, i, generator=gen).mul_(0.1).requires_grad_(),
+               torch.zeros(seeds, 1, o).requires_grad_()) for o, i in shapes]
+    target = [(w.detach().clone(), b.detach().clone()) for w, b in layers]
+    optimizer = torch.optim.Adam([p for layer in layers for p in layer], lr=1e-3)
+    obs, nxt = torch.randn(seeds, batch, shapes[0][1], generator=gen), torch.randn(seeds, batch, shapes[0][1], generator=gen)
+    action = torch.randint(0, shapes[-1][0], (seeds, batch, 1), generator=gen)
+    reward = torch.randn(seeds, batch, 1, generator=gen)
+
+    def q(params, x):
+        for j, (w, b) in enumerate(params):
+            x = torch.baddbmm(b, x, w.transpose(1, 2))
+            x = activation(x) if j < len(params) - 1 else x
+        return x
+
+    def update() -> None:
+        value = q(layers, obs).gather(-1, action)
+        with torch.no_grad():
+            best = q(layers, nxt).argmax(-1, keepdim=True)
+            goal = reward + 0.99 * q(target, nxt).gather(-1, best)
+        torch.nn.functional.smooth_l1_loss(value, goal).backward()
+        optimizer.step()
+        optimizer.zero_grad()
+
+    for _ in range(20):
+        update()
+    start = time.perf_counter()
+    for _ in range(rounds):
+        update()
+    return (time.perf_counter() - start) / rounds * steps
+
+
 def load() -> str:
     return "/".join(f"{x:.2f}" for x in os.getloadavg())
 
@@ -141,19 +203,21 @@ def main() -> None:
     rows = []
     for learner in args.learners:
         for n in args.num_envs:
-            label = f"{TUNED.get(learner, 'tuned')}" if n == "tuned" else n
+            label = str(tuned_copies(learner)) if n == "tuned" else n
             common = [f"learner={learner}", "quiet=true", *budget(learner, args),
                       *([] if n == "tuned" else [f"num_envs={n}"])]
             where = out / learner / f"n{label}"
             one = timed([sys.executable, "train.py", *common, "seed=0", f"hydra.run.dir={where / 'one'}"])
             batch = timed([sys.executable, "train.py", "-m", *common, f"seed=range({args.seeds})",
                            f"hydra.sweep.dir={where / 'batch'}"])
-            rows.append((learner, label, one, batch, physics_floor(learner, n, args.seeds, where / "batch")))
+            rows.append((learner, label, one, batch, physics_floor(learner, n, args.seeds, where / "batch"),
+                         update_floor(where / "batch", args.seeds) if learner != "qlearn" else 0.0))
     print(f"load average (1/5/15 min) at the end: {load()}")
-    for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb), floor_s in rows:
+    for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb), floor_s, updates_s in rows:
         print(f"BATCH {learner} num_envs={label} seeds={args.seeds} one_s={one_s:.1f} batch_s={batch_s:.1f} "
               f"ratio={batch_s / one_s:.2f} per_seed_ratio={batch_s / (args.seeds * one_s):.3f} "
-              f"physics_floor_s={floor_s:.1f} floor_ratio={floor_s / one_s:.2f} "
+              f"physics_floor_s={floor_s:.1f} floor_ratio={floor_s / one_s:.2f} update_floor_s={updates_s:.1f} "
+              f"target_ratio={batch_s / (floor_s + updates_s):.2f} "
               f"one_cpu_s={one_cpu:.1f} batch_cpu_s={batch_cpu:.1f} cpu_ratio={batch_cpu / one_cpu:.2f} "
               f"peak_rss_mb={batch_mb:.0f} (one seed: {one_mb:.0f})")
 
