@@ -115,27 +115,35 @@ class Session:
 
 # -- what may share a batch ----------------------------------------------------
 def check_batch(jobs: Sequence[Job]) -> None:
-    """One line unless ``jobs`` are fresh (or resumed) training runs whose configs differ only
-    in an integer seed, a tuning trial, their own Run's schedules (:data:`OWN_KEYS`) and the
-    learner's member-wise settings (:func:`batch_key`), no two of them the same run. A lone
+    """One line unless every job of ``jobs`` may train in one batch (:func:`refusal`). A lone
     job shares its batch with none: any run may be one."""
     if len(jobs) == 1:
         return
-    seeds = [job.cfg.seed for job in jobs]
-    if any(type(s) is not int for s in seeds):
-        raise ConfigError(f"seed must be an integer in a seed batch; got {seeds}")
-    runs = [repr(_own(job.cfg)) for job in jobs]
-    twice = next((seeds[i] for i, run in enumerate(runs) if runs.count(run) > 1), None)
-    if twice is not None:
-        raise ConfigError(f"seed {twice} appears twice in one sweep; give each seed once")
-    if not all(batchable(job.cfg) for job in jobs if not job.resume) or not all(
-            job.cfg.mode == "train" and not job.cfg.get("checkpoint") for job in jobs if job.resume):
-        raise ConfigError(f"a seed batch trains fresh or resumed runs only (no {', '.join(NOT_BATCHED[1:])})")
-    first = batch_key(jobs[0].cfg)
-    for job in jobs[1:]:
-        if batch_key(job.cfg) != first:
-            raise ConfigError(f"jobs {jobs[0].run_dir.name} and {job.run_dir.name} differ in more than their "
-                              "seed, trial, schedules and the learner's member-wise settings: they cannot share a batch")
+    for i, job in enumerate(jobs):
+        why = refusal(job, jobs[0], jobs[:i])
+        if why is not None:
+            raise ConfigError(why)
+
+
+def refusal(job: Job, first: Job, others: Sequence[Job], freed: bool = False) -> str | None:
+    """Why ``job`` cannot train in the batch of ``first`` beside ``others`` (None: it can): its
+    seed is not an integer, it is not a training run (fresh, or resumed at a batch's start;
+    ``freed``: taking a freed member, fresh only), its config differs from ``first``'s in more
+    than an integer seed, a tuning trial, its own Run's schedules (:data:`OWN_KEYS`) and the
+    learner's member-wise settings (:func:`batch_key`), or it is the run of one of ``others``."""
+    cfg = job.cfg
+    if type(cfg.seed) is not int:
+        return f"seed must be an integer in a seed batch; got {cfg.seed!r}"
+    if freed and (job.resume or not batchable(cfg)):
+        return f"a freed member trains a fresh training run only; {job.run_dir.name} is not one"
+    if not (batchable(cfg) if not job.resume else cfg.mode == "train" and not cfg.get("checkpoint")):
+        return f"a seed batch trains fresh or resumed runs only (no {', '.join(NOT_BATCHED[1:])})"
+    if job is not first and batch_key(cfg) != batch_key(first.cfg):
+        return (f"jobs {first.run_dir.name} and {job.run_dir.name} differ in more than their seed, trial, schedules "
+                "and the learner's member-wise settings: they cannot share a batch")
+    if any(repr(_own(other.cfg)) == repr(_own(cfg)) for other in others):
+        return f"seed {cfg.seed} of these settings appears twice in one batch; give each seed once"
+    return None
 
 
 def member_wise(cfg: DictConfig) -> tuple[str, ...]:
@@ -621,14 +629,11 @@ class _Refill:
             value[rows] = first.get(key) if key in first.keys() else 0
 
     def _refused(self, job: Job) -> str | None:
-        """Why ``job`` cannot train in this batch (None: it can)."""
-        if job.resume or not batchable(job.cfg):
-            return f"a freed member trains a fresh training run only; {job.run_dir.name} is not one"
-        if batch_key(job.cfg) != batch_key(self.cfg):
-            return (f"job {job.run_dir.name} differs from the batch's in more than its seed, trial, schedules and "
-                    "the learner's member-wise settings: it cannot take a freed member")
-        if any(repr(_own(slot.job.cfg)) == repr(_own(job.cfg)) for slot in self.slots if slot.job is not job):
-            return f"seed {job.cfg.seed} of these settings is trained already in this batch"
+        """Why ``job`` cannot train in this batch (None: it can): :func:`refusal`, or its
+        member's memory."""
+        why = refusal(job, self.slots[0].job, [slot.job for slot in self.slots if slot.job is not job], freed=True)
+        if why is not None:
+            return why
         need, free = member_bytes(self.env, job.cfg, self.sizes), available_bytes()
         if free is not None and need > 0.8 * free:
             return (f"job {job.run_dir.name}'s member needs about {need / 2**30:.3g} GiB, more than 80% of the "

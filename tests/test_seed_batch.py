@@ -191,7 +191,7 @@ def test_a_job_that_does_not_fit_the_batch_is_refused_in_its_folder(tmp_path):
 
     summaries = run_jobs(jobs("qlearn", tmp_path, "batch"), more=more)
     error = (tmp_path / "unfit5" / "error.txt").read_text()
-    assert "cannot take a freed member" in error and "\n" not in error.strip()
+    assert "cannot share a batch" in error and "\n" not in error.strip()
     assert [("failed" in s) for s in summaries] == [False, False, True, False]
     assert json.loads((tmp_path / "next6" / "summary.json").read_text())["episodes"] > 0
 
