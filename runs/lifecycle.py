@@ -5,7 +5,7 @@
 
 Every run, alone or in a batch, goes through the same steps: build (:func:`_build`: seed
 each member's streams, one learner with a member per seed, one env holding every seed's
-copies as seed blocks, each seed's session; every value checked before the first
+copies as seed blocks, each seed's :class:`Seed`; every value checked before the first
 file is written), start (:func:`_start`: each seed's folder, banner and
 :class:`~runs.run.Run`), train (:func:`runs.loop.train`), finish (:func:`_finish`: its
 final greedy evaluation, checkpoint, ``model.pt``, video on request and verdict). A single
@@ -71,46 +71,6 @@ VIDEO_SEED_OFFSET = 20_000  # the policy video's env
 OWN_KEYS = ("seed", "resume", "trial", "eval_every", "eval_every_steps", "checkpoint_every", "log_every")
 # ``run_jobs``'s source of jobs for freed members: (the jobs that ended, members free) -> new jobs.
 More = Callable[[Sequence["Job"], int], Sequence["Job"]]
-
-
-@dataclasses.dataclass
-class Session:
-    """The parts of one seed's run: its config, folder, member of the learner, env (its
-    block of the batch's) and the seed its greedy evaluations start from."""
-
-    cfg: DictConfig
-    run_dir: Path
-    learner: Member
-    env: RobotTaskEnv
-    eval_seed: int
-    # A batch's periodic evaluations are made beside its training (runs.evaluate.MemberEvaluations):
-    # this starts the seed's, its run waiting for the result. None: made at once by ``evaluate``.
-    side_eval: Callable[[], None] | None = None
-    evaluations: dict[int, MemberEvaluations] = dataclasses.field(default_factory=dict)  # by episodes
-
-    def evaluate(self, episodes: int) -> dict:
-        """A greedy evaluation of ``episodes`` episodes from the seed's evaluation starts, made now."""
-        if episodes not in self.evaluations:
-            self.evaluations[episodes] = MemberEvaluations(self.cfg, self.learner.learner, 1, episodes)
-        return self.evaluations[episodes].alone(self.learner.index, self.eval_seed)
-
-    def close_evaluations(self) -> None:
-        for evaluations in self.evaluations.values():
-            evaluations.close()
-        self.evaluations.clear()
-
-    @property
-    def success(self) -> Success:
-        return self.env.task.success
-
-    @property
-    def state_path(self) -> Path:
-        return self.run_dir / "checkpoint.pt"
-
-    @property
-    def final_episodes(self) -> int:
-        """Episodes of the final greedy evaluation (ruippeixotog's run phase, else eval_episodes)."""
-        return int(getattr(self.learner, "run_episodes", 0) or self.cfg.eval_episodes)
 
 
 # -- what may share a batch ----------------------------------------------------
@@ -180,13 +140,20 @@ def same_batch(cfgs: Sequence[DictConfig]) -> list[list[int]]:
 
 # -- a seed in the lifecycle -----------------------------------------------------
 @dataclasses.dataclass
-class _Slot:
-    """One seed: its job, member, run, global random streams and console (a
-    :class:`runs.loop.Lane`)."""
+class Seed:
+    """One seed's run, alone or in a batch (a :class:`runs.loop.Lane`): its job, its member of
+    the learner and block of the env, the seed its greedy evaluations start from, its
+    :class:`~runs.run.Run`, global random streams, console and end."""
 
     job: Job
     index: int  # its member of the learner, its block of the env
-    session: Session | None = None
+    member: Member | None = None
+    env: RobotTaskEnv | None = None  # its block of the batch's env
+    eval_seed: int = 0
+    # A run's periodic evaluations are made beside its training (runs.evaluate.MemberEvaluations):
+    # this starts the seed's, its run waiting for the result. None: made at once by ``evaluate``.
+    side_eval: Callable[[], None] | None = None
+    evaluations: dict[int, MemberEvaluations] = dataclasses.field(default_factory=dict)  # by episodes
     run: Run | None = None
     # The seed's global random streams as its run alone leaves them: torch's (a generator
     # holding its state), numpy's and ``random``'s. Training draws from none of them (the
@@ -205,13 +172,40 @@ class _Slot:
         return int(self.job.cfg.seed)
 
     @property
-    def env(self):
-        """Its block of the env."""
-        return self.session.env
+    def cfg(self) -> DictConfig:
+        return self.job.cfg
+
+    @property
+    def run_dir(self) -> Path:
+        return self.job.run_dir
+
+    @property
+    def success(self) -> Success:
+        return self.env.task.success
+
+    @property
+    def state_path(self) -> Path:
+        return self.run_dir / "checkpoint.pt"
+
+    @property
+    def final_episodes(self) -> int:
+        """Episodes of the final greedy evaluation (ruippeixotog's run phase, else eval_episodes)."""
+        return int(getattr(self.member, "run_episodes", 0) or self.cfg.eval_episodes)
 
     @property
     def done(self) -> bool:
         return self.failed is not None or self.run is None or self.run.done
+
+    def evaluate(self, episodes: int) -> dict:
+        """A greedy evaluation of ``episodes`` episodes from the seed's evaluation starts, made now."""
+        if episodes not in self.evaluations:
+            self.evaluations[episodes] = MemberEvaluations(self.cfg, self.member.learner, 1, episodes)
+        return self.evaluations[episodes].alone(self.member.index, self.eval_seed)
+
+    def close_evaluations(self) -> None:
+        for evaluations in self.evaluations.values():
+            evaluations.close()
+        self.evaluations.clear()
 
     @contextmanager
     def active(self, full: bool = False) -> Iterator[None]:
@@ -371,7 +365,7 @@ def run_jobs(jobs: Sequence[Job], more: More | None = None) -> list[dict]:
     each as its run alone, their summaries after the first ones' in the order they start."""
     check_batch(jobs)
     torch.set_num_threads(int(jobs[0].cfg.torch_threads))
-    slots = [_Slot(job, b) for b, job in enumerate(jobs)]
+    slots = [Seed(job, b) for b, job in enumerate(jobs)]
     with ExitStack() as stack:
         stack.enter_context(denormals_flushed())
         _consoles(slots, stack)
@@ -390,7 +384,7 @@ def run_jobs(jobs: Sequence[Job], more: More | None = None) -> list[dict]:
     return [slot.summary for slot in slots]
 
 
-def _side_evaluations(cfg: DictConfig, learner, slots: list[_Slot]) -> MemberEvaluations | None:
+def _side_evaluations(cfg: DictConfig, learner, slots: list[Seed]) -> MemberEvaluations | None:
     """A training batch's periodic evaluations (a single run's too), made beside its
     training (none without them), each seed's started by its run."""
     if cfg.mode != "train" or not int(cfg.eval_episodes):
@@ -401,13 +395,13 @@ def _side_evaluations(cfg: DictConfig, learner, slots: list[_Slot]) -> MemberEva
     return side
 
 
-def _side_eval(slot: _Slot, side: MemberEvaluations | None) -> None:
+def _side_eval(slot: Seed, side: MemberEvaluations | None) -> None:
     """The seed's periodic evaluations made by ``side`` (if any), from its evaluation seed."""
     if side is not None:
-        slot.session.side_eval = partial(side.start, slot.index, slot.session.eval_seed)
+        slot.side_eval = partial(side.start, slot.index, slot.eval_seed)
 
 
-def _consoles(slots: list[_Slot], stack: ExitStack) -> None:
+def _consoles(slots: list[Seed], stack: ExitStack) -> None:
     """A batch's seeds: each folder locked, each console its train.log and the terminal (a
     ``held`` job's are its caller's)."""
     for slot in slots:
@@ -415,14 +409,14 @@ def _consoles(slots: list[_Slot], stack: ExitStack) -> None:
             _console(slot, stack)
 
 
-def _console(slot: _Slot, stack: ExitStack) -> None:
+def _console(slot: Seed, stack: ExitStack) -> None:
     slot.job.run_dir.mkdir(parents=True, exist_ok=True)
     stack.enter_context(run_lock(slot.job.run_dir))
     log = stack.enter_context(open(slot.job.run_dir / "train.log", "a", encoding="utf-8"))
     slot.console = Tee(_Prefixed(sys.stdout, f"[seed {slot.seed}] "), log)
 
 
-def _build(slots: list[_Slot]):
+def _build(slots: list[Seed]):
     """The learner of all seeds (each member's streams seeded as its run alone seeds them),
     the one env of all seeds and each seed's parts; ``checkpoint=``'s model loaded into a
     fresh run. Writes nothing."""
@@ -447,14 +441,14 @@ def _build(slots: list[_Slot]):
             load_model(model_path(slot.job.cfg.checkpoint), member)
         elif slot.job.cfg.mode == "eval":
             raise CheckpointError("mode=eval needs checkpoint=<path to a saved model.pt>")
-        _session(slot, member, env.seed_block(slot.index))
+        _place(slot, member, env.seed_block(slot.index))
         if slot.job.resume:  # every tensor checked before the folder is written
-            slot.restored = restore_training_state(slot.session.state_path, slot.job.run_dir, member,
-                                                   slot.session.env)
+            slot.restored = restore_training_state(slot.state_path, slot.job.run_dir, member,
+                                                   slot.env)
     return learner, env
 
 
-def _seeded(slot: _Slot) -> torch.Generator:
+def _seeded(slot: Seed) -> torch.Generator:
     """Seeds the process's streams as the seed's run alone seeds them and keeps them in the
     slot (its global streams); the member's own stream."""
     generator = seed_everything(slot.seed)
@@ -471,9 +465,9 @@ def _own_settings(cfg: DictConfig, learner_cfg: DictConfig) -> bool:
     return {k: cfg.learner.get(k) for k in own} != {k: learner_cfg.learner.get(k) for k in own}
 
 
-def _session(slot: _Slot, member: Member, env) -> None:
-    """The slot's session: its member, its block of the env and its evaluation seed."""
-    slot.session = Session(slot.job.cfg, slot.job.run_dir, member, env, slot.seed + EVAL_SEED_OFFSET)
+def _place(slot: Seed, member: Member, env) -> None:
+    """The seed's member, its block of the env and the seed its evaluations start from."""
+    slot.member, slot.env, slot.eval_seed = member, env, slot.seed + EVAL_SEED_OFFSET
 
 
 def available_bytes() -> int | None:
@@ -530,7 +524,7 @@ def _check_memory(env: RobotTaskEnv, cfgs: Sequence[DictConfig]) -> None:
                           "(hydra.launcher.max_seeds=...) or fewer copies (num_envs=...)")
 
 
-def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
+def _start(slots: list[Seed], env: RobotTaskEnv) -> None:
     """Each seed's folder, banner and run (none to evaluate a checkpoint), from its block of
     the first reset (a resumed seed: from its checkpoint)."""
     fresh = slots[0].job.cfg.mode == "train" and not all(slot.job.resume for slot in slots)
@@ -539,19 +533,19 @@ def _start(slots: list[_Slot], env: RobotTaskEnv) -> None:
         _begin(slot, None if first is None else first[env.block(slot.index)])
 
 
-def _begin(slot: _Slot, first: TensorDictBase | None) -> None:
+def _begin(slot: Seed, first: TensorDictBase | None) -> None:
     """The seed's folder, banner and run; a fresh one's first step acts on ``first``."""
-    job, session = slot.job, slot.session
+    job = slot.job
     with slot.active(full=True):
         if not job.resume:
             start_run(job.cfg, job.run_dir, job.choices, list(job.overrides))
-        for line in banner_lines(job.cfg, dict(job.choices), job.changes, session.success,
+        for line in banner_lines(job.cfg, dict(job.choices), job.changes, slot.success,
                                  job.run_dir):
             print(line)
-        write_success(session)
+        write_success(slot)
         if job.cfg.mode != "train":
             return
-        slot.run = make_run(session, resume=job.resume, progress=job.progress, save=slot.save,
+        slot.run = make_run(slot, resume=job.resume, progress=job.progress, save=slot.save,
                             restored=slot.restored)
         slot.restored = None
         if not job.resume:
@@ -565,7 +559,7 @@ class _Refill:
     alone from its first step. A job that does not fit the batch ends at once, its
     ``error.txt`` saying why; none is taken after a stop was asked."""
 
-    def __init__(self, more: More, learner, env: RobotTaskEnv, slots: list[_Slot], stack: ExitStack,
+    def __init__(self, more: More, learner, env: RobotTaskEnv, slots: list[Seed], stack: ExitStack,
                  stopped: dict, runs: list[Run], side: MemberEvaluations | None = None) -> None:
         self.more, self.learner, self.env, self.slots, self.stack = more, learner, env, slots, stack
         self.side = side  # the batch's periodic evaluations
@@ -573,7 +567,7 @@ class _Refill:
         self.stopped, self.runs = stopped, runs  # stop_on_signals' signal, and the runs it stops
         self.sizes: dict[str, int] = {}  # a member's bytes by the settings that size it (member_bytes)
 
-    def __call__(self, td: TensorDictBase, ended: list[_Slot], live: list[_Slot]) -> tuple[TensorDictBase, list]:
+    def __call__(self, td: TensorDictBase, ended: list[Seed], live: list[Seed]) -> tuple[TensorDictBase, list]:
         """The next step's input with the new jobs' first observations in their blocks, and
         the new jobs' slots (to train from this step on)."""
         busy = {slot.index for slot in live}
@@ -585,12 +579,12 @@ class _Refill:
             raise ValueError(f"{len(jobs)} jobs for {len(free)} free members")
         if self.stopped["signal"] is not None:  # asked to stop while they were made: none starts
             for job, b in zip(jobs, free):
-                slot = _Slot(job, b, summary={"interrupted": True, "signal": self.stopped["signal"]})
+                slot = Seed(job, b, summary={"interrupted": True, "signal": self.stopped["signal"]})
                 self.slots.append(slot)
             return td, []
         added = []
         for job, b in zip(jobs, free):
-            slot = _Slot(job, b)
+            slot = Seed(job, b)
             self.slots.append(slot)
             _console(slot, self.stack)
             refused = self._refused(job)
@@ -613,7 +607,7 @@ class _Refill:
             self.runs.append(slot.run)
         return td, added
 
-    def _start(self, slot: _Slot, td: TensorDictBase) -> None:
+    def _start(self, slot: Seed, td: TensorDictBase) -> None:
         """The slot's member and seed block made anew for its job, its run started, and its
         block of ``td`` (the next step's input) its first step's."""
         b, job = slot.index, slot.job
@@ -621,7 +615,7 @@ class _Refill:
         self.learner.renew(b, generator, instantiate(job.cfg.learner, _convert_="all")
                            if _own_settings(job.cfg, self.cfg) else None)
         observation = self.env.renew_block(b, slot.seed)
-        _session(slot, self.learner.member(b), self.env.seed_block(b))
+        _place(slot, self.learner.member(b), self.env.seed_block(b))
         _side_eval(slot, self.side)
         _begin(slot, _first(observation))
         first, rows = slot.run.start(slot.env), self.env.block(b)
@@ -649,9 +643,9 @@ def _first(observation: torch.Tensor) -> TensorDictBase:
                        "truncated": false.clone()}, batch_size=[len(observation)])
 
 
-def write_success(session: Session) -> None:
+def write_success(seed: Seed) -> None:
     """``success.json``: the task's rule, as the run judges it."""
-    (session.run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(session.success), indent=1))
+    (seed.run_dir / "success.json").write_text(json.dumps(dataclasses.asdict(seed.success), indent=1))
 
 
 def _tags(run_dir: Path) -> dict:
@@ -663,20 +657,20 @@ def _tags(run_dir: Path) -> dict:
     return {k: saved.get(k) for k in ("robot", "task", "learner", "seed")}
 
 
-def make_run(session: Session, resume: bool, progress: Progress | None,
+def make_run(seed: Seed, resume: bool, progress: Progress | None,
              save: Callable[..., None] | None = None, restored: dict | None = None) -> Run:
     """Training's :class:`Run` with its logger and hooks (``save``: writes the training
     state, :func:`runs.training_state.save_training_state`'s arguments); a resumed run continues
     from its checkpoint (``restored``: as read when the run was built; its metrics files cut
     back to it)."""
-    cfg, learner, env = session.cfg, session.learner, session.env
-    logger = make_logger(cfg.logger.kind, session.run_dir, exp_name=session.run_dir.name, tags=_tags(session.run_dir),
+    cfg, learner, env = seed.cfg, seed.member, seed.env
+    logger = make_logger(cfg.logger.kind, seed.run_dir, exp_name=seed.run_dir.name, tags=_tags(seed.run_dir),
                          **{k: v for k, v in cfg.logger.items() if k != "kind"})
-    hooks = Hooks(checkpoint=partial(save or save_training_state, session.state_path, learner, env),
-                  greedy_eval=(session.side_eval or partial(session.evaluate, int(cfg.eval_episodes)))
+    hooks = Hooks(checkpoint=partial(save or save_training_state, seed.state_path, learner, env),
+                  greedy_eval=(seed.side_eval or partial(seed.evaluate, int(cfg.eval_episodes)))
                   if cfg.eval_episodes else None,
                   train_stats=learner.train_stats, progress=progress)
-    run = Run(session.run_dir, env.num_envs, int(cfg.max_episodes), session.success, logger=logger,
+    run = Run(seed.run_dir, env.num_envs, int(cfg.max_episodes), seed.success, logger=logger,
               extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
               log_every=int(cfg.get("log_every", 0)), checkpoint_every=int(cfg.get("checkpoint_every", 0)),
               eval_every=int(cfg.eval_every) if cfg.eval_episodes else 0, resume=resume,
@@ -684,20 +678,19 @@ def make_run(session: Session, resume: bool, progress: Progress | None,
               max_env_steps=int(cfg.get("max_env_steps", 0)),
               stop_when_solved=bool(cfg.get("stop_when_solved", True)), hooks=hooks)
     if resume:
-        run.continue_from(load_training_state(session.state_path, learner, env, run, restored))
-        print(f"resuming {session.run_dir} after episode {run.n_episodes} ({run.env_steps} env steps)")
-    log_hparams(logger, cfg, run_scalar_names(session.success.measure, session.success.window))
+        run.continue_from(load_training_state(seed.state_path, learner, env, run, restored))
+        print(f"resuming {seed.run_dir} after episode {run.n_episodes} ({run.env_steps} env steps)")
+    log_hparams(logger, cfg, run_scalar_names(seed.success.measure, seed.success.window))
     return run
 
 
-def _evaluate(slot: _Slot) -> None:
+def _evaluate(slot: Seed) -> None:
     """``mode=eval``: the checkpoint's greedy policy judged, reported."""
-    session = slot.session
-    result = session.evaluate(session.final_episodes) if session.final_episodes > 0 else None
-    report(session, slot.summary, result)
+    result = slot.evaluate(slot.final_episodes) if slot.final_episodes > 0 else None
+    report(slot, slot.summary, result)
 
 
-def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluations,
+def _train(learner, slots: list[Seed], env: RobotTaskEnv, finals: _FinalEvaluations,
            more: More | None = None, stack: ExitStack | None = None, side: MemberEvaluations | None = None) -> None:
     """Steps every seed's copies together until each run is done (:func:`runs.loop.train`);
     a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
@@ -713,13 +706,13 @@ def _train(learner, slots: list[_Slot], env: RobotTaskEnv, finals: _FinalEvaluat
             for slot in slots:
                 if slot.run is not None and not slot.closed:
                     try:
-                        close_run(slot.session, slot.run, finished=False)
+                        close_run(slot, slot.run, finished=False)
                     except OSError:  # (a full disk) the first failure is the one raised
                         pass
             raise
 
 
-def _end_done(live: list[_Slot], env: RobotTaskEnv, stopped: dict, finals: _FinalEvaluations) -> list[_Slot]:
+def _end_done(live: list[Seed], env: RobotTaskEnv, stopped: dict, finals: _FinalEvaluations) -> list[Seed]:
     """Ends the seeds of ``live`` that are done, their copies held (the final evaluations of
     those that end at this step made together); the others."""
     done = [slot for slot in live if slot.done]
@@ -740,27 +733,27 @@ class _FinalEvaluations:
         self.cfg = cfg
         self.sides: dict[tuple[int, int], MemberEvaluations] = {}
 
-    def __call__(self, done: list[_Slot]) -> dict[int, dict]:
+    def __call__(self, done: list[Seed]) -> dict[int, dict]:
         """Each seed's evaluation by its index, for the seeds of ``done`` that owe one, where
         two or more owe as many episodes (one alone evaluates in its own env, as before)."""
         owing = [slot for slot in done if slot.failed is None and slot.run is not None
-                 and owes_final_evaluation(slot.session, slot.run)]
+                 and owes_final_evaluation(slot, slot.run)]
         results: dict[int, dict] = {}
-        for episodes in {slot.session.final_episodes for slot in owing}:
-            alike = [slot for slot in owing if slot.session.final_episodes == episodes]
+        for episodes in {slot.final_episodes for slot in owing}:
+            alike = [slot for slot in owing if slot.final_episodes == episodes]
             if len(alike) > 1:
                 results.update(self._together(alike, episodes))
         return results
 
-    def _together(self, slots: list[_Slot], episodes: int) -> dict[int, dict]:
+    def _together(self, slots: list[Seed], episodes: int) -> dict[int, dict]:
         """The evaluations of ``slots``, ``episodes`` each, in one env of a block each."""
         key = (len(slots), episodes)
         if key not in self.sides:
-            self.sides[key] = MemberEvaluations(self.cfg, slots[0].session.learner.learner, len(slots), episodes)
+            self.sides[key] = MemberEvaluations(self.cfg, slots[0].member.learner, len(slots), episodes)
         side, results = self.sides[key], {}
         try:
             for block, slot in enumerate(slots):
-                side.start(slot.index, slot.session.eval_seed, block)
+                side.start(slot.index, slot.eval_seed, block)
             while side.members:
                 results.update(side.step())
         except Exception:  # noqa: BLE001 - each seed then evaluates alone, a failure its own
@@ -774,17 +767,17 @@ class _FinalEvaluations:
             side.close()
 
 
-def _finish(slot: _Slot, interrupted: int | None, evaluation: dict | None = None) -> None:
+def _finish(slot: Seed, interrupted: int | None, evaluation: dict | None = None) -> None:
     """A seed's end: final evaluation (``evaluation``, if made already), checkpoint, model,
     report."""
     if slot.run is None:
         return
-    session, run = slot.session, slot.run
+    run = slot.run
     if slot.failed is None:
-        slot.guarded(lambda: setattr(slot, "result", final_evaluation(session, run, evaluation)), full=True)
+        slot.guarded(lambda: setattr(slot, "result", final_evaluation(slot, run, evaluation)), full=True)
     with slot.active(full=True):
         try:
-            summary = close_run(session, run, finished=slot.failed is None)
+            summary = close_run(slot, run, finished=slot.failed is None)
         except OSError as err:  # (a full disk) its first failure is the one it reports
             if slot.failed is None:
                 slot._failed(cannot_write(err, slot.job.run_dir), WRITE_FAILED)
@@ -793,88 +786,88 @@ def _finish(slot: _Slot, interrupted: int | None, evaluation: dict | None = None
         if slot.failed is not None:
             slot.summary = {**summary, "failed": slot.failed.strip().splitlines()[-1], "status": slot.status}
         elif run.stop_requested:
-            slot.summary = stopped(session, run, summary, interrupted or signal.SIGINT)
+            slot.summary = stopped(slot, run, summary, interrupted or signal.SIGINT)
         else:
-            report(session, summary, slot.result)
+            report(slot, summary, slot.result)
             slot.summary = summary
 
 
-def final_evaluation(session: Session, run: Run, result: dict | None = None) -> dict | None:
+def final_evaluation(seed: Seed, run: Run, result: dict | None = None) -> dict | None:
     """The trained policy, judged like the evaluations during training (an evaluation of this
     very policy is reused); at the budget's end it may still solve a greedily judged task.
     None when the run was stopped, pruned by its tuning study (which asks no value of it:
     ruippeixotog's 500-episode run phase was over a third of a cart-pole study's copy-steps)
     or evaluates nothing. ``result``: that evaluation, made already (a seed batch evaluates
     the seeds that end at one step together)."""
-    if not _makes_final_evaluation(session, run):
+    if not _makes_final_evaluation(seed, run):
         return None
-    if _evaluated_already(session, run):
+    if _evaluated_already(seed, run):
         return run.last_eval
     if result is None:
-        result = session.evaluate(session.final_episodes)
+        result = seed.evaluate(seed.final_episodes)
     return run.record_evaluation(result)
 
 
-def owes_final_evaluation(session: Session, run: Run) -> bool:
+def owes_final_evaluation(seed: Seed, run: Run) -> bool:
     """Whether :func:`final_evaluation` runs a new evaluation: not when the run was stopped,
     pruned or evaluates nothing, nor when its last evaluation was of this very policy."""
-    return _makes_final_evaluation(session, run) and not _evaluated_already(session, run)
+    return _makes_final_evaluation(seed, run) and not _evaluated_already(seed, run)
 
 
-def _makes_final_evaluation(session: Session, run: Run) -> bool:
+def _makes_final_evaluation(seed: Seed, run: Run) -> bool:
     """Whether the run ends with a final evaluation at all: one evaluates something, and was
     neither stopped nor pruned."""
-    return session.final_episodes > 0 and not run.stop_requested and run.pruned_at is None
+    return seed.final_episodes > 0 and not run.stop_requested and run.pruned_at is None
 
 
-def _evaluated_already(session: Session, run: Run) -> bool:
+def _evaluated_already(seed: Seed, run: Run) -> bool:
     """Whether the run's last evaluation is its final one: of this very policy, as many
     episodes (also a resumed run killed after its final evaluation was saved: never a
     second row)."""
     last = run.last_eval
     return (last is not None and run.evals[-1]["episode"] == run.n_episodes
-            and last["episodes"] == session.final_episodes)
+            and last["episodes"] == seed.final_episodes)
 
 
-def close_run(session: Session, run: Run, finished: bool) -> dict:
+def close_run(seed: Seed, run: Run, finished: bool) -> dict:
     """The training state (``finished``: at a step boundary, so consistent), ``model.pt``, then
     the run's files closed (the reward curve drawn last: a run stopped by its launcher has its
     states saved first); returns the run's summary."""
     if finished:
         run.checkpoint(run.last_td)
-    save_model(session.run_dir / "model.pt", session.learner, meta={
-        "choices": json.loads((session.run_dir / "run.json").read_text()),
-        "config": OmegaConf.to_container(session.cfg, resolve=True),
+    save_model(seed.run_dir / "model.pt", seed.member, meta={
+        "choices": json.loads((seed.run_dir / "run.json").read_text()),
+        "config": OmegaConf.to_container(seed.cfg, resolve=True),
     })
     return run.close()
 
 
-def stopped(session: Session, run: Run, summary: dict, signum: int) -> dict:
+def stopped(seed: Seed, run: Run, summary: dict, signum: int) -> dict:
     """A run stopped by ``signum``: how to resume it, and its summary saying so."""
     print(f"stopped after episode {run.n_episodes}; the whole training state is in "
-          f"{session.state_path}\nresume with: {train_command()} resume={session.run_dir}")
+          f"{seed.state_path}\nresume with: {train_command()} resume={seed.run_dir}")
     summary["interrupted"] = True
     summary["signal"] = signum
-    (session.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    (seed.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 
 
-def report(session: Session, summary: dict, result: dict | None) -> None:
+def report(seed: Seed, summary: dict, result: dict | None) -> None:
     """The final evaluation (eval.json), the video on request, the summary and the verdict."""
-    cfg, run_dir, success = session.cfg, session.run_dir, session.success
+    cfg, run_dir, success = seed.cfg, seed.run_dir, seed.success
     if result is not None:
         print(describe_evaluation(result, success))
         (run_dir / "eval.json").write_text(json.dumps(
             {"measure": success.measure, "value": measure_of(result, success.measure), **result},
             indent=1))
         summary["eval"] = result
-    session.close_evaluations()
+    seed.close_evaluations()
     if cfg.video:  # the greedy policy on a fresh one-copy env
         from runs.video import record_video  # loaded when a video is asked for
 
         video_env = build_env(cfg, 1, int(cfg.seed) + VIDEO_SEED_OFFSET)
-        with session.learner.greedy():
-            record_video(video_env, session.learner.policy, run_dir / "policy.mp4", n_steps=int(cfg.video_steps))
+        with seed.member.greedy():
+            record_video(video_env, seed.member.policy, run_dir / "policy.mp4", n_steps=int(cfg.video_steps))
         video_env.close()
         print(f"policy video in {run_dir / 'policy.mp4'}")
     if cfg.mode == "train":

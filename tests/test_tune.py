@@ -708,7 +708,8 @@ def test_a_pruned_run_makes_no_final_evaluation(tmp_path):
     """A run its tuning study pruned ends without a final greedy evaluation: the study asks
     no value of a pruned trial (ruippeixotog's 500-episode run phase in pruned jobs was over
     a third of the replayed cart-pole study's copy-steps)."""
-    from runs.lifecycle import Session, final_evaluation, owes_final_evaluation
+    from runs.job import Job
+    from runs.lifecycle import Seed, final_evaluation, owes_final_evaluation
     from runs.run import Hooks, Run
     from tasks.base import Success
 
@@ -721,14 +722,13 @@ def test_a_pruned_run_makes_no_final_evaluation(tmp_path):
         def solved(self, env_steps: int, value: float) -> None:
             raise AssertionError("not solved")
 
-    class Evaluated(Session):
+    class Evaluated(Seed):
         def evaluate(self, episodes: int) -> dict:
             raise AssertionError("a pruned run was evaluated")
 
     run = Run(tmp_path / "run", 1, 1000, Success("length", "steps", "steps balanced", math.inf), quiet=True,
               hooks=Hooks(progress=Prunes()))
-    session = Evaluated(OmegaConf.create({"eval_episodes": 20}), tmp_path / "run", learner=object(), env=None,
-                        eval_seed=10_000)
+    session = Evaluated(Job(OmegaConf.create({"eval_episodes": 20}), tmp_path / "run", {}), 0, member=object())
     assert owes_final_evaluation(session, run)  # an unpruned run at its end would be evaluated
     run.episodes.n_episodes, run.episodes.env_steps = 10, 10
     run.episodes.values.append(1.0)
