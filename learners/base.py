@@ -2,29 +2,15 @@
 
 A member is one independent learning run: a seed of a seed batch, or the one seed of a
 single run (a batch of one). A learner is a dataclass made from its config node
-(``conf/learner/<name>.yaml``, its parameters checked in ``__post_init__``); everything
-it learns is held for all its members at once (a Q-table ``[members, states, actions]``,
-a network's parameters ``[members, ...]``), and each call serves every member:
-
-1. ``build(task, generators, variants)``: sizes the table or networks from the task, one
-   member per generator (each member's own random stream: its exploration, its minibatch
-   draws); ``variants``, where given, is each member's own learner made from its config
-   (a tuning trial's): they may differ in the learner's ``MEMBER_WISE`` settings only
-   (learning rates, discount, exploration, ...: what keeps every shape), which each member
-   then takes from its own (:func:`member_settings`);
-2. ``act(td, live)``: every member's actions on its block of rows (block ``b`` is rows
-   ``b * n`` to ``(b + 1) * n``), the members of ``live`` drawing from their streams;
-3. ``observe(td, live)``: each live member learns from its block of the transitions;
-4. ``end_episodes(ended)``: per member, how many of its episodes the step finished
-   (epsilon schedules, per-episode updates);
-5. per member ``b``: ``stats(b)``, ``train_stats(b)``, ``model_state(b)`` (what
-   ``model.pt`` holds) and ``training_state(b)`` (all the next update depends on), with the
-   matching ``load_*`` raising :class:`StateMismatch` for a state of another shape, and
-   ``act_members`` for the greedy policy of some members.
-
-:meth:`member` gives member ``b`` seen alone (:class:`Member`): what a run's files, its
-evaluations and its video read. A learner knows nothing of folders, files or consoles,
-and never drives the training loop (:mod:`runs.loop` does).
+(``conf/learner/<name>.yaml``, its parameters checked in ``__post_init__``), written for
+one member over :mod:`learners.member`, which holds every member's table or networks,
+streams and bookkeeping. The training loop sees :class:`Learner`: ``build`` (one member
+per random stream, each with its own settings where a tuning batch gives them), ``act``
+and ``observe`` (every member's block of rows in one call), ``end_episodes`` and
+``renew`` (a batch's freed member made anew). Everything of one member (its numbers,
+policy, ``model.pt`` and training state, loaded with :class:`StateMismatch` for a state of
+another shape) is :meth:`Learner.member`'s :class:`Member`. A learner knows nothing of
+folders, files or consoles, and never drives the training loop (:mod:`runs.loop` does).
 """
 
 from __future__ import annotations
@@ -140,7 +126,10 @@ def per_member(values: Sequence[float], dtype: torch.dtype, device: Any = "cpu")
 
 @runtime_checkable
 class Learner(Protocol):
-    """A learning algorithm over a member axis, as the run package uses it."""
+    """A learning algorithm over a member axis, as the training loop sees it: every member's
+    act and observe in one call, the end of its episodes, and a member seen alone
+    (:meth:`member`: its numbers, policy and saved states, :class:`Member`). A learner is
+    written for one member over :mod:`learners.member`, which answers the member-wise calls."""
 
     kind: str  # the learner family a saved state belongs to ("qlearn", "dqn")
     MEMBER_WISE: tuple[str, ...]  # settings members of one batch may differ in
@@ -194,13 +183,13 @@ class Learner(Protocol):
 
     def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
                     generators: Sequence[torch.Generator | None]) -> TensorDictBase:
-        """The actions of some members, each on its own block of ``td`` (a member's policy calls it).
+        """The actions of some members, each on its own block of ``td`` (their greedy evaluations).
 
         Args:
             td: one block of rows per member acting, in the order of ``members``, ``observation`` among
                 its entries.
             members: the members that act (block ``j`` is ``members[j]``'s); None: every member, in order.
-            greedy: act greedily (no exploration) rather than epsilon-greedy.
+            greedy: act greedily (no exploration) rather than exploring.
             generators: block ``j``'s random stream, one per block; None for a block that draws from none.
 
         Returns:
@@ -224,80 +213,11 @@ class Learner(Protocol):
                 finished none are left out.
         """
 
-    def stats(self, b: int) -> dict[str, float]:
-        """Member ``b``'s numbers recorded with each episode it finishes.
-
-        Args:
-            b: the member's index.
-
-        Returns:
-            Name mapped to value (the learners here: ``alpha``, ``gamma`` and ``epsilon``, as they are now).
-        """
-
-    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
-        """Member ``b``'s ``train/*`` numbers (loss, epsilon, ...), which the logger writes at intervals.
-
-        Args:
-            b: the member's index.
-            reset: whether reading starts a new interval for the numbers that are means over one (False:
-                a read between the logger's, such as a progress bar's); a learner without means ignores it.
-
-        Returns:
-            Name mapped to value.
-        """
-
-    def model_state(self, b: int) -> dict:
-        """Member ``b``'s trained model, as ``model.pt`` holds it.
-
-        Args:
-            b: the member's index.
-
-        Returns:
-            Tensors and plain values by name, ``kind`` (the learner family) among them.
-        """
-
-    def load_model_state(self, b: int, state: Mapping, where: str) -> None:
-        """Loads a saved :meth:`model_state` into member ``b``, checking first that it fits.
-
-        Args:
-            b: the member's index.
-            state: a :meth:`model_state`, as read from a file.
-            where: the state's origin, named in a :class:`StateMismatch`.
-
-        Raises:
-            StateMismatch: if the state has another shape or format than this learner's (nothing is loaded).
-        """
-
-    def training_state(self, b: int) -> dict:
-        """Everything member ``b``'s next update depends on (for resuming a run).
-
-        Args:
-            b: the member's index.
-
-        Returns:
-            Tensors and plain values by name: the model and what else the learner keeps (such as its
-                optimiser state, replay buffer and random stream).
-        """
-
-    def load_training_state(self, b: int, state: Mapping) -> None:
-        """Restores member ``b`` from a saved :meth:`training_state`, checking first that it fits.
-
-        Args:
-            b: the member's index.
-            state: a :meth:`training_state`, as read from the training checkpoint.
-
-        Raises:
-            StateMismatch: if the state has another shape or format than this learner's.
-        """
-
     def member(self, b: int) -> Member:
-        """Member ``b`` seen alone.
+        """Member ``b`` seen alone: its numbers, its policy, its saved states (:class:`Member`).
 
         Args:
             b: the member's index.
-
-        Returns:
-            Its view of this learner: its numbers, its policy, its saved states.
         """
 
 
@@ -365,7 +285,11 @@ class MemberPolicy(TensorDictModuleBase):
 
 
 class Member:
-    """Member ``index`` of ``learner`` seen alone: its numbers, its policy, its saved states.
+    """Member ``index`` of ``learner`` seen alone: its numbers, its policy, its saved states;
+    all a run reads of one member. It asks the learner's member-wise calls, which a learner
+    answers for one member index ``b``: ``stats(b)``, ``train_stats(b, reset)``,
+    ``model_state(b)``, ``load_model_state(b, state, where)``, ``training_state(b)`` and
+    ``load_training_state(b, state)``.
 
     Config values (``lr``, ``gamma``, ...) read through to the learner, a member-wise one
     from the member's own settings.

@@ -33,7 +33,7 @@ from typing import Callable, Protocol, Sequence
 import torch
 from tensordict import TensorDictBase
 
-from learners.base import Learner
+from learners.base import Learner, Member
 from runs.evaluate import MemberEvaluations
 from runs.run import Run
 from runs.training_state import env_state, load_env_state
@@ -43,6 +43,7 @@ class Lane(Protocol):
     """One member's run inside the loop."""
 
     index: int  # the learner's member
+    member: Member  # that member seen alone
     run: Run
     env: object  # its block of the env (the env itself for a single run)
     failed: str | None
@@ -166,7 +167,7 @@ def _book(learner: Learner, lanes: list[Lane], td: TensorDictBase) -> dict[int, 
         if not finished.any():  # most steps: the run only counts the step
             lane.run.record(reward[rows], finished, terminated[rows])
             return
-        count = len(lane.run.record(reward[rows], finished, terminated[rows], learner.stats(lane.index),
+        count = len(lane.run.record(reward[rows], finished, terminated[rows], lane.member.stats,
                                     getattr(view, "ended_info", None)))
         if count:
             ended[lane.index] = count
