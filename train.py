@@ -106,9 +106,11 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
     trial = not job.resume and job.cfg.get("trial") is not None  # a resumed trial job reports to no study
 
     def progress():
-        from sweeps.tuning import trial_link
+        if not trial:
+            return None
+        from sweeps.tuning import trial_link  # only a tuning trial reports to a study
 
-        return trial_link(job.cfg, job.run_dir, hydra_cfg.sweeper) if trial else None
+        return trial_link(job.cfg, job.run_dir, hydra_cfg.sweeper)
 
     if in_sweep and not job.resume and batchable(job.cfg) and hydra_cfg.job.env_set.get(BATCH_JOB):
         job.progress = progress()

@@ -256,3 +256,25 @@ def test_checks_catch_what_they_guard(tmp_path):
         (tmp_path / name).write_text("import params\n")
     assert (upward_imports(tmp_path), import_cycles(tmp_path), entry_point_imports(tmp_path),
             sys_path_edits(tmp_path)) == ([], [], [], [])
+
+
+def test_a_run_loads_only_what_it_uses_and_the_docs_quote_the_count():
+    """``bench/first_step_path.py robot=cube learner=dqn`` (a fresh interpreter): a plain dqn
+    run reaches its first env step without the sweeps' modules, the plot and video modules
+    or Rainbow's parts, and docs/concepts.md quotes the tool's own count of files and calls."""
+    import os
+    import re
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "bench/first_step_path.py", "robot=cube", "learner=dqn"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600, env={**os.environ, "MUJOCO_GL": "egl"})
+    found = re.search(r"FIRST_STEP_PATH files=(\d+) calls_across_files=(\d+)", proc.stdout)
+    assert found, proc.stdout[-2000:] + proc.stderr[-2000:]
+    files = set(proc.stdout.split())
+    unused = {"sweeps/tuning.py", "sweeps/seed_batch.py", "sweeps/optuna_sweep.py", "sweeps/state.py",
+              "runs/plot.py", "runs/video.py", "learners/nstep.py", "learners/priority.py",
+              "learners/distributional.py", "learners/qlearn.py"}
+    assert not unused & files, sorted(unused & files)
+    docs = " ".join((ROOT / "docs" / "concepts.md").read_text().split())
+    assert f"passes through {found[1]} project files and {found[2]} calls" in docs, found.group(0)
