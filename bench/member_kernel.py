@@ -6,7 +6,7 @@ One DQN update (cart-pole's shapes: 4 -> 64 -> 64 -> 2 relu, 64 transitions, dou
 Huber, clip 10, Adam 1e-3, Polyak 0.01) of M = 1 and M = 10 members, timed side by side
 in this run:
 
-- A: :class:`learners.member.StackedNet` (each linear layer one ``baddbmm`` over the
+- A: :class:`learners.member.MemberNets` (each linear layer one ``baddbmm`` over the
   members), :func:`learners.dqn.td_terms`, :func:`learners.member.clip_norms` and
   :func:`learners.member.adam_step`: what the layer does;
 - B: one member's module stacked with ``torch.func.stack_module_state`` (B'': tensordict's
@@ -28,7 +28,7 @@ from torch import nn
 from torch.func import functional_call, stack_module_state
 from torchrl.modules import MLP, QValueActor
 from learners.dqn import td_terms
-from learners.member import StackedNet, adam_step, clip_norms
+from learners.member import MemberNets, adam_step, clip_norms
 from learners.transitions import unpack
 
 warnings.filterwarnings("ignore")
@@ -66,7 +66,7 @@ def member_rows(M, n_updates):
 class KernelA:
     def __init__(self, M):
         t, vec = member_vectors(M)
-        self.net = StackedNet(t)
+        self.net = MemberNets(t)
         self.params = vec.clone()
         self.target = vec.clone()
         self.grads = torch.zeros_like(vec)
@@ -222,7 +222,7 @@ def main():
         torch.set_num_threads(int(threads))
     print(f"torch {torch.__version__} threads={torch.get_num_threads()} iters={iters} warmup={warmup} repeats={repeats}")
     makers = {
-        "A  StackedNet+adam_step": (KernelA, False),
+        "A  MemberNets+adam_step": (KernelA, False),
         "B  vmap+Adam(foreach)": (lambda M: FuncB(M, False), False),
         "B' vmap+Adam(fused)": (lambda M: FuncB(M, True), False),
         "B\" TD.from_modules+foreach": (lambda M: FuncB(M, False, via="td"), False),

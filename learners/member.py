@@ -10,10 +10,10 @@ so that every member's arithmetic is one call:
   reaches the algorithm as a number where every member has the same, else a
   ``[members, 1]`` tensor: :meth:`MemberLearner.own`), and the contract's member-wise calls
   (:class:`learners.base.Learner`: acting with the live members' streams, a member seen alone);
-- :class:`StackedTable`: every member's table, the rows of one tensor (tabular learners);
-- :class:`StackedNet`: every member's network, its parameters one ``[members, P]`` tensor,
+- :class:`MemberTables`: every member's table, the rows of one tensor (tabular learners);
+- :class:`MemberNets`: every member's network, its parameters one ``[members, P]`` tensor,
   each linear layer one batched product;
-- :class:`StackedAdam`: Adam's moments and step counts per member, one step for all;
+- :class:`MemberAdam`: Adam's moments and step counts per member, one step for all;
 - :class:`RowReplayBuffer`: one member's replay storage, TorchRL's buffer over one tensor;
 - :class:`ReplayLearner`: a replay-buffer learner's members: their buffers (and n-step
   queues, priorities), update credit, rounds of updates, gradient clip, optimizer and target
@@ -49,7 +49,7 @@ from learners.transitions import Transitions, pack, unpack
 from params import require
 from params.private_api import with_entries
 
-# The layers' gradients are views of one tensor (StackedNet.layers), strided as their
+# The layers' gradients are views of one tensor (MemberNets.layers), strided as their
 # parameters are; autograd adds into them in place and notes that this is not its layout.
 warnings.filterwarnings("ignore", message="grad and param do not obey the gradient layout contract")
 ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8  # torch.optim.Adam's defaults
@@ -122,7 +122,7 @@ def draws(generators: Sequence[torch.Generator | None], size: int, draw: Callabl
     return found
 
 
-class StackedTable:
+class MemberTables:
     """Every member's ``[states, actions]`` table as rows of one tensor, member ``b``'s
     ``sizes[b]`` rows from its start; ``visited`` flags alike."""
 
@@ -163,7 +163,7 @@ class ObsScale(nn.Module):
 _FUNCTIONS = {nn.Tanh: torch.tanh, nn.ReLU: torch.relu}
 
 
-class StackedNet:
+class MemberNets:
     """The networks of every member, all their parameters one ``[members, P]`` tensor laid out
     as ``torch.nn.utils.parameters_to_vector`` lays out one member's ``template`` (its linear
     layers' weight and bias in order, after an optional :class:`ObsScale`).
@@ -301,7 +301,7 @@ class StackedNet:
         return self.vector().to(device)
 
 
-class StackedAdam:
+class MemberAdam:
     """Adam (``torch.optim.Adam``'s arithmetic, default betas and eps) of every member's
     ``[P]`` row of parameters: the moments ``[members, P]``, each member's step count."""
 
@@ -549,7 +549,7 @@ class ReplayLearner(MemberLearner):
     The algorithm (a subclass, a dataclass of its settings) gives:
 
     - ``template(task)``: one member's network on the CPU (an ``nn.Sequential`` of
-      :class:`StackedNet`'s layers), and ``actor(template)``: it as ``model.pt`` holds it;
+      :class:`MemberNets`'s layers), and ``actor(template)``: it as ``model.pt`` holds it;
     - ``arch()``: what a saved state must match (shapes), and ``kind``;
     - ``terms(q, target_q, batch, gamma)``: the loss of a minibatch, one row per transition
       ``(loss, q, target, error)``, ``error`` what prioritized replay keeps (``q`` and
@@ -581,12 +581,12 @@ class ReplayLearner(MemberLearner):
         self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
         with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
             template = self.template(task)
-        self.net = StackedNet(template, self.device)
+        self.net = MemberNets(template, self.device)
         self.actor = self.actor_of(template)
         self.params = torch.stack([self.net.initial(g) for g in self.generators]).to(self.device)
         self.has_target = bool(self.target_update or self.tau)
         self.target = self.params.clone() if self.has_target else self.params
-        self.adam = StackedAdam(self.params)
+        self.adam = MemberAdam(self.params)
         self.grads = torch.zeros_like(self.params)  # each member's latest gradients
         # Every member's layers, and the target network's (without one: the online network
         # values the next state), as views (an update's autograd leaves are made anew each
@@ -945,5 +945,5 @@ class ReplayLearner(MemberLearner):
             self.target[b] = self.params[b]
 
 
-__all__ = ["FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "StackedAdam",
-           "StackedNet", "StackedTable", "UpdateStats", "adam_step", "clip_norms", "draws"]
+__all__ = ["FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
+           "MemberNets", "MemberTables", "UpdateStats", "adam_step", "clip_norms", "draws"]

@@ -14,7 +14,7 @@ each finished episode while it is above ``epsilon_min``. A member's policy write
 ``state_index``, ``action_value`` and ``action``.
 
 The members are one layer beneath (:mod:`learners.member`): their tables are the rows of
-one tensor (:class:`learners.member.StackedTable`), each member indexing its own, and each
+one tensor (:class:`learners.member.MemberTables`), each member indexing its own, and each
 draws from its own stream, so every member's step is one call.
 
 The original learner's quirks are options, off by default: ``first_visit_reward`` (a
@@ -34,7 +34,7 @@ from tensordict import TensorDictBase
 
 from learners.base import StateMismatch, check_state
 from learners.discretizer import MAX_SPLITS, MemberDiscretizers
-from learners.member import MemberLearner, StackedTable, draws
+from learners.member import MemberLearner, MemberTables, draws
 from params import require
 from params.declare import check_fields, param
 from params.private_api import with_entries
@@ -107,7 +107,7 @@ class QLearn(MemberLearner):
                 f"learner.number_splits must keep the Q-table within {TABLE_BYTES / 2**30:g} GiB; "
                 f"{largest.splits} bins make {largest.n_states} states x {self.n_actions} actions = "
                 f"{table_bytes / 2**30:.3g} GiB", largest.splits)
-        self.tables = StackedTable([d.n_states for d in self.discretizers], self.n_actions,
+        self.tables = MemberTables([d.n_states for d in self.discretizers], self.n_actions,
                                    [own.initial_q for own in self.settings])
         self.table, self.visited = self.tables.table, self.tables.visited
         for b, (values, seen) in (kept or {}).items():
