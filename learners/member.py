@@ -677,13 +677,15 @@ class ReplayLearner(MemberLearner):
         ``td_error`` (mean absolute) and ``grad_norm`` (before clipping), means over the
         updates since the last reset (the previous values if none ran; absent before the
         first update), but with ``grad_clip=0`` ``grad_norm`` is the latest update's;
-        ``epsilon``, ``lr``, ``updates`` (optimizer steps so far) and ``updates_per_s`` (per
-        wall-clock second since the last reset). ``reset=False`` reads without starting a
-        new interval (for a progress bar shown between the logger's reads)."""
+        ``epsilon`` (none with ``noisy``: the noisy layers explore, epsilon is not used),
+        ``lr``, ``updates`` (optimizer steps so far) and ``updates_per_s`` (per wall-clock
+        second since the last reset). ``reset=False`` reads without starting a new interval
+        (for a progress bar shown between the logger's reads)."""
         stats = self.trackers[b].read(self.steps[b], reset)
         if self.settings[b].grad_clip == 0 and self.steps[b]:
             stats["grad_norm"] = float(torch.linalg.vector_norm(self.grads[b]))
-        return {**stats, "epsilon": float(self.schedules[b].value), "lr": self.lr_of(b)}
+        explores = {} if self.noisy else {"epsilon": float(self.schedules[b].value)}
+        return {**stats, **explores, "lr": self.lr_of(b)}
 
     # -- acting --------------------------------------------------------------
     def begin(self) -> None:

@@ -72,6 +72,7 @@ def test_it_acts_by_its_noise_not_epsilon_and_evaluates_with_the_mean_weights():
     # epsilon 1 would make about half of them random: with almost no noise, none differ
     assert torch.equal(learner.act(td).get("action"), greedy)
     assert learner.stats(0)["epsilon"] == 0.0
+    assert "epsilon" not in learner.train_stats(0)  # the progress line and train/* show no unused epsilon
     noisy = built("learner.noisy_sigma=5.0")
     greedy = noisy.act_members(td, None, True, [None, None]).get("action")
     assert torch.equal(noisy.act_members(td, None, True, [None, None]).get("action"), greedy)  # the mean: fixed
