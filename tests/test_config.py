@@ -196,3 +196,19 @@ def test_a_tuned_file_naming_neither_a_pair_nor_a_task_of_one_is_an_orphan(monke
     assert catalog.tuned_pairs()["cartpole_stayup_dqn"] is None
     assert catalog.tuned_targets()["cartpole_stayup_dqn"] is None
     assert catalog.tuned_targets()["cartpole_dqn"] == ("cartpole", None, "dqn")
+
+
+def test_help_is_the_projects_own_page_in_one_screen():
+    """``train.py --help``: how to pick a robot, task and learner, the names of each, the main
+    settings and where every setting is explained; not Hydra's stock page nor its config dump."""
+    from tests.inprocess import run_train
+
+    done = run_train("--help")
+    assert done.returncode == 0, done.stderr[-2000:]
+    page = done.stdout
+    assert "powered by Hydra" not in page and "== Config ==" not in page
+    assert "python train.py robot=<robot>" in page and "docs/reference/parameters.md" in page
+    for group in ("robot: ", "task: ", "learner: "):
+        assert any(line.startswith(group) for line in page.splitlines()), group
+    assert "cartpole" in page and "qlearn" in page and "rainbow" in page
+    assert len(page.strip().splitlines()) <= 40
