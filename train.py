@@ -21,6 +21,8 @@ train_return_mean=<v> greedy_return=<v> wall_s=<v> run_dir=<path>``.
 
 from __future__ import annotations
 
+import atexit
+import logging
 import os
 import signal
 import sys
@@ -236,5 +238,30 @@ def cli() -> None:
         sys.exit(state.end_sweep() if status is None else status)
 
 
+def run() -> None:
+    """The program (``python train.py``, the installed ``mujoco-rl-train``): :func:`cli`, after
+    which the process ends as soon as Python's exit handlers have run (logs flushed, loggers
+    finished): the interpreter's own teardown of torch's and TorchRL's modules, which writes
+    nothing, took 1.0-1.3 s after the VERDICT line on this machine. An unexpected exception
+    ends the usual way, its trace printed."""
+    status: list[int] = []
+
+    def end_now() -> None:  # registered first, so it runs after every other exit handler
+        if status:
+            logging.shutdown()
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(status[0])
+
+    atexit.register(end_now)
+    try:
+        cli()
+    except SystemExit as stop:
+        code = stop.code  # (Python prints a message given as the code before the exit handlers)
+        status.append(code if isinstance(code, int) else 0 if code is None else 1)
+        raise
+    status.append(0)
+
+
 if __name__ == "__main__":
-    cli()
+    run()
