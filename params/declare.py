@@ -372,20 +372,20 @@ def _sources(cls: type) -> dict[str, str]:
 
 
 def declaration_record(cls: type) -> dict:
-    """``cls``'s declarations as ``params/declared.json`` keeps them."""
-    return {"sources": _sources(cls), "params": [
+    """``cls``'s declarations as ``params/declared.json`` keeps them (a task's also the robot
+    class it needs, its ``ROBOT``)."""
+    robot = getattr(cls, "ROBOT", None)
+    return {"sources": _sources(cls), **({"robot": f"{robot.__module__}.{robot.__qualname__}"} if robot else {}),
+            "params": [
         {"name": s.name, "hint": hint_text(s.hint), "default": None if s.required else s.default,
          "required": s.required, "doc": s.doc, "note": s.note, "has_check": s.extra is not None,
          "range": {k: v for k, v in dataclasses.asdict(s.range).items() if v is not None}}
         for s in specs(cls)]}
 
 
-def declared(path: str) -> tuple[Spec, ...] | None:
-    """The declared parameters of the class named ``path``, from ``params/declared.json``
-    without importing it; None where it is not there, or where a file it was read from has
-    changed since (then the class itself is the one to ask). A parameter with its own
-    ``check`` (a device that must exist) has it run by the class, imported then, for any
-    value but its default."""
+def _record(path: str) -> dict | None:
+    """The record of the class named ``path`` in ``params/declared.json``, or None where it is
+    not there or a file it was read from has changed since."""
     global _DECLARED
     if _DECLARED is None:
         try:
@@ -401,6 +401,32 @@ def declared(path: str) -> tuple[Spec, ...] | None:
                 return None
         except OSError:
             return None
+    return record
+
+
+def declared_robot(path: str) -> str | None:
+    """The robot class (``robots.turtlebot.TurtleBot``) the task class named ``path`` needs,
+    from ``params/declared.json`` without importing it; None where it is not known there."""
+    record = _record(path)
+    return None if record is None else record.get("robot")
+
+
+def robot_name(robot: type | str) -> str:
+    """A robot class's name on the command line (``robot=<name>``): its module's
+    (``robots.turtlebot.TurtleBot``, or the class itself: ``turtlebot``)."""
+    path = robot if isinstance(robot, str) else f"{robot.__module__}.{robot.__qualname__}"
+    return path.rsplit(".", 2)[-2]
+
+
+def declared(path: str) -> tuple[Spec, ...] | None:
+    """The declared parameters of the class named ``path``, from ``params/declared.json``
+    without importing it; None where it is not there, or where a file it was read from has
+    changed since (then the class itself is the one to ask). A parameter with its own
+    ``check`` (a device that must exist) has it run by the class, imported then, for any
+    value but its default."""
+    record = _record(path)
+    if record is None:
+        return None
     out = []
     for p in record["params"]:
         rng = dict(p["range"])

@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 from params import ConfigError
 from runs.console import tuned_changes
 from runs.folder import eval_config, resumed_config, run_folder_of
-from runs.settings import check_no_empty_mappings, check_run_config
+from runs.settings import check_fit, check_no_empty_mappings, check_run_config
 from tasks.catalog import locate_model, run_choices, use_config_dirs
 
 if TYPE_CHECKING:
@@ -86,6 +86,7 @@ def compose_job(cfg: DictConfig, run_dir: Path, overrides: Sequence[str], hydra_
     elif cfg.mode == "eval" and run_folder_of(cfg.get("checkpoint")) is not None:
         cfg = eval_config(cfg, list(overrides))
     check_run_config(cfg)
+    check_fit(cfg, choices)
     check_no_empty_mappings(cfg, overrides)
     changes = None if resume or cfg.mode == "eval" else tuned_changes(cfg, choices, overrides)
     return Job(cfg, run_dir, choices, overrides, changes, resume)

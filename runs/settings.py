@@ -28,13 +28,13 @@ import importlib
 import importlib.util
 import inspect
 import typing
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from params import ConfigError, did_you_mean, locate
-from params.declare import check_values, declared, describe, mismatch, param, specs
+from params.declare import check_values, declared, declared_robot, describe, mismatch, param, robot_name, specs
 
 MODES = ("train", "eval")
 # Keys of older configs and where each setting lives now: the training budget is the run's,
@@ -136,6 +136,19 @@ def check_run_config(cfg: DictConfig) -> None:
         if node not in conf or not isinstance(conf[node], dict):
             raise ConfigError(f"{node} must be a config group with a _target_; got {conf.get(node)!r}")
         check_params(conf[node], node, skip=("robot",) if node == "task" else ())
+
+
+def check_fit(cfg: DictConfig, choices: Mapping[str, str | None]) -> None:
+    """One line, before anything loads, when the task's class needs another of the project's
+    robots than ``cfg``'s (its ``ROBOT``, read from params/declared.json), named as the
+    command names them (``choices``: the robot and task picked). A robot class the
+    declarations do not know (a user's own) is left to the task's own check when built."""
+    task, robot = str(cfg.task.get("_target_", "")), str(cfg.robot.get("_target_", ""))
+    need = declared_robot(task)
+    if need is None or robot == need or declared(robot) is None:
+        return
+    picked = choices.get("task") or task.rsplit(".", 2)[-2]
+    raise ConfigError(f"task={picked} needs robot={robot_name(need)}; got robot={choices.get('robot') or robot_name(robot)}")
 
 
 def moved_to(key: str) -> str | None:

@@ -18,7 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from params import finite, require, whole
-from params.declare import check_fields, param
+from params.declare import check_fields, param, robot_name
 from robots.base import Robot
 from robots.physics import BatchedPhysics
 
@@ -413,15 +413,13 @@ def check_task(task: Any) -> None:
                         + "; ".join(([f"missing {', '.join(missing)}"] if missing else []) + wrong))
 
 
-def setup(task: Task, robot: type, robot_name: str, success: Success,
-          measures: Mapping[str, tuple[str, str]]) -> None:
+def setup(task: Task, success: Success, measures: Mapping[str, tuple[str, str]]) -> None:
     """What every task's ``__post_init__`` does first: checks its declared parameters and
-    that its robot fits; sets ``n_substeps`` and ``success``.
+    that its robot fits (an instance of the class's ``ROBOT``, named in the message by its
+    module: ``task <name> needs robot=<module>``); sets ``n_substeps`` and ``success``.
 
     Args:
         task: the task being made.
-        robot: the robot class ``task.robot`` must be an instance of.
-        robot_name: that robot's name in the message (``task <name> needs robot=<robot_name>``).
         success: the task's own rule for "solved", which ``task.win`` adjusts.
         measures: each measure the task offers, mapped to its ``(unit, description)``.
 
@@ -430,7 +428,8 @@ def setup(task: Task, robot: type, robot_name: str, success: Success,
             ``task.running_step``, ``task.physics_timestep`` or ``task.win`` is one it cannot honour.
     """
     check_fields(task, "task")
-    require(isinstance(task.robot, robot), f"task {task.name} needs robot={robot_name}",
+    robot = type(task).ROBOT
+    require(isinstance(task.robot, robot), f"task {task.name} needs robot={robot_name(robot)}",
             type(task.robot).__name__)
     task.n_substeps = substeps_for(task.running_step, task.physics_timestep)
     task.success = Success.from_config(task.win, success, measures)

@@ -66,6 +66,8 @@ FORWARD, LEFT, RIGHT = 0, 1, 2
 class MazeTask(Task):
     """The maze-driving task; it has a :class:`TurtleBot`."""
 
+    ROBOT = TurtleBot  # the robot it needs (read from params/declared.json before anything loads)
+
     name: ClassVar[str] = "maze"
 
     robot: TurtleBot
@@ -94,7 +96,7 @@ class MazeTask(Task):
     win: Mapping[str, object] | None = common.win("2 greedy laps")
 
     def __post_init__(self) -> None:
-        setup(self, TurtleBot, "turtlebot", SUCCESS, MEASURES)
+        setup(self, SUCCESS, MEASURES)
         self._check_speeds()
         self._check_laser()
         self.maze = self._build_maze()

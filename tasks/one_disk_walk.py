@@ -69,6 +69,8 @@ WHEEL_FORWARD, WHEEL_BACKWARD, WHEEL_STOP, SPEED_UP, SPEED_DOWN = range(5)
 class OneDiskWalk(Task):
     """The cube walking task; it has a :class:`Cube`."""
 
+    ROBOT = Cube  # the robot it needs (read from params/declared.json before anything loads)
+
     name: ClassVar[str] = "one_disk_walk"
     observation_names: ClassVar[tuple[str, ...]] = (
         "wheel_speed", "y_distance", "roll", "pitch", "y_speed", "yaw")
@@ -104,7 +106,7 @@ class OneDiskWalk(Task):
         self.direction = float(np.sign(self.y_linear_speed_reward_weight)
                                or np.sign(self.move_distance_reward_weight) or 1.0)
         towards = "+y" if self.direction > 0 else "-y"
-        setup(self, Cube, "cube", SUCCESS,
+        setup(self, SUCCESS,
               {"distance_walked": ("m", f"distance walked towards {towards}")})
         self._check_wheel()
         require(len(self.init_cube_pose) == 3,

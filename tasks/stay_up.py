@@ -39,6 +39,8 @@ SUCCESS = Success("length", "steps", "steps balanced", 250.0, "training", 100, 1
 class StayUp(Task):
     """The cart-pole balancing task; it has a :class:`CartPole`."""
 
+    ROBOT = CartPole  # the robot it needs (read from params/declared.json before anything loads)
+
     name: ClassVar[str] = "stay_up"
     observation_names: ClassVar[tuple[str, ...]] = ("cart_pos", "cart_vel", "pole_angle", "pole_vel")
 
@@ -62,7 +64,7 @@ class StayUp(Task):
     win: dict | None = common.win("the seeds' rule")
 
     def __post_init__(self) -> None:
-        setup(self, CartPole, "cartpole", SUCCESS, {"length": ("steps", "steps balanced")})
+        setup(self, SUCCESS, {"length": ("steps", "steps balanced")})
         self._check_limits()
         self.robot.use_controller(self.control_type)
         # Action -> change of the cart command.

@@ -158,7 +158,8 @@ def test_a_refused_value_and_help_answer_without_torch_or_mujoco():
              "    runpy.run_path('train.py', run_name='__main__')\nexcept SystemExit:\n    pass\n"
              "print('HEAVY', sorted(m for m in ('torch', 'mujoco', 'torchrl', 'tensordict', 'dm_control') "
              "if m in sys.modules))")
-    for args in (["learner=dqn", "learner.lr=-1"], ["robot=cube", "learner.alpha=2"], ["num_envs=0"], ["--help"]):
+    for args in (["learner=dqn", "learner.lr=-1"], ["robot=cube", "learner.alpha=2"], ["num_envs=0"],
+                 ["robot=cube", "task=maze"], ["--help"]):
         proc = subprocess.run([sys.executable, "-c", probe, *args], cwd=ROOT, capture_output=True, text=True)
         assert "HEAVY []" in proc.stdout, (args, proc.stdout[-500:], proc.stderr[-500:])
         if args != ["--help"]:

@@ -333,7 +333,8 @@ def _train(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.parametrize("overrides, line", [
     (["task.pos_step=-1"], "error: task.pos_step must be a finite number > 0; got -1"),
-    (["robot=cube", "task=stay_up"], "error: task stay_up needs robot=cartpole; got 'Cube'"),
+    (["robot=cube", "task=stay_up"], "error: task=stay_up needs robot=cartpole; got robot=cube"),
+    (["robot=cartpole", "task=wall"], "error: task=wall needs robot=turtlebot; got robot=cartpole"),
     (["num_envs=-3"], "error: num_envs must be an integer in [1, 4096]; got -3"),
 ])
 def test_command_line_prints_one_error_line_and_exits_2(tmp_path, overrides, line):
