@@ -494,6 +494,9 @@ def _headline(s: dict, unit: str) -> str:
     if s["judge"] == "training" and judged is not None and judged >= s["threshold"]:
         got += (f" (the training rule was met, the greedy policy never: {_num(greedy)}{unit} "
                 "at the final evaluation)")
+    elif s["judge"] == "training" and greedy is not None and greedy >= s["threshold"]:
+        got += (f" (the greedy policy's {_num(greedy)}{unit} meets the threshold, but the rule asks it of the "
+                f"mean of {s['window']} training episodes first; task.win.judge=greedy judges the greedy policy alone)")
     return (f"not solved after {n} episodes: needs {s['description']} >= {s['threshold']:g}{unit} "
             f"({by}, after at least {s['min_episodes']} episodes); {got}")
 

@@ -274,6 +274,23 @@ def test_a_training_rule_met_without_the_greedy_policy_says_so(tmp_path):
                     "(the training rule was met, the greedy policy never: 180 steps at the final evaluation)")
 
 
+def test_a_greedy_policy_that_meets_the_threshold_under_a_training_rule_says_why_not_solved(tmp_path):
+    """Issue 67: a greedy policy that held the threshold while the training episodes did not
+    (a rainbow run's) printed solved=false with nothing saying why: the verdict names the rule."""
+    task = StayUp(CartPole())
+    run = Run(tmp_path, 1, 150, task.success, quiet=True, eval_every=50, hooks=Hooks(
+        greedy_eval=lambda: {"episodes": 20, "mean_length": 1000.0, "mean_return": 1000.0}))
+    for _ in range(150):
+        feed(run, [120])
+        run.end_step(None)
+    summary = run.close()
+    assert not summary["solved"]
+    line = verdict_lines(summary, tmp_path)[0]
+    assert line.endswith("got 120 steps (the greedy policy's 1000 steps meets the threshold, but the rule asks it "
+                         "of the mean of 100 training episodes first; task.win.judge=greedy judges the greedy "
+                         "policy alone)"), line
+
+
 def test_the_verdicts_count_of_evaluations_reads_as_english():
     """Issue 67's wording slip: '(1 evaluations in all)'."""
     from runs.summary import _greedy_line
