@@ -48,7 +48,8 @@ NUMBERS = ("iqm", "ci_low", "ci_high")  # the headline as numbers, in comparison
 LEGEND = (f"headline: the number each seed is ranked by (greedy_<measure>: the final greedy evaluation's "
           f"mean, a pruned trial's last; train_<measure>_last<window>: the mean of the last <window> training "
           f"episodes); {IQM}: its interquartile mean over the finished seeds, 95% percentile bootstrap interval "
-          "(seeds resampled); rows of different tasks are never pooled")
+          "(seeds resampled; 'rough' below 5 seeds, where it spans little more than their range); rows of "
+          "different tasks are never pooled")
 
 
 class NotASweep(Exception):

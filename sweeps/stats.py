@@ -61,13 +61,19 @@ def iqm_ci(values: Iterable[float | None], confidence: float = 0.95, n_resamples
     return centre, float(low), float(high)
 
 
+FEW_SEEDS = 5  # below this many seeds a bootstrap interval is only a rough one: the table says so
+
+
 def format_iqm_ci(centre: float, low: float, high: float, n: int) -> str:
-    """``8.6 [4.7, 12.3]``; ``4.7 [1 seed: no CI]``; ``-`` without values (``n``: how many)."""
+    """``8.6 [4.7, 12.3]``; ``2.5 [1, 4; 2 seeds: rough]`` below :data:`FEW_SEEDS` (a
+    bootstrap over 2-4 values spans little more than their range); ``4.7 [1 seed: no CI]``;
+    ``-`` without values (``n``: how many)."""
     if n == 0 or math.isnan(centre):
         return "-"
     if n == 1:
         return f"{centre:.3g} [1 seed: no CI]"
-    return f"{centre:.3g} [{low:.3g}, {high:.3g}]"
+    rough = f"; {n} seeds: rough" if n < FEW_SEEDS else ""
+    return f"{centre:.3g} [{low:.3g}, {high:.3g}{rough}]"
 
 
 def _finite(values: Iterable[float | None]) -> np.ndarray:

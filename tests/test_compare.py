@@ -319,11 +319,11 @@ def test_each_row_is_headed_by_the_iqm_of_its_seeds_with_a_bootstrap_interval(tm
     set_last_means(tmp_path, {0: 1.0, 1: 2.0, 2: 3.0, 3: 4.0, 4: 5.0, 5: 5.0, 6: 5.0, 7: 5.0})
     rows, out = table(tmp_path, capsys)
     assert [(r["headline"], r["IQM [95% CI]"], r["iqm"]) for r in rows] == [
-        ("train_length_last100", "2.5 [1, 4]", "2.5"), ("train_length_last100", "5 [5, 5]", "5.0")]
+        ("train_length_last100", "2.5 [1, 4; 4 seeds: rough]", "2.5"), ("train_length_last100", "5 [5, 5; 4 seeds: rough]", "5.0")]
     assert float(rows[0]["ci_low"]) <= 2.5 <= float(rows[0]["ci_high"])
     assert rows[0]["mean +- std"] == "2.5 +- 1.1"
-    assert "IQM [95% CI]" in out.splitlines()[0] and "2.5 [1, 4]" in out
-    assert "| 2.5 [1, 4] |" in (tmp_path / "comparison.md").read_text()
+    assert "IQM [95% CI]" in out.splitlines()[0] and "2.5 [1, 4; 4 seeds: rough]" in out
+    assert "| 2.5 [1, 4; 4 seeds: rough] |" in (tmp_path / "comparison.md").read_text()
 
 
 def test_a_greedily_judged_task_is_headed_by_its_greedy_policy_and_tasks_are_never_pooled(tmp_path, capsys):
@@ -336,8 +336,8 @@ def test_a_greedily_judged_task_is_headed_by_its_greedy_policy_and_tasks_are_nev
     (next(tmp_path.glob("2_*")) / "eval.json").write_text(json.dumps({"value": 0.9, "mean_length": 5, "mean_return": 1}))
     rows, _ = table(tmp_path, capsys)
     assert [(r["robot/task"], r["headline"], r["IQM [95% CI]"]) for r in rows] == [
-        ("cartpole/stay_up", "train_length_last100", "7 [7, 7]"),
-        ("cube/one_disk_walk", "greedy_length; train_length_last100", "0.55 [0.2, 0.9]")]
+        ("cartpole/stay_up", "train_length_last100", "7 [7, 7; 2 seeds: rough]"),
+        ("cube/one_disk_walk", "greedy_length; train_length_last100", "0.55 [0.2, 0.9; 2 seeds: rough]")]
     assert rows[1]["greedy_length"].startswith("0.9 ") and rows[1]["greedy_return"].startswith("1 ")
 
 
@@ -359,7 +359,7 @@ def test_a_sweep_written_before_the_numbers_were_named_reads_the_same(tmp_path, 
     assert not [key for key in job if "score" in key]
     rows, out = table(tmp_path, capsys)
     assert [(r["headline"], r["IQM [95% CI]"], r["greedy_length"], r["train_return_last100"]) for r in rows] == [
-        ("train_length_last100", "7 [7, 7]", "6.5 +- 0", "30 +- 0")]
+        ("train_length_last100", "7 [7, 7; 2 seeds: rough]", "6.5 +- 0", "30 +- 0")]
 
 
 def test_a_sweep_prints_its_comparison_when_it_ends(tmp_path, capsys):
@@ -368,7 +368,7 @@ def test_a_sweep_prints_its_comparison_when_it_ends(tmp_path, capsys):
     callback.on_multirun_start(config)
     callback.on_multirun_end(config)
     out = capsys.readouterr().out
-    assert "IQM [95% CI]" in out and "7 [7, 7]" in out and (tmp_path / "comparison.csv").is_file()
+    assert "IQM [95% CI]" in out and "7 [7, 7; 3 seeds: rough]" in out and (tmp_path / "comparison.csv").is_file()
     callback.on_multirun_end(config)  # once per sweep (train.py asks again after a stop)
     assert capsys.readouterr().out == ""
 
