@@ -16,7 +16,8 @@ machine-readable, its numbers named as in summary.json (:mod:`runs.summary`; ``<
 task's measure, ``<w>`` its window):
 ``VERDICT solved=<true|false> episodes=<n> solved_at=<n|-> measure=<m> judge=<training|greedy>
 judged_<m>=<v> threshold=<v> train_<m>_best_rolling<w>=<v> train_<m>_last<w>=<v> greedy_<m>=<v>
-train_return_mean=<v> greedy_return=<v> wall_s=<v> run_dir=<path>``.
+train_return_mean=<v> greedy_return=<v> wall_s=<v> process_s=<v> run_dir=<path>`` (``wall_s``: the
+run's own clock; ``process_s``: the process's, imports and building included).
 """
 
 from __future__ import annotations

@@ -555,6 +555,12 @@ class Run:
             cut_csv_files(self.run_dir, self._log_sizes)
         self.console.skip(self.n_episodes)
 
+    @property
+    def process_s(self) -> float | None:
+        """Seconds this process has run so far (imports, building and every run it made
+        included): what a user waited, beside the run's own clock (:attr:`wall_s`)."""
+        return process_age()
+
     def summary(self) -> dict:
         """Solved or not and by which judge; the measure's headline numbers; the cost."""
         return run_summary(self)

@@ -34,7 +34,8 @@ can still be resumed, with one line in ``error`` saying which file and what is w
   ``window``, ``judge`` (``training`` or ``greedy``), ``threshold``; the outcome,
   ``solved``, ``decided_by`` (the judge that solved it, else None), ``episodes``,
   ``episodes_to_solve``, ``steps_to_solve``, ``wall_to_solve`` (None unless solved),
-  ``env_steps``, ``wall_s``, ``pruned_at`` (the episode a tuning study stopped it at, or
+  ``env_steps``, ``wall_s`` (the run's own clock), ``process_s`` (its process's seconds when it
+  ended, imports included; None where unknown), ``pruned_at`` (the episode a tuning study stopped it at, or
   None); every number above under its name (``train_return_mean``, ...,
   ``greedy_<measure>``, ``judged_<measure>``); ``greedy``, the same number as
   ``greedy_<measure>`` under a name that does not depend on the task (None without a
@@ -447,6 +448,7 @@ def run_summary(run) -> dict:
         "evaluations": len(run.evals),
         "env_steps": run.env_steps,
         "wall_s": run.wall_s,
+        "process_s": getattr(run, "process_s", None),  # the process's seconds when the run ended
         "divergences": run.divergences,
         # imports, config and build: process start to the first env step (this process's)
         "first_step_s": run.first_step_s,
@@ -517,7 +519,7 @@ def verdict_lines(summary: dict, run_dir: Path) -> list[str]:
               "judge": s["decided_by"], k.judged: _num(s[k.judged]), "threshold": f"{s['threshold']:g}",
               **{name: _num(s[name]) for name in (k.train_best_rolling, k.train_last, k.greedy,
                                                    k.train_return_mean, k.greedy_return)},
-              "wall_s": f"{s['wall_s']:.1f}", "run_dir": run_dir}
+              "wall_s": f"{s['wall_s']:.1f}", "process_s": "-" if s.get("process_s") is None else f"{s['process_s']:.1f}", "run_dir": run_dir}
     return [
         *([f"warning: the physics diverged {diverged} times; each time that copy's episode was "
            "truncated and reset (see the log)"] if diverged else []),
@@ -529,7 +531,9 @@ def verdict_lines(summary: dict, run_dir: Path) -> list[str]:
         *([f"  stopped early by the tuning study (pruned) at episode {s['pruned_at']}"]
           if s.get("pruned_at") is not None else []),
         f"  {s['env_steps']} env steps in {s['wall_s']:.1f}s "
-        f"({s['env_steps'] / max(s['wall_s'], 1e-9):.0f} steps/s)",
+        f"({s['env_steps'] / max(s['wall_s'], 1e-9):.0f} steps/s)"
+        + (f"; the process so far: {s['process_s']:.1f}s (imports, building, files included)"
+           if s.get("process_s") is not None else ""),
         f"results in {run_dir}",
         "VERDICT " + " ".join(f"{name}={value}" for name, value in fields.items()),
     ]

@@ -28,7 +28,8 @@ NUMBERS = {"judged_distance_walked", "train_return_mean", "train_return_last100"
            "train_distance_walked_best_rolling4", "train_distance_walked_last4",
            "train_distance_walked_best100_mean", "greedy_distance_walked", "greedy_return"}
 GENERIC = {"solved", "decided_by", "episodes", "solved_at", "measure", "unit", "description", "threshold",
-           "judge", "window", "min_episodes", "evaluations", "env_steps", "wall_s", "divergences", "first_step_s"}
+           "judge", "window", "min_episodes", "evaluations", "env_steps", "wall_s", "process_s", "divergences",
+           "first_step_s"}
 
 
 def feed(run: Run, episodes: list[tuple[int, float, float]]) -> None:
@@ -76,7 +77,8 @@ def test_the_verdict_and_its_verdict_line_use_the_same_names(tmp_path):
     assert lines[-1].startswith("VERDICT ")
     assert set(fields) == {"solved", "episodes", "solved_at", "measure", "judge", "judged_distance_walked",
                            "threshold", "train_distance_walked_best_rolling4", "train_distance_walked_last4",
-                           "greedy_distance_walked", "train_return_mean", "greedy_return", "wall_s", "run_dir"}
+                           "greedy_distance_walked", "train_return_mean", "greedy_return", "wall_s", "process_s",
+                           "run_dir"}
     assert set(fields) - {"run_dir"} <= set(s)  # every field is summary.json's, by the same name
     assert fields["greedy_distance_walked"] == "2.5" and fields["solved_at"] == "6"
     text = "\n".join(lines)
@@ -182,5 +184,5 @@ def test_the_docs_name_what_the_code_logs():
     k = measure_keys("length", 100)
     assert fields == ["solved", "episodes", "solved_at", "measure", "judge", k.judged, "threshold",
                       k.train_best_rolling, k.train_last, k.greedy, k.train_return_mean, k.greedy_return,
-                      "wall_s", "run_dir"]
+                      "wall_s", "process_s", "run_dir"]
     assert not math.isnan(float(dict(f.split("=", 1) for f in example.split()[1:])[k.greedy]))

@@ -4,7 +4,7 @@ Every file of both folders is compared. What may differ, and why (nothing else m
 
 - wall-clock: ``timing.csv`` (seconds per episode), ``train.log`` (the console of each
   process, progress and times; the killed one's lines stay in it), the CSV logger's
-  ``run/wall_s.csv``, ``summary.json``'s ``wall_s`` and ``first_step_s``, checkpoint.pt's
+  ``run/wall_s.csv``, ``summary.json``'s ``wall_s``, ``process_s`` and ``first_step_s``, checkpoint.pt's
   ``run.wall_s``, ``.lock`` (the process id of the run's last holder);
 - identity: ``run_id`` (random per run: run.json's, in model.pt's ``meta.choices`` and
   checkpoint.pt's ``identity``), and the checksums that cover it;
@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RUN = ["learner=qlearn", "num_envs=2", "max_episodes=60", "checkpoint_every=15", "eval_every=20",
        "eval_episodes=2", "seed=5", "quiet=true"]
 WALL_CLOCK_FILES = {"timing.csv", "train.log", ".lock", "logs/run/scalars/run/wall_s.csv"}
-WALL_CLOCK_FIELDS = {"summary.json": ("wall_s", "first_step_s")}
+WALL_CLOCK_FIELDS = {"summary.json": ("wall_s", "process_s", "first_step_s")}
 RESUME_RECORD = ".hydra-resume"
 
 

@@ -31,7 +31,7 @@ from params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 SEEDS = (4, 9)
-WALL_CLOCK = {"wall_s", "first_step_s"}  # summary.json's clock readings
+WALL_CLOCK = {"wall_s", "process_s", "first_step_s"}  # summary.json's clock readings
 CLOCK_SCALARS = ("wall_s.csv", "updates_per_s.csv")  # the logger's clock readings (their files' sizes vary)
 SAME_FILES = ("metrics.csv", "evals.csv", "eval.json", "success.json", "config.yaml")
 BUDGETS = {
