@@ -12,7 +12,7 @@ line.
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Mapping
 
 import numpy as np
 import torch
@@ -21,7 +21,6 @@ from tensordict import TensorDict
 
 from learners.base import greedy_stream
 from tasks.base import Success
-from tasks.env import RobotTaskEnv
 from tasks.factory import build_env
 
 
