@@ -11,18 +11,18 @@
     -> each lane ends the step (evaluation, checkpoint when due)
     -> one step of the batch's evaluations under way (``side``)
 
-In a batch, a lane whose greedy evaluation is due waits: its block of the env is held and
-its state kept, its evaluation steps in the batch's evaluation env (one physics call for
-every evaluation under way, once a step) while the other lanes train on, and once its
-episodes have ended the lane takes the result and trains again from where it stopped, as
-its run alone goes on after its evaluation.
+A lane whose greedy evaluation is due waits (a single run's too: a batch of one): its
+block of the env is held and its state kept, its evaluation steps in the batch's evaluation
+env (one physics call for every evaluation under way, once a step) while the other lanes
+train on, and once its episodes have ended the lane takes the result and trains again from
+where it stopped, as if its evaluation had been made at that step.
 
 A lane that is done (solved, out of budget, stopped, failed) is handed to ``end_done``,
 which ends it (and holds its copies); the others go on. ``refill`` may then start new
 lanes in the freed members (a tuning study's next trial x seed), from the next step on. A
 lane's own work that fails ends that lane alone (its :meth:`Lane.guarded`); a learner call
-that fails ends every lane in it (:meth:`Lane.fail`: a single run raises, a batch's seed
-keeps the trace), since they share its state.
+that fails ends every lane in it (:meth:`Lane.fail`: each keeps the trace), since they
+share its state.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ class Lane(Protocol):
     index: int  # the learner's member
     member: Member  # that member seen alone
     run: Run
-    env: object  # its block of the env (the env itself for a single run)
+    env: object  # its block of the env
     failed: str | None
 
     @property
