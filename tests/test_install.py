@@ -34,6 +34,10 @@ CLIENT = """
     env.reset(seed=0)
     obs, reward, *_ = env.step(1)
     print(env.spec.id, obs.shape, reward)
+    import conf  # docs/getting-started.md: where an installed user finds the shipped configs and models
+    shipped = Path(conf.__file__).parent
+    print("conf", shipped.is_relative_to(site), (shipped / "models" / "acrobot" / "acrobot.xml").is_file(),
+          (shipped / "robot" / "cartpole.yaml").is_file())
     acro = gym.make("adapters.register_gym:MujocoRL/AcrobotSwingup-v0")  # its model ships in conf/models
     print(acro.spec.id, acro.reset(seed=0)[0].shape, Path(acro.unwrapped.config.robot.model).is_relative_to(site))
     cfg = catalog.compose("cartpole", learner="dqn")  # a run folder: its config and model
@@ -76,8 +80,8 @@ def test_a_plain_install_makes_gym_ids_and_full_hd_videos(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     lines = proc.stdout.strip().splitlines()
-    assert lines[-3:] == ["MujocoRL/CartPoleStayUp-v0 (4,) 1.0", "MujocoRL/AcrobotSwingup-v0 (6,) True",
-                          "video in run/policy.mp4"]
+    assert lines[-4:] == ["MujocoRL/CartPoleStayUp-v0 (4,) 1.0", "conf True True True",
+                          "MujocoRL/AcrobotSwingup-v0 (6,) True", "video in run/policy.mp4"]
     reader = imageio.get_reader(work / "run" / "policy.mp4", format="FFMPEG")
     try:
         frames = [frame.shape for frame in reader.iter_data()]
