@@ -22,8 +22,6 @@ run's own clock; ``process_s``: the process's, imports and building included).
 
 from __future__ import annotations
 
-import atexit
-import logging
 import os
 import signal
 import sys
@@ -43,7 +41,7 @@ from omegaconf import DictConfig, OmegaConf
 # refused value or --help answers in well under a second (bench/answers.py measures it).
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import CheckpointError, ConfigError
-from runs.command import config_dir_args, flags_first, hydra_error, one_line, physical
+from runs.command import config_dir_args, end_promptly, flags_first, hydra_error, one_line, physical
 from runs.folder import MadeFolders, WRITE_FAILED, cannot_write, check_output_folder, with_run_choices, write_hydra_record
 from runs.job import batchable, compose_job
 from runs.layout import BATCH_JOB, is_run_folder, is_sweep_folder
@@ -191,8 +189,10 @@ def cli() -> None:
     try:
         sys.argv[1:] = [physical(arg) for arg in sys.argv[1:]]
         use_config_dirs(config_dir_args(sys.argv[1:]))
+        args = with_run_choices(sys.argv[1:])  # mode=eval of a run: its choices (and its --config-dir)
+        use_config_dirs(config_dir_args(args))
         # '~tuned': both layers; '--config-dir d' anywhere (Hydra's parser is not so lenient)
-        sys.argv[1:] = flags_first(with_tuned_layers(with_run_choices(sys.argv[1:])))
+        sys.argv[1:] = flags_first(with_tuned_layers(args))
         for i, arg in enumerate(sys.argv[1:], 1):  # before Hydra writes its record (.hydra/, train.log) there
             key, _, value = arg.partition("=")
             if key in ("hydra.run.dir", "hydra.sweep.dir") and value:
@@ -240,28 +240,9 @@ def cli() -> None:
 
 
 def run() -> None:
-    """The program (``python train.py``, the installed ``mujoco-rl-train``): :func:`cli`, after
-    which the process ends as soon as Python's exit handlers have run (logs flushed, loggers
-    finished): the interpreter's own teardown of torch's and TorchRL's modules, which writes
-    nothing, took 1.0-1.3 s after the VERDICT line on this machine. An unexpected exception
-    ends the usual way, its trace printed."""
-    status: list[int] = []
-
-    def end_now() -> None:  # registered first, so it runs after every other exit handler
-        if status:
-            logging.shutdown()
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(status[0])
-
-    atexit.register(end_now)
-    try:
-        cli()
-    except SystemExit as stop:
-        code = stop.code  # (Python prints a message given as the code before the exit handlers)
-        status.append(code if isinstance(code, int) else 0 if code is None else 1)
-        raise
-    status.append(0)
+    """The program (``python train.py``, the installed ``mujoco-rl-train``): :func:`cli`, the
+    process ended as soon as its exit handlers have run (:func:`runs.command.end_promptly`)."""
+    end_promptly(cli)
 
 
 if __name__ == "__main__":

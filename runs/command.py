@@ -4,9 +4,13 @@ refused as one line (``train.py`` is the entry; this is what it does with its ar
 
 from __future__ import annotations
 
+import atexit
+import logging
+import os
 import re
 import sys
 from pathlib import Path
+from typing import Callable
 
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -146,3 +150,28 @@ def hydra_error(err: Exception) -> str:
     if cause is not None and str(cause).strip() and str(cause).strip() not in text:
         text += f" ({' '.join(str(cause).split())})"
     return _plugin_or_type_error(text) or text or type(err).__name__
+
+
+def end_promptly(main: Callable[[], None]) -> None:
+    """Runs ``main`` as the program, then ends the process as soon as Python's exit handlers
+    have run (logs flushed, loggers finished), with its exit status: the interpreter's own
+    teardown of torch's and TorchRL's modules, which writes nothing, took 1.0-1.3 s after
+    the VERDICT line on this machine. An unexpected exception ends the usual way, its trace
+    printed."""
+    status: list[int] = []
+
+    def end_now() -> None:  # registered first, so it runs after every other exit handler
+        if status:
+            logging.shutdown()
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(status[0])
+
+    atexit.register(end_now)
+    try:
+        main()
+    except SystemExit as stop:
+        code = stop.code  # (Python prints a message given as the code before the exit handlers)
+        status.append(code if isinstance(code, int) else 0 if code is None else 1)
+        raise
+    status.append(0)

@@ -161,7 +161,34 @@ def with_run_choices(args: list[str]) -> list[str]:
     if clash:
         raise ConfigError(f"checkpoint={folder} is a {'/'.join(str(saved.get(k)) for k in PICKS)} "
                           f"run, evaluated with its own robot, task and learner; drop {' '.join(clash)}")
-    return [*(f"{k}={saved[k]}" for k in PICKS if k not in given and saved.get(k)), *args]
+    picks = [f"{k}={saved[k]}" for k in PICKS if k not in given and saved.get(k)]
+    return [*_config_dirs_for(folder, saved, args), *picks, *args]
+
+
+def _config_dirs_for(folder: Path, saved: Mapping, args: list[str]) -> list[str]:
+    """``--config-dir`` options for a run's robot, task or learner that no config folder given
+    holds: the folders the run was made with (its ``.hydra/hydra.yaml``), where they still hold
+    them; else one line saying which to pass."""
+    from tasks.catalog import config_file
+
+    missing = [k for k in PICKS if saved.get(k) and config_file(k, str(saved[k])) is None]
+    if not missing:
+        return []
+    recorded = []
+    for record in (folder / ".hydra-resume" / "hydra.yaml", folder / ".hydra" / "hydra.yaml"):
+        try:
+            sources = OmegaConf.load(record).hydra.runtime.config_sources
+        except Exception:  # noqa: BLE001 - a missing or unreadable record: nothing recorded
+            continue
+        recorded += [str(s.path) for s in sources if s.schema == "file" and s.provider == "command-line"]
+    found = [d for d in dict.fromkeys(recorded)
+             if all(Path(d, k, f"{saved[k]}.yaml").is_file() for k in missing)]
+    if found:
+        return ["--config-dir", found[0]]
+    what = " ".join(f"{k}={saved[k]}" for k in missing)
+    made = f" (it was made with --config-dir {recorded[0]}, which no longer holds it)" if recorded else ""
+    raise ConfigError(f"checkpoint={folder} is a run of {what}, whose config no config folder given holds{made}; "
+                      "pass the --config-dir that holds it")
 
 
 WRITE_FAILED = 3  # exit status of a run that could not write its files (2: a refused command)

@@ -206,6 +206,19 @@ def test_a_config_folder_outside_the_package_trains_from_anywhere(tmp_path):
     assert proc.stdout.strip().splitlines()[-1].startswith("VERDICT solved=false episodes=2")
     saved = OmegaConf.load(tmp_path / "run" / "config.yaml")
     assert saved.robot.model == str(folder / "models" / "acrobot" / "acrobot.xml")
+    # mode=eval of that run without its --config-dir: found from the run's record (issue 67)
+    cmd = [sys.executable, str(ROOT / "train.py"), "mode=eval", f"checkpoint={tmp_path / 'run'}", "eval_episodes=2",
+           "quiet=true", f"hydra.run.dir={tmp_path / 'eval'}"]
+    proc = subprocess.run(cmd, cwd=elsewhere, capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "greedy evaluation over 2 episodes" in proc.stdout
+    shutil.rmtree(folder)  # the folder gone: one line naming it and what to pass
+    proc = subprocess.run([*cmd[:-1], f"hydra.run.dir={tmp_path / 'eval2'}"], cwd=elsewhere, capture_output=True,
+                          text=True, timeout=300, env=env)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
+        f"error: checkpoint={tmp_path / 'run'} is a run of robot=my_acrobot task=my_swingup, whose config no "
+        f"config folder given holds (it was made with --config-dir {folder}, which no longer holds it); pass the "
+        "--config-dir that holds it"], proc.stderr[-2000:]
 
 
 def test_a_config_folder_gets_gymnasium_ids(tmp_path):
