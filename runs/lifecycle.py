@@ -96,7 +96,8 @@ def refusal(job: Job, first: Job, others: Sequence[Job], freed: bool = False) ->
         return f"seed must be an integer in a seed batch; got {cfg.seed!r}"
     if freed and (job.resume or not batchable(cfg)):
         return f"a freed member trains a fresh training run only; {job.run_dir.name} is not one"
-    if not (batchable(cfg) if not job.resume else cfg.mode == "train" and not cfg.get("checkpoint")):
+    resumable = job.resume and cfg.mode == "train" and not cfg.get("checkpoint")
+    if not (resumable or (not job.resume and batchable(cfg))):
         return f"a seed batch trains fresh or resumed runs only (no {', '.join(NOT_BATCHED[1:])})"
     if job is not first and batch_key(cfg) != batch_key(first.cfg):
         return (f"jobs {first.run_dir.name} and {job.run_dir.name} differ in more than their seed, trial, schedules "
@@ -430,7 +431,8 @@ def _build(slots: list[Seed]):
         if picked and str(err).startswith("task ") and not str(err).startswith(f"task {picked} "):
             raise ConfigError(f"task={picked}: {err}") from None
         raise
-    _check_memory(env, [slot.job.cfg for slot in slots])
+    if len(slots) > 1:  # members multiply the memory (one run alone: its learner's own bounds)
+        _check_memory(env, [slot.job.cfg for slot in slots])
     learner = instantiate(cfg.learner, _convert_="all")
     alike = all(not _own_settings(slot.job.cfg, cfg) for slot in slots)
     variants = None if alike else [instantiate(slot.job.cfg.learner, _convert_="all") for slot in slots]
@@ -514,10 +516,6 @@ def _check_memory(env: RobotTaskEnv, cfgs: Sequence[DictConfig]) -> None:
     per_step = physics.nstate + physics.model.nsensordata + physics.model.nu
     need = env.num_envs * (env.task.n_substeps + 2) * per_step * 8 + sum(member_bytes(env, cfg, sizes) for cfg in cfgs)
     free = available_bytes()
-    if free is not None and need > 0.8 * free and seeds == 1:
-        raise ConfigError(f"this run of {copies(env.block_size)} needs about {need / 2**30:.3g} GiB, more than 80% "
-                          f"of the {free / 2**30:.3g} GiB free: fewer copies (num_envs=...) or a smaller replay "
-                          "buffer or table (learner.buffer_size, learner.number_splits)")
     if free is not None and need > 0.8 * free:
         raise ConfigError(f"a batch of {seeds} seeds x {copies(env.block_size)} needs about {need / 2**30:.3g} "
                           f"GiB, more than 80% of the {free / 2**30:.3g} GiB free: fewer seeds per batch "
