@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from contextlib import contextmanager
-from typing import Any, Iterator, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, Hashable, Iterator, Mapping, Protocol, Sequence, runtime_checkable
 
 import torch
 from tensordict import TensorDictBase
@@ -167,6 +167,21 @@ class Learner(Protocol):
 
     def begin(self) -> None:
         """Before the first step of a training session (a fresh run or a resumed one)."""
+
+    def phase(self, b: int) -> tuple[Hashable, Hashable] | None:
+        """Where member ``b`` is in its cycle of updates: members of one phase make their updates
+        at the same steps, in one round. The loop resumes a member after its evaluation in the
+        phase of the others where it can (a few steps' wait costs nothing; a round a member
+        makes alone costs most of a round of all).
+
+        Args:
+            b: the member's index.
+
+        Returns:
+            ``(cycle, position)``: members of one cycle (the same updates a step) pass through the
+                same positions, those at one position update together; None where its updates do
+                not follow its steps (no update yet, per-episode updates, a table's every step).
+        """
 
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
         """Every member's actions on its block of rows, the members of ``live`` drawing from their streams.

@@ -36,7 +36,7 @@ import dataclasses
 import math
 import time
 import warnings
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Hashable, Mapping, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -47,7 +47,7 @@ from torchrl.modules import NoisyLinear
 from learners.base import Member, StateMismatch, check_state, everyone, member_settings, per_member, single
 from learners.transitions import Transitions, pack, unpack
 from params import require
-from params.private_api import with_entries
+from params.private_api import writer_cursor, with_entries
 
 # The layers' gradients are views of one tensor (MemberNets.layers), strided as their
 # parameters are; autograd adds into them in place and notes that this is not its layout.
@@ -98,6 +98,11 @@ class MemberLearner:
 
     def begin(self) -> None:
         """Before the first step of a training session (a fresh run or a resumed one)."""
+
+    def phase(self, b: int) -> tuple[Hashable, Hashable] | None:
+        """Where member ``b`` is in its cycle of updates (:meth:`learners.base.Learner.phase`);
+        None: its updates do not follow its steps."""
+        return None
 
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
         """Every member's exploring actions on its block; only ``live`` members draw."""
@@ -396,19 +401,21 @@ class RowReplayBuffer(ReplayBuffer):
     (``torch.randint``), from the member's generator, and indexes ``rows``
     (``bench/update_rate.py`` times it against ``sample()``).
 
-    :meth:`put` queues rows instead of writing them: TorchRL's ``extend`` has a cost per call
-    whatever its size, and a learner adds a few rows per env step but reads the buffer only
-    when it updates. The queue is written by one ``extend`` of its rows, in order, as soon
-    as anything touches the storage (every path of ``ReplayBuffer`` goes through
-    ``_storage``), and before it would hold more rows than the buffer, so the buffer never
-    sees the difference. :meth:`stored` gives the length without writing them (TorchRL's
-    ``extend`` was ~12% of a cart-pole dqn run).
+    :meth:`put` writes rows into ``rows`` at once, where ``extend`` would, and books them
+    with TorchRL later: TorchRL's ``extend`` costs ~80 us a call whatever its size, and a
+    learner adds a few rows per env step. The rows put since the last booking are handed to
+    one ``extend`` (the same values to the same places: the storage, cursor and counts
+    become what an ``extend`` per put makes) as soon as anything of TorchRL's touches the
+    storage (every path of ``ReplayBuffer`` goes through ``_storage``: length, ``sample``,
+    ``state_dict``), and before they would be more than the buffer holds. The learner's own
+    paths (:meth:`stored`, :meth:`sample_rows`) read ``rows`` and need no booking, so a run
+    books at its checkpoints (``extend`` was ~12% of a cart-pole dqn run, then ~8% when
+    booked at each update).
     """
 
     def __init__(self, capacity: int, width: int, batch_size: int,
                  device: torch.device | str = "cpu") -> None:
-        self._queue: list[torch.Tensor] = []
-        self._queued = 0
+        self._unbooked = self._next = 0  # rows put since the last booking; the row the next put writes
         self.priorities = None  # prioritized replay (learners.priority.Priorities): each written row gets one
         self._capacity = int(capacity)
         rows = torch.zeros(capacity, width, device=device)
@@ -417,10 +424,18 @@ class RowReplayBuffer(ReplayBuffer):
         self.empty()  # a TensorStorage made from a tensor counts it full
         self._rows = rows
 
+    def empty(self, *args, **kwargs) -> None:
+        super().empty(*args, **kwargs)
+        self._unbooked, self._next = 0, writer_cursor(self)  # the row the next put writes
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        super().load_state_dict(state_dict)
+        self._unbooked, self._next = 0, writer_cursor(self)
+
     @property
     def _storage(self):
-        if self._queued:
-            self.flush()
+        if self._unbooked:
+            self.book()
         return self.__dict__.get("_storage_")
 
     @_storage.setter
@@ -429,30 +444,35 @@ class RowReplayBuffer(ReplayBuffer):
 
     @property
     def rows(self) -> torch.Tensor:
-        """The storage tensor, queued rows written."""
-        if self._queued:
-            self.flush()
+        """The storage tensor (every row put is in it)."""
         return self._rows
 
     def put(self, rows: torch.Tensor) -> None:
-        """Adds ``rows`` (``[n, width]``) after those stored, as ``extend`` would, by the
-        next time the buffer is read."""
-        if self._queued + len(rows) > self._capacity:
-            self.flush()  # one extend never wraps onto its own rows
-        self._queue.append(rows)
-        self._queued += len(rows)
+        """Writes ``rows`` (``[n, width]``) after those stored, as ``extend`` would (booked with
+        TorchRL when it next reads the buffer); with priorities, each row gets the largest."""
+        if self._unbooked + len(rows) > self._capacity:
+            self.book()  # one extend never wraps onto its own rows
+        cursor, n = self._next, len(rows)
+        if cursor + n <= self._capacity:
+            self._rows[cursor:cursor + n] = rows
+        else:
+            self._rows[(torch.arange(cursor, cursor + n) % self._capacity).to(self._rows.device)] = rows
+        self._next = (cursor + n) % self._capacity
+        self._unbooked += n
+        if self.priorities is not None:
+            self.priorities.added(torch.arange(cursor, cursor + n) % self._capacity)
 
     def stored(self) -> int:
-        """``len(self)`` once the queued rows are written, without writing them."""
-        return min(len(self.__dict__["_storage_"]) + self._queued, self._capacity)
+        """``len(self)`` without booking the rows put."""
+        return min(len(self.__dict__["_storage_"]) + self._unbooked, self._capacity)
 
-    def flush(self) -> None:
-        """Writes the queued rows (one ``extend``)."""
-        queue, self._queue, self._queued = self._queue, [], 0
-        if queue:
-            index = self.extend(queue[0] if len(queue) == 1 else torch.cat(queue))
-            if self.priorities is not None:
-                self.priorities.added(index)
+    def book(self) -> None:
+        """The rows put since the last booking handed to TorchRL (one ``extend`` of their own
+        values, at their own places)."""
+        n, self._unbooked = self._unbooked, 0
+        if n:
+            index = torch.arange(self._next - n, self._next) % self._capacity
+            self.extend(self._rows[index.to(self._rows.device)])
 
     def sample_rows(self, stored: int, generator: torch.Generator | None = None,
                     out: torch.Tensor | None = None) -> torch.Tensor:
@@ -783,12 +803,19 @@ class ReplayLearner(MemberLearner):
         self.credit[b] -= whole
         self.owed[b] += whole
 
+    def phase(self, b: int) -> tuple[Hashable, Hashable] | None:
+        """Member ``b``'s update credit with ``train_every=step`` once it learns (its
+        ``updates`` a step with it): members of one phase owe their updates at the same steps."""
+        if self.train_every != "step" or self.buffers[b].stored() < max(self.settings[b].learning_starts, 1):
+            return None
+        return self.settings[b].updates, self.credit[b]
+
     def settle(self) -> None:
         """Runs the updates the members owe, in rounds: a round updates every member that still
         owes one (each member's updates in its order, as alone), those of one minibatch size
         together."""
         owed, self.owed = self.owed, [0] * self.members
-        stored = {b: len(self.buffers[b]) for b in range(self.members) if owed[b]}
+        stored = {b: self.buffers[b].stored() for b in range(self.members) if owed[b]}
         for done in range(max(owed)):
             due = [b for b in stored if owed[b] > done]
             for size in sorted({self.settings[b].batch_size for b in due}):

@@ -38,6 +38,9 @@ from runs.evaluate import MemberEvaluations
 from runs.run import Run
 from runs.training_state import env_state, load_env_state
 
+# Steps an evaluated lane waits at most to train again in phase with another (:func:`_evaluate`).
+ALIGN_STEPS = 16
+
 
 class Lane(Protocol):
     """One member's run inside the loop."""
@@ -74,6 +77,7 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
     td = starts[0] if len(starts) == 1 else torch.cat(starts)
     live = end_done(list(lanes))  # a run resumed at its end ends here
     paused: dict[int, dict] = {}  # a waiting lane's member: its block's env state when it stopped
+    ready: dict[int, tuple[dict, int]] = {}  # of those, a member evaluated: its result, steps it has waited since
     while live:
         training = [lane for lane in live if lane.index not in paused]
         if training:
@@ -82,7 +86,7 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
                 end_done(live)
                 return
         if paused:
-            td = _evaluate(env, live, td, paused, side)
+            td = _evaluate(learner, env, live, td, paused, side, ready)
         stay = {id(lane) for lane in end_done([lane for lane in live if lane.index not in paused])}
         going = [lane for lane in live if id(lane) in stay or lane.index in paused]
         if refill is not None and len(going) < len(live):
@@ -117,20 +121,30 @@ def _step(learner: Learner, env, live: list[Lane], training: list[Lane], td: Ten
     return next_td
 
 
-def _evaluate(env, live: list[Lane], td: TensorDictBase, paused: dict[int, dict],
-              side: MemberEvaluations) -> TensorDictBase:
+def _evaluate(learner: Learner, env, live: list[Lane], td: TensorDictBase, paused: dict[int, dict],
+              side: MemberEvaluations, ready: dict[int, tuple[dict, int]]) -> TensorDictBase:
     """One step of the evaluations under way; a lane whose evaluation ended takes its result
     and trains again from where it stopped (its block's state and rows of ``td`` as they
-    were). A waiting lane that failed is no longer waited for. The next step's input."""
+    were), at a step where it is in phase with a training lane (:meth:`Learner.phase`), or
+    after :data:`ALIGN_STEPS` steps. A waiting lane that failed is no longer waited for. The
+    next step's input."""
     waiting = [lane for lane in live if lane.index in paused]
-    results = _together(waiting, side.step) or {}
+    results = (_together(waiting, side.step) or {}) if side.members else {}
+    ready.update((b, (result, 0)) for b, result in results.items())
+    phases = {learner.phase(lane.index) for lane in live if lane.index not in paused} - {None}
     for lane in waiting:
         if lane.failed is not None:
             side.drop(lane.index)
+            ready.pop(lane.index, None)
             del paused[lane.index]
-        elif lane.index in results:
+        elif lane.index in ready:
+            result, waited = ready.pop(lane.index)
+            own = learner.phase(lane.index)
+            if own is not None and own not in phases and own[0] in {p[0] for p in phases} and waited < ALIGN_STEPS:
+                ready[lane.index] = result, waited + 1
+                continue
             td = _resume(env, lane, paused.pop(lane.index), td)
-            lane.guarded(lambda lane=lane: lane.run.evaluated(results[lane.index]))
+            lane.guarded(lambda lane=lane: lane.run.evaluated(result))
     return td
 
 

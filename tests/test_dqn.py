@@ -209,10 +209,11 @@ def test_td_loss_equals_torchrl_dqnloss(loss, double, tau):
     torch.testing.assert_close(ours, theirs)
 
 
-def test_queued_rows_land_as_one_extend_per_put_would():
-    """``put`` queues rows and writes them when the buffer is read: the storage, cursor and
-    length are those of TorchRL's ``extend`` per call, across wrap-arounds of the ring;
-    ``stored`` tells the length they will make without writing them."""
+def test_rows_put_land_as_one_extend_per_put_would():
+    """``put`` writes rows into the storage at once and books them with TorchRL when TorchRL
+    reads the buffer: the storage after every put, and the cursor and length once booked,
+    are those of TorchRL's ``extend`` per call, across wrap-arounds of the ring; ``stored``
+    tells the length without booking."""
     from torchrl.data import RandomSampler, ReplayBuffer, TensorStorage
 
     from learners.member import RowReplayBuffer
@@ -225,15 +226,20 @@ def test_queued_rows_land_as_one_extend_per_put_would():
         rows = torch.randn(size, 3, generator=gen)
         ours.put(rows)
         theirs.extend(rows)
-        queued = ours._queued
-        assert ours.stored() == len(theirs) and ours._queued == queued  # still queued
-        if step % 4 == 3:  # read now and then, as updates do
-            assert len(ours) == len(theirs)
+        unbooked = ours._unbooked
+        assert ours.stored() == len(theirs) and ours._unbooked == unbooked  # not booked by stored()
+        assert torch.equal(ours.rows, theirs.storage._storage)  # written already
+        if step % 4 == 3:  # read by TorchRL now and then
+            assert len(ours) == len(theirs) and ours._unbooked == 0
     state, expected = ours.state_dict(), theirs.state_dict()
     assert torch.equal(state["_storage"]["_storage"], expected["_storage"]["_storage"])
     assert state["_storage"]["_len"] == expected["_storage"]["_len"]
     assert state["_writer"] == expected["_writer"]
-    assert torch.equal(ours.rows, theirs.storage._storage)
+    again = RowReplayBuffer(50, 3, batch_size=4)
+    again.load_state_dict(state)
+    ours.put(torch.ones(3, 3))
+    again.put(torch.ones(3, 3))
+    assert torch.equal(again.rows, ours.rows) and again.state_dict()["_writer"] == ours.state_dict()["_writer"]
 
 
 def test_training_state_roundtrip_and_old_format_refused():

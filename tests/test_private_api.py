@@ -33,7 +33,8 @@ def test_torchrl_replay_buffer_reads_its_storage_through_the_attribute():
     assert f"self.{private_api.REPLAY_BUFFER_STORAGE}" in inspect.getsource(ReplayBuffer.__len__), \
         "TorchRL's ReplayBuffer no longer reads self._storage: RowReplayBuffer's queue would not flush"
     buffer.put(torch.ones(2, 3))
-    assert len(buffer) == 2  # the queued rows written through the property
+    assert len(buffer) == 2  # the rows put booked through the property
+    assert private_api.writer_cursor(buffer) == 2  # the writer's cursor, where the next put writes
 
 
 def test_torchrl_env_base_has_the_hooks_the_one_pass_step_checks():
