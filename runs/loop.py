@@ -140,7 +140,7 @@ def _evaluate(learner: Learner, env, live: list[Lane], td: TensorDictBase, pause
         elif lane.index in ready:
             result, waited = ready.pop(lane.index)
             own = learner.phase(lane.index)
-            if own is not None and own not in phases and own[0] in {p[0] for p in phases} and waited < ALIGN_STEPS:
+            if not lane.run.done and own is not None and own not in phases and own[0] in {p[0] for p in phases} and waited < ALIGN_STEPS:
                 ready[lane.index] = result, waited + 1
                 continue
             td = _resume(env, lane, paused.pop(lane.index), td)

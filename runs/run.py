@@ -87,12 +87,15 @@ class Hooks:
     - ``checkpoint(run, td)``: saves the whole training state at a step boundary;
     - ``greedy_eval()``: a greedy evaluation's result (:func:`runs.evaluate.evaluate`'s), or None
       when it is made later (the run waits for it: :meth:`Run.end_step`);
+    - ``final_eval()``: starts the final greedy evaluation of a run whose budget is spent, made
+      later as ``greedy_eval``'s are (None: the caller makes it once the run has ended);
     - ``train_stats(reset=True)``: the learner's ``train/*`` numbers;
     - ``progress``: a tuning trial's :class:`Progress` report.
     """
 
     checkpoint: Callable[[Run, TensorDictBase], None] | None = None
     greedy_eval: Callable[[], dict | None] | None = None
+    final_eval: Callable[[], None] | None = None
     train_stats: Callable[..., dict[str, float]] | None = None
     progress: Progress | None = None
 
@@ -245,7 +248,7 @@ class Run:
         self.eval_every_steps = int(eval_every_steps)
         self.max_env_steps, self.stop_when_solved = int(max_env_steps), bool(stop_when_solved)
         hooks = hooks or Hooks()
-        self._save, self.greedy_eval = hooks.checkpoint, hooks.greedy_eval
+        self._save, self.greedy_eval, self.final_eval = hooks.checkpoint, hooks.greedy_eval, hooks.final_eval
         self.train_stats, self.progress = hooks.train_stats, hooks.progress
         self._next_progress = 0
         self._told = False  # the progress hook was told the run stopped solved
@@ -326,7 +329,7 @@ class Run:
             self.pruned_at = self.n_episodes  # pruned by another seed's report: stop now
         self._owed = self._evaluation_owed()
         if self._owed is not None:
-            result = self.greedy_eval()
+            result = self.final_eval() if self._owed == "final" else self.greedy_eval()
             if result is None:
                 return td
             self._take_evaluation(result)
@@ -346,11 +349,15 @@ class Run:
 
     def _evaluation_owed(self) -> str | None:
         """Which greedy evaluation the boundary makes: ``"confirm"`` (the training episodes
-        met the rule: does the greedy policy?), ``"due"`` (its schedule) or None."""
+        met the rule: does the greedy policy?), ``"due"`` (its schedule), ``"final"`` (the
+        budget is spent and this policy was not evaluated yet: ``final_eval``) or None."""
         if self.judge.candidate is not None and not self.stop_requested:
             return "confirm"
         if self.greedy_eval is not None and not self.done and self._evaluation_due():
             return "due"
+        if (self.final_eval is not None and self.finished and not self.stop_requested and self.pruned_at is None
+                and not (self.evals and self.evals[-1]["episode"] == self.n_episodes)):
+            return "final"
         return None
 
     def _take_evaluation(self, result: dict) -> None:
