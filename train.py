@@ -28,11 +28,9 @@ import sys
 import traceback
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import InstantiationException
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
@@ -40,17 +38,14 @@ from omegaconf import DictConfig, OmegaConf
 # parameters): torch, TorchRL and MuJoCo come in when a job has passed every check, so a
 # refused value or --help answers in well under a second (bench/answers.py measures it).
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
-from params import CheckpointError, ConfigError
+from params import ConfigError
 from runs.command import config_dir_args, end_promptly, flags_first, hydra_error, one_line, physical
 from runs.folder import MadeFolders, WRITE_FAILED, cannot_write, check_output_folder, with_run_choices, write_hydra_record
-from runs.job import batchable, compose_job
-from runs.layout import BATCH_JOB, is_run_folder, is_sweep_folder
+from runs.job import compose_job, keep_failure, refusals
+from runs.layout import is_run_folder, is_sweep_folder
 from runs.settings import check_hydra_key, moved, moved_to
 from runs.signals import hold_early
 from tasks.catalog import GROUPS, names, use_config_dirs, with_tuned_layers
-
-if TYPE_CHECKING:
-    from runs.job import Job
 
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
@@ -67,7 +62,7 @@ OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True, u
 _IN_JOB = False  # from main on, an unexpected exception is a bug: its trace is shown
 _LAUNCHER_PID = None  # the process that runs Hydra's launcher (jobs in a joblib worker differ)
 _MADE: MadeFolders | None = None  # the folders there were before Hydra made the run's
-REFUSALS = (ConfigError, CheckpointError, InstantiationException)  # one line, exit 2
+REFUSALS = refusals()  # one line, exit 2
 
 
 def _fail(message: str, run_dir: Path, in_sweep: bool, status: int = 2) -> None:
@@ -78,19 +73,14 @@ def _fail(message: str, run_dir: Path, in_sweep: bool, status: int = 2) -> None:
             _MADE.remove(run_dir)
         print(message, file=sys.stderr)
         sys.exit(status)
-    print(message, flush=True)
-    try:
-        (run_dir / "error.txt").write_text(message + "\n")
-    except OSError:
-        pass
+    keep_failure(run_dir, message)
 
 
-def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -> dict | Job:
-    """Dispatches one job (:func:`runs.job.compose_job` checks it before anything is written):
-    a single run's summary, or, for a job of a seed batch (``hydra.job.env_set`` names it),
-    the checked :class:`runs.job.Job`, which the seeds launcher trains with the others. A
-    single run calls nothing of ``sweeps/``: only a tuning trial reports to its study, only
-    ``resume=<sweep folder>`` resumes a sweep."""
+def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -> dict:
+    """Makes one job (:func:`runs.job.compose_job` checks it before anything is written): its
+    summary. A single run calls nothing of ``sweeps/``: only a tuning trial reports to its
+    study, only ``resume=<sweep folder>`` resumes a sweep. (The seeds launcher composes the
+    jobs it trains together itself.)"""
     hydra_cfg = HydraConfig.get()
     record = partial(write_hydra_record, run_dir, ".hydra-resume" if is_run_folder(cfg.get("resume")) else ".hydra",
                      cfg, hydra_cfg, hydra_cfg.overrides.task)  # Hydra's record of the command (hydra.output_subdir: null)
@@ -104,25 +94,21 @@ def _job(cfg: DictConfig, run_dir: Path, overrides: list[str], in_sweep: bool) -
         return next((s for s in summaries if s.get("interrupted")), {})
     job = compose_job(cfg, run_dir, overrides, hydra_cfg)
     job.run_dir.mkdir(parents=True, exist_ok=True)
-    trial = not job.resume and job.cfg.get("trial") is not None  # a resumed trial job reports to no study
 
     def progress():
-        if not trial:
+        if job.resume or job.cfg.get("trial") is None:  # a resumed trial job reports to no study
             return None
         from sweeps.tuning import trial_link  # only a tuning trial reports to a study
 
         return trial_link(job.cfg, job.run_dir, hydra_cfg.sweeper)
 
-    if in_sweep and not job.resume and batchable(job.cfg) and hydra_cfg.job.env_set.get(BATCH_JOB):
-        job.progress = progress()
-        return job  # the seeds launcher trains it with the other jobs of its group
     from runs.lifecycle import train_alone  # torch, TorchRL, MuJoCo: every check passed
 
     return train_alone(job, None if in_sweep else record, REFUSALS, progress)
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
-def main(cfg: DictConfig) -> Job | None:
+def main(cfg: DictConfig) -> None:
     global _IN_JOB
     _IN_JOB = True
     in_sweep = HydraConfig.get().mode == RunMode.MULTIRUN
@@ -138,8 +124,6 @@ def main(cfg: DictConfig) -> Job | None:
             return  # the sweep was stopped before this job began: it never starts
     try:
         summary = _job(cfg, run_dir, overrides, in_sweep)
-        if not isinstance(summary, dict):  # a runs.job.Job
-            return summary  # Hydra's JobReturn carries it to the seeds launcher
         if summary.get("failed") and not in_sweep:  # its line or trace is printed, and in error.txt
             sys.exit(int(summary.get("status", 1)))
     except REFUSALS as err:

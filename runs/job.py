@@ -6,7 +6,8 @@ A job is fresh, resumed (``resume=<run folder>``: the folder's config, the comma
 changes applied) or an evaluation (``mode=eval checkpoint=...``). Every key is checked
 by :func:`compose_job` (:func:`runs.settings.check_run_config`), before the folder is
 locked, written or torch is imported, so a refusal is one line and leaves nothing behind.
-A single run is made by :func:`runs.lifecycle.train_alone`; a seed batch's jobs go to
+A single run is made by :func:`runs.lifecycle.train_alone`; the seeds launcher composes its
+batch's jobs with :func:`compose_job` itself and trains them with
 :func:`runs.lifecycle.run_jobs` together.
 """
 
@@ -18,7 +19,7 @@ from typing import TYPE_CHECKING, Mapping, Sequence
 
 from omegaconf import DictConfig
 
-from params import ConfigError
+from params import CheckpointError, ConfigError
 from runs.console import tuned_changes
 from runs.folder import eval_config, resumed_config, run_folder_of
 from runs.settings import check_fit, check_no_empty_mappings, check_run_config
@@ -29,6 +30,24 @@ if TYPE_CHECKING:
 
 # Settings a batched job may not have: each makes a run that is not a fresh training run.
 NOT_BATCHED = ("resume", "checkpoint")
+
+
+def refusals() -> tuple[type[BaseException], ...]:
+    """The errors that refuse a job in one line (exit 2), leaving its folder as it was: a
+    value, a checkpoint, a config Hydra cannot instantiate."""
+    from hydra.errors import InstantiationException
+
+    return ConfigError, CheckpointError, InstantiationException
+
+
+def keep_failure(run_dir: Path, message: str) -> None:
+    """A sweep's job that failed: ``message`` printed (to stdout: the sweep's end says on
+    stderr how many failed) and kept in its folder's ``error.txt``; the sweep goes on."""
+    print(message, flush=True)
+    try:
+        (run_dir / "error.txt").write_text(message + "\n")
+    except OSError:  # (a full disk) the console has it
+        pass
 
 
 @dataclasses.dataclass

@@ -7,11 +7,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-# The seeds launcher sets this in its jobs' ``hydra.job.env_set``: such a job is checked and
-# handed back to the launcher to train with the others, not trained by itself.
-BATCH_JOB = "RL_SEED_BATCH_JOB"
-
-
 def train_command() -> str:
     """How a printed command starts: the command the user ran, ``mujoco-rl-train`` where the
     installed command started this process, else ``python train.py``."""

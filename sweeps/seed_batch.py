@@ -3,13 +3,13 @@ tuning trial and the learner's member-wise settings (:func:`runs.lifecycle.same_
 a study's trials side by side), each group of fresh training runs trained as one batch
 (:func:`runs.lifecycle.run_jobs`).
 
-Every job still goes through Hydra's ``run_job`` (its folder, ``.hydra/`` files, logging)
-and ``train.py``'s checks; a job run with ``hydra.job.env_set.RL_SEED_BATCH_JOB`` set (a
-batch's jobs) returns its checked :class:`~runs.job.Job` instead of training, and the launcher
-trains the batch of them (:func:`runs.lifecycle.run_jobs`) once all of its group has
-been checked. A group of one, and jobs that are not fresh
-training runs (``resume=``, ``mode=eval``), run alone as with ``hydra/launcher=basic``.
-The submitit launchers group by the overrides but ``seed``.
+Every job still goes through Hydra's ``run_job`` (its folder, logging, callbacks). A
+batch's job is composed and checked there by the launcher itself (:meth:`SeedBatchLaunch.check`:
+:func:`runs.job.compose_job`, as ``train.py`` checks a single run), and the launcher trains
+the batch of them (:func:`runs.lifecycle.run_jobs`) once all of its group has been checked.
+A group of one, and jobs that are not fresh training runs (``resume=``, ``mode=eval``), run
+alone through the app's own task, as with ``hydra/launcher=basic``. The submitit
+launchers group by the overrides but ``seed``.
 """
 
 from __future__ import annotations
@@ -23,15 +23,16 @@ from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from hydra.core.hydra_config import HydraConfig
+
 from params import ConfigError
 from params.private_api import apply_value_overrides, overrides_dirname
-from runs.layout import BATCH_JOB
+from runs.command import one_line
+from runs.folder import cannot_write, write_hydra_record
+from runs.job import batchable, compose_job, keep_failure, refusals
 from runs.lifecycle import Job, batch_key, run_jobs, same_batch
 
 log = logging.getLogger(__name__)
-# The key a batch's job is run with in its ``hydra.job.env_set`` (the job's own config, which
-# every launcher's schema leaves open): it hands its checked Job back instead of training.
-COLLECT = BATCH_JOB  # set in a job's hydra.job.env_set: train.py hands the job back
 # ``launch_fed``'s source of jobs: (the jobs that ended: index and folder, members free
 # beyond those waiting) -> the next jobs (index, overrides).
 Feed = Callable[[Sequence[tuple[int, Path]], int], Sequence[tuple[int, Sequence[str]]]]
@@ -161,8 +162,9 @@ class SeedBatchLaunch:
         return self._launch_batch(chunk) if len(chunk) > 1 else {chunk[0][0]: self._run(*chunk[0])}
 
     def _run(self, idx: int, overrides: Sequence[str], collect: bool = False) -> JobReturn:
-        """One job through Hydra's ``run_job``, as the basic launcher runs it; ``collect``: a
-        batchable job returns its checked :class:`~runs.job.Job` instead of training."""
+        """One job through Hydra's ``run_job``, as the basic launcher runs it; ``collect``: the
+        job's task is :meth:`check` (a batchable job returns its checked :class:`~runs.job.Job`
+        instead of training)."""
         log.info(f"\t#{idx} : {' '.join(filter_overrides(overrides))}")
         composed = self.composed.pop(idx, None)  # launch composed it to group the jobs
         sweep_config = composed if composed is not None else \
@@ -170,12 +172,38 @@ class SeedBatchLaunch:
         with open_dict(sweep_config):
             sweep_config.hydra.job.id = idx
             sweep_config.hydra.job.num = idx
-            if collect:
-                sweep_config.hydra.job.env_set[COLLECT] = "1"
-        ret = run_job(hydra_context=self.hydra_context, task_function=self.task_function,
+        ret = run_job(hydra_context=self.hydra_context, task_function=self.check if collect else self.task_function,
                       config=sweep_config, job_dir_key="hydra.sweep.dir", job_subdir_key="hydra.sweep.subdir")
         configure_log(self.config.hydra.hydra_logging, self.config.hydra.verbose)
         return ret
+
+    def check(self, cfg: DictConfig) -> Job | None:
+        """A batch's job, inside Hydra's ``run_job`` (its folder and config set): its record
+        written, composed and checked (:func:`runs.job.compose_job`), a tuning trial linked to
+        its study; the job, to train with the others. A refused job's line is kept in its
+        ``error.txt`` (None); a job that is not a fresh training run is the app's own task's."""
+        if not batchable(cfg):
+            return self.task_function(cfg)
+        from sweeps.state import sweep_stopped
+
+        if sweep_stopped():
+            return None  # the sweep was stopped before this job began: it never starts
+        hydra_cfg = HydraConfig.get()
+        run_dir = Path(hydra_cfg.runtime.output_dir)
+        write_hydra_record(run_dir, ".hydra", cfg, hydra_cfg, hydra_cfg.overrides.task)
+        try:
+            job = compose_job(cfg, run_dir, list(OmegaConf.to_container(hydra_cfg.overrides.task, resolve=False)),
+                              hydra_cfg)
+            job.run_dir.mkdir(parents=True, exist_ok=True)
+            if job.cfg.get("trial") is not None:
+                from sweeps.tuning import trial_link
+
+                job.progress = trial_link(job.cfg, job.run_dir, hydra_cfg.sweeper)
+        except refusals() as err:
+            return keep_failure(run_dir, f"error: {one_line(err)}")
+        except OSError as err:  # its folder: read-only, full
+            return keep_failure(run_dir, cannot_write(err, run_dir))
+        return job
 
     def _launch_batch(self, chunk: list[tuple[int, Sequence[str]]]) -> dict[int, JobReturn]:
         """The chunk's jobs checked and handed over, then trained as one batch."""
