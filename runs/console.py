@@ -43,7 +43,8 @@ def episode_line(ep: Episode, success: Success) -> str:
 
 def evaluation_line(row: dict, success: Success) -> str:
     """``greedy evaluation at episode N: <measure>=.. length=.. return=..`` (``row`` as ``Run.evals``)."""
-    return (f"greedy evaluation at episode {row['episode']}: {success.measure}={row['value']:.4g} "
+    passed = f" passed={row['rate']:.0%}" if row.get("rate") is not None else ""
+    return (f"greedy evaluation at episode {row['episode']}: {success.measure}={row['value']:.4g}{passed} "
             f"length={row['length']:.1f} return={row['return']:.1f}")
 
 
@@ -62,7 +63,8 @@ def summary_line(ep: Episode, total: int, success: Success, best: float,
     parts = [f"episode {ep.episode}" + (f"/{total}" if total else ""),
              f"{success.description}: mean{success.window} {ep.rolling:.4g}{unit}, best {best:.4g}"]
     if last_eval is not None:
-        parts.append(f"greedy {last_eval['value']:.4g} at {last_eval['episode']}")
+        passed = f" ({last_eval['rate']:.0%} passed)" if last_eval.get("rate") is not None else ""
+        parts.append(f"greedy {last_eval['value']:.4g}{passed} at {last_eval['episode']}")
     parts += _live(ep, live)
     rate = ep.env_steps / max(ep.wall_s, 1e-9)
     parts.append(f"{ep.env_steps} env steps, {rate:.0f} steps/s, {ep.wall_s:.1f}s")
@@ -258,14 +260,16 @@ def tuned_files(choices: Mapping[str, str | None]) -> list[str]:
 
 
 def solved_when(success: Success) -> str:
-    """``mean <description> of the last N training episodes >= T <unit>`` or the greedy form."""
+    """``mean <description> of the last N training episodes >= T <unit> ..., then ...`` or
+    the greedy form: the rule, the pass rate and the confirmation."""
     unit = f" {success.unit}" if success.unit else ""
+    greedy = (f"{success.rate:.0%} of a greedy evaluation's episodes reach {success.threshold:g}{unit}, "
+              "confirmed by a second evaluation from fresh starts")
     if success.judge == "greedy":
-        return (f"the greedy policy's mean {success.description} >= {success.threshold:g}{unit} "
-                f"(evaluated every eval_every episodes or eval_every_steps env steps)")
+        minimum = f", after >= {success.min_episodes} episodes" if success.min_episodes else ""
+        return f"{greedy} (evaluated every eval_every episodes or eval_every_steps env steps{minimum})"
     return (f"mean {success.description} of the last {success.window} training episodes "
-            f">= {success.threshold:g}{unit} (after >= {success.min_episodes} episodes), and the "
-            f"greedy policy's too")
+            f">= {success.threshold:g}{unit} (after >= {success.min_episodes} episodes), then {greedy}")
 
 
 def budget(cfg: DictConfig) -> str:

@@ -101,6 +101,20 @@ def measure_of(result: Mapping, measure: str) -> float:
     return float(result["mean_length"] if measure == "length" else result["info_mean"][measure])
 
 
+def episode_values(result: Mapping, measure: str) -> list[float]:
+    """``measure`` of each episode of an :func:`evaluate` result."""
+    return list(result["lengths"] if measure == "length" else result["info"][measure])
+
+
+def starts_seed(seed: int, k: int) -> int:
+    """The seed of a run's ``k``-th greedy evaluation's starts, from its evaluation seed:
+    ``seed`` itself for the first, then one of its own for each (every evaluation from
+    fresh starts, the same in every replay of the run)."""
+    if k == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1)[0])
+
+
 class MemberEvaluations:
     """Greedy evaluations of a learner's members, each on a seed block of one env of ``blocks``
     blocks of ``copies`` copies, from its seed's starts: each the result it gives alone (a
@@ -187,8 +201,10 @@ def describe_evaluation(result: dict, success: Success) -> str:
     """``greedy evaluation over N episodes: <measure> m +- s <unit>, length ..., return ...``."""
     values = result["lengths"] if success.measure == "length" else result["info"][success.measure]
     extra = "".join(f", {k} {v:.3f}" for k, v in result["info_mean"].items() if k != success.measure)
+    passed = int(round(success.pass_rate(values) * len(values)))
     return (f"greedy evaluation over {result['episodes']} episodes: {success.description} "
-            f"{measure_of(result, success.measure):.4g} +- {np.std(values):.3g} {success.unit} "
-            f"(solved at >= {success.threshold:g}), length {result['mean_length']:.1f} +- "
+            f"{measure_of(result, success.measure):.4g} +- {np.std(values):.3g} {success.unit}, "
+            f"{passed}/{len(values)} episodes >= {success.threshold:g} (solved at {success.rate:.0%}, "
+            f"confirmed from fresh starts), length {result['mean_length']:.1f} +- "
             f"{result['std_length']:.1f}, return {result['mean_return']:.1f} +- "
             f"{result['std_return']:.1f}{extra}")

@@ -48,7 +48,7 @@ from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.console import Tee, banner_lines, copies, tee_console
-from runs.evaluate import MemberEvaluations, describe_evaluation, measure_of
+from runs.evaluate import MemberEvaluations, describe_evaluation, measure_of, starts_seed
 from runs.folder import WRITE_FAILED, cannot_write, check_new_run, model_path, run_lock, start_run, taken
 from runs.job import NOT_BATCHED, Job, batchable
 from runs.layout import train_command
@@ -153,7 +153,7 @@ class Seed:
     eval_seed: int = 0
     # A run's periodic evaluations are made beside its training (runs.evaluate.MemberEvaluations):
     # this starts the seed's, its run waiting for the result. None: made at once by ``evaluate``.
-    side_eval: Callable[[], None] | None = None
+    side_eval: Callable[[int], None] | None = None
     evaluations: dict[int, MemberEvaluations] = dataclasses.field(default_factory=dict)  # by episodes
     run: Run | None = None
     # The seed's global random streams as its run alone leaves them: torch's (a generator
@@ -197,11 +197,12 @@ class Seed:
     def done(self) -> bool:
         return self.failed is not None or self.run is None or self.run.done
 
-    def evaluate(self, episodes: int) -> dict:
-        """A greedy evaluation of ``episodes`` episodes from the seed's evaluation starts, made now."""
+    def evaluate(self, episodes: int, k: int = 0) -> dict:
+        """A greedy evaluation of ``episodes`` episodes from the seed's ``k``-th evaluation
+        starts (:func:`runs.evaluate.starts_seed`), made now."""
         if episodes not in self.evaluations:
             self.evaluations[episodes] = MemberEvaluations(self.cfg, self.member.learner, 1, episodes)
-        return self.evaluations[episodes].alone(self.member.index, self.eval_seed)
+        return self.evaluations[episodes].alone(self.member.index, starts_seed(self.eval_seed, k))
 
     def close_evaluations(self) -> None:
         for evaluations in self.evaluations.values():
@@ -399,7 +400,7 @@ def _side_evaluations(cfg: DictConfig, learner, slots: list[Seed]) -> MemberEval
 def _side_eval(slot: Seed, side: MemberEvaluations | None) -> None:
     """The seed's periodic evaluations made by ``side`` (if any), from its evaluation seed."""
     if side is not None:
-        slot.side_eval = partial(side.start, slot.index, slot.eval_seed)
+        slot.side_eval = lambda k: side.start(slot.index, starts_seed(slot.eval_seed, k))
 
 
 def _consoles(slots: list[Seed], stack: ExitStack) -> None:
@@ -752,7 +753,7 @@ class _FinalEvaluations:
         side, results = self.sides[key], {}
         try:
             for block, slot in enumerate(slots):
-                side.start(slot.index, slot.eval_seed, block)
+                side.start(slot.index, starts_seed(slot.eval_seed, len(slot.run.evals)), block)
             while side.members:
                 results.update(side.step())
         except Exception:  # noqa: BLE001 - each seed then evaluates alone, a failure its own
@@ -802,9 +803,10 @@ def final_evaluation(seed: Seed, run: Run, result: dict | None = None) -> dict |
         return None
     if _evaluated_already(seed, run):
         return run.last_eval
-    if result is None:
-        result = seed.evaluate(seed.final_episodes)
-    return run.record_evaluation(result)
+    run.record_evaluation(result if result is not None else seed.evaluate(seed.final_episodes, len(run.evals)))
+    while run.judge.owed:  # it passed: confirmed from fresh starts before the run is solved
+        run.record_evaluation(seed.evaluate(seed.final_episodes, len(run.evals)))
+    return run.last_eval
 
 
 def owes_final_evaluation(seed: Seed, run: Run) -> bool:

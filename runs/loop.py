@@ -77,7 +77,7 @@ def train(learner: Learner, env, lanes: Sequence[Lane],
     td = starts[0] if len(starts) == 1 else torch.cat(starts)
     live = end_done(list(lanes))  # a run resumed at its end ends here
     paused: dict[int, dict] = {}  # a waiting lane's member: its block's env state when it stopped
-    ready: dict[int, tuple[dict, int]] = {}  # of those, a member evaluated: its result, steps it has waited since
+    ready: dict[int, int] = {}  # of those, a member whose evaluations are made: the steps it has waited since
     while live:
         training = [lane for lane in live if lane.index not in paused]
         if training:
@@ -122,15 +122,19 @@ def _step(learner: Learner, env, live: list[Lane], training: list[Lane], td: Ten
 
 
 def _evaluate(learner: Learner, env, live: list[Lane], td: TensorDictBase, paused: dict[int, dict],
-              side: MemberEvaluations, ready: dict[int, tuple[dict, int]]) -> TensorDictBase:
+              side: MemberEvaluations, ready: dict[int, int]) -> TensorDictBase:
     """One step of the evaluations under way; a lane whose evaluation ended takes its result
-    and trains again from where it stopped (its block's state and rows of ``td`` as they
-    were), at a step where it is in phase with a training lane (:meth:`Learner.phase`), or
-    after :data:`ALIGN_STEPS` steps. A waiting lane that failed is no longer waited for. The
+    (and starts the confirmation it may owe: it waits on), and once it owes none trains
+    again from where it stopped (its block's state and rows of ``td`` as they were), at a
+    step where it is in phase with a training lane (:meth:`Learner.phase`), or after
+    :data:`ALIGN_STEPS` steps. A waiting lane that failed is no longer waited for. The
     next step's input."""
     waiting = [lane for lane in live if lane.index in paused]
     results = (_together(waiting, side.step) or {}) if side.members else {}
-    ready.update((b, (result, 0)) for b, result in results.items())
+    for lane in waiting:  # each result taken at once: a confirmation it owes starts now
+        if lane.index in results and lane.guarded(lambda lane=lane: lane.run.evaluated(results[lane.index])):
+            if not lane.run.waiting:
+                ready[lane.index] = 0
     phases = {learner.phase(lane.index) for lane in live if lane.index not in paused} - {None}
     for lane in waiting:
         if lane.failed is not None:
@@ -138,13 +142,14 @@ def _evaluate(learner: Learner, env, live: list[Lane], td: TensorDictBase, pause
             ready.pop(lane.index, None)
             del paused[lane.index]
         elif lane.index in ready:
-            result, waited = ready.pop(lane.index)
+            waited = ready.pop(lane.index)
             own = learner.phase(lane.index)
-            if not lane.run.done and own is not None and own not in phases and own[0] in {p[0] for p in phases} and waited < ALIGN_STEPS:
-                ready[lane.index] = result, waited + 1
+            if (not lane.run.done and own is not None and own not in phases and own[0] in {p[0] for p in phases}
+                    and waited < ALIGN_STEPS):
+                ready[lane.index] = waited + 1
                 continue
             td = _resume(env, lane, paused.pop(lane.index), td)
-            lane.guarded(lambda lane=lane: lane.run.evaluated(result))
+            lane.guarded(lane.run.end_boundary)
     return td
 
 

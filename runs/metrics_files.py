@@ -42,7 +42,7 @@ class Episode:
 
 BASE_FIELDS = ("episode", "env_index", "reward", "length", "terminated", "env_steps")
 TIMING_FIELDS = ("episode", "wall_s")
-EVAL_FIELDS = ("episode", "env_steps", "episodes", "length", "return")
+EVAL_FIELDS = ("episode", "env_steps", "episodes", "length", "return", "rate")
 
 
 def rolling_field(measure: str, window: int) -> str:
@@ -59,7 +59,8 @@ def metric_fields(success: Success, extra_fields: tuple[str, ...] = ()) -> tuple
 
 def eval_fields(success: Success) -> tuple[str, ...]:
     """evals.csv's columns: when, the task's measure (unless it is the length), how many
-    episodes, their mean length and return."""
+    episodes, their mean length and return, and the share of them that passed the task's
+    threshold (``rate``)."""
     measure = () if success.measure in EVAL_FIELDS else (success.measure,)
     return EVAL_FIELDS[:2] + measure + EVAL_FIELDS[2:]
 
@@ -76,7 +77,8 @@ def episode_cells(ep: Episode, success: Success) -> dict:
 def eval_cells(row: dict, success: Success) -> dict:
     """A greedy evaluation's evals.csv values by column (``row`` as ``Run.evals`` keeps it)."""
     cells = {"episode": row["episode"], "env_steps": row["env_steps"], "episodes": row["episodes"],
-             "length": round(row["length"], 3), "return": round(row["return"], 3)}
+             "length": round(row["length"], 3), "return": round(row["return"], 3),
+             "rate": round(row["rate"], 4) if row.get("rate") is not None else ""}  # (none: a run from before rates)
     cells.setdefault(success.measure, round(row["value"], 6))
     return cells
 

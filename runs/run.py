@@ -35,7 +35,7 @@ from tensordict import TensorDictBase
 
 from runs.console import Console
 from runs.metrics_files import Episode
-from runs.evaluate import measure_of
+from runs.evaluate import episode_values, measure_of
 from runs.loggers import csv_sizes, cut_csv_files, finish_log, log_episode, log_evaluation, log_train
 from runs.metrics_files import MetricsFiles
 from runs.summary import run_summary
@@ -85,8 +85,9 @@ class Hooks:
     """What a :class:`Run` calls out to, all given when it is built (each optional):
 
     - ``checkpoint(run, td)``: saves the whole training state at a step boundary;
-    - ``greedy_eval()``: a greedy evaluation's result (:func:`runs.evaluate.evaluate`'s), or None
-      when it is made later (the run waits for it: :meth:`Run.end_step`);
+    - ``greedy_eval(k)``: the run's ``k``-th greedy evaluation's result (from its ``k``-th
+      starts: :func:`runs.evaluate.starts_seed`), or None when it is made later (the run
+      waits for it: :meth:`Run.end_step`);
     - ``final_eval()``: starts the final greedy evaluation of a run whose budget is spent, made
       later as ``greedy_eval``'s are (None: the caller makes it once the run has ended);
     - ``train_stats(reset=True)``: the learner's ``train/*`` numbers;
@@ -94,8 +95,8 @@ class Hooks:
     """
 
     checkpoint: Callable[[Run, TensorDictBase], None] | None = None
-    greedy_eval: Callable[[], dict | None] | None = None
-    final_eval: Callable[[], None] | None = None
+    greedy_eval: Callable[[int], dict | None] | None = None
+    final_eval: Callable[[int], None] | None = None
     train_stats: Callable[..., dict[str, float]] | None = None
     progress: Progress | None = None
 
@@ -165,12 +166,17 @@ class EpisodeLog:
 class SuccessJudge:
     """Whether and when a run is solved, by its task's :class:`~tasks.base.Success` rule.
 
-    With ``judge="training"`` the mean measure of the last ``window`` training episodes
-    decides; when there is a greedy policy to ask, a training mean that meets the rule is
-    only a candidate (:attr:`candidate`) that the greedy policy's evaluation must confirm,
-    else the next try waits ``window`` episodes. With ``judge="greedy"`` a greedy
-    evaluation that meets the threshold solves.
+    A verdict is proposed by the training episodes (``judge="training"``: the mean of the
+    last ``window`` meets the threshold, :attr:`candidate`) or by a periodic greedy
+    evaluation (``judge="greedy"``). Where there is a greedy policy to ask (``confirm``),
+    it holds only when a greedy evaluation passes (at least ``rate`` of its episodes
+    reach the threshold) and a second one from fresh starts, made at once, passes too
+    (:attr:`owed`: the run makes it before it steps again). A proposal that fails waits:
+    a training one ``window`` episodes, a greedy one the next periodic evaluation. Without
+    a greedy policy the training mean alone decides.
     """
+
+    CONFIRMATIONS = 2  # passing greedy evaluations in a row that solve: the first and its confirmation
 
     def __init__(self, success: Success, confirm: bool) -> None:
         self.success, self.confirm = success, confirm
@@ -178,33 +184,44 @@ class SuccessJudge:
         self.decided_by: str | None = None  # "training" or "greedy", once solved
         self.solved_value: float | None = None  # the judged mean that solved it
         self.candidate: float | None = None  # a training mean that met the rule, to confirm greedily
+        self.passed = 0  # passing greedy evaluations in a row of the proposal under way
         self.next_try = 0  # the episode count from which a training verdict may be tried again
+
+    @property
+    def owed(self) -> bool:
+        """Whether the proposal under way needs a greedy evaluation now (a training
+        candidate's first, or the confirmation of one that passed)."""
+        return self.solved_at is None and (self.candidate is not None or self.passed > 0)
 
     def training(self, rolling: float, episodes: int) -> None:
         """A training episode was booked: ``rolling`` is the mean of its window."""
-        if (self.solved_at is None and self.success.judge == "training" and self.candidate is None
+        if (self.solved_at is None and self.success.judge == "training" and not self.owed
                 and episodes >= self.next_try and self.success.met(rolling, episodes)):
             if self.confirm:  # at the step's end, once its episodes are booked
                 self.candidate = rolling
             else:
                 self._solve("training", rolling, episodes)
 
-    def confirmed(self, greedy_value: float, episodes: int) -> None:
-        """The greedy policy's evaluation of the candidate: solved if it meets the threshold
-        too, else the next try ``window`` episodes later."""
-        rolling, self.candidate = self.candidate, None
-        if self.success.met(greedy_value, episodes):
-            self._solve("training", rolling, episodes)
-        else:
-            self.next_try = episodes + self.success.window
-
-    def greedy(self, value: float, episodes: int) -> None:
-        """A greedy evaluation's mean measure, which solves a greedily judged task."""
-        if self.solved_at is None and self.success.judge == "greedy" and self.success.met(value, episodes):
-            self._solve("greedy", value, episodes)
+    def evaluated(self, value: float, rate: float, episodes: int) -> None:
+        """A greedy evaluation: its mean measure ``value`` and pass ``rate``, after
+        ``episodes`` training episodes. It proposes (a greedily judged task), confirms or
+        turns down a verdict."""
+        if self.solved_at is None and (self.owed or (self.success.judge == "greedy"
+                                                     and episodes >= self.success.min_episodes)):
+            if self.success.rate_met(rate):
+                self.passed += 1
+                if self.passed >= self.CONFIRMATIONS:
+                    training = self.candidate is not None
+                    self._solve("training" if training else "greedy", self.candidate if training else value,
+                                episodes)
+                return
+            if self.candidate is not None:
+                self.next_try = episodes + self.success.window
+            self.candidate, self.passed = None, 0
 
     def _solve(self, judge: str, value: float, episodes: int) -> None:
         self.solved_at, self.decided_by, self.solved_value = episodes, judge, value
+        self.candidate, self.passed = None, 0
 
     def state_dict(self) -> dict:
         return {"solved_at": self.solved_at, "decided_by": self.decided_by, "solved_value": self.solved_value,
@@ -328,13 +345,21 @@ class Run:
         if self.progress is not None and self.pruned_at is None and not self.done and self.progress.pruned:
             self.pruned_at = self.n_episodes  # pruned by another seed's report: stop now
         self._owed = self._evaluation_owed()
-        if self._owed is not None:
-            result = self.final_eval() if self._owed == "final" else self.greedy_eval()
-            if result is None:
-                return td
-            self._take_evaluation(result)
-        self._close_boundary(td)
+        if self._evaluate_owed():
+            self._close_boundary(td)
         return td
+
+    def _evaluate_owed(self) -> bool:
+        """Makes the boundary's evaluations while one is owed (a passing one owes its
+        confirmation at once), each from fresh starts (the run's ``len(evals)``-th); whether
+        they are all made (False: one was started elsewhere and the run waits for it)."""
+        while self._owed is not None:
+            hook = self.final_eval if self._owed == "final" else self.greedy_eval
+            result = hook(len(self.evals))
+            if result is None:
+                return False
+            self._take_evaluation(result)
+        return True
 
     @property
     def waiting(self) -> bool:
@@ -342,16 +367,22 @@ class Run:
         return self._owed is not None
 
     def evaluated(self, result: dict) -> None:
-        """The evaluation the run waited for (see :meth:`end_step`): recorded, judged, and the
-        boundary ended (a checkpoint when due) at the step input it stopped at."""
+        """The evaluation the run waited for (see :meth:`end_step`): recorded and judged; a
+        confirmation it owes is started (the run waits on, :attr:`waiting`). Then
+        :meth:`end_boundary`."""
         self._take_evaluation(result)
+        self._evaluate_owed()
+
+    def end_boundary(self) -> None:
+        """Ends the boundary the run waited at, its evaluations made: a checkpoint when due, at
+        the step input it stopped at."""
         self._close_boundary(self.last_td)
 
     def _evaluation_owed(self) -> str | None:
         """Which greedy evaluation the boundary makes: ``"confirm"`` (the training episodes
         met the rule: does the greedy policy?), ``"due"`` (its schedule), ``"final"`` (the
         budget is spent and this policy was not evaluated yet: ``final_eval``) or None."""
-        if self.judge.candidate is not None and not self.stop_requested:
+        if self.judge.owed and not self.stop_requested:
             return "confirm"
         if self.greedy_eval is not None and not self.done and self._evaluation_due():
             return "due"
@@ -361,11 +392,9 @@ class Run:
         return None
 
     def _take_evaluation(self, result: dict) -> None:
-        """Records the boundary's evaluation ``result``; a confirming one decides the candidate."""
-        owed, self._owed = self._owed, None
+        """Records the boundary's evaluation ``result`` (judged); the next one it owes now, if any."""
         self.record_evaluation(result)
-        if owed == "confirm":
-            self.judge.confirmed(self.evals[-1]["value"], self.n_episodes)
+        self._owed = "confirm" if self.judge.owed and not self.stop_requested else None
 
     def _close_boundary(self, td: TensorDictBase) -> None:
         """The rest of a step boundary, after its evaluation: a solved run told to the
@@ -425,20 +454,17 @@ class Run:
         self.judge.training(ep.rolling, self.n_episodes)
         return ep
 
-    def evaluate_greedy(self) -> dict:
-        """Runs the ``greedy_eval`` hook now and records its result (:meth:`record_evaluation`)."""
-        return self.record_evaluation(self.greedy_eval())
-
     def record_evaluation(self, result: dict) -> dict:
-        """Records a greedy evaluation's ``result`` (evals.csv, the logger, the console) and, if
-        the greedy policy judges, may solve."""
+        """Records a greedy evaluation's ``result`` (evals.csv, the logger, the console) and
+        judges it (:meth:`SuccessJudge.evaluated`): it may propose, confirm or turn down a verdict."""
         value = measure_of(result, self.success.measure)
+        rate = self.success.pass_rate(episode_values(result, self.success.measure))
         row = {"episode": self.n_episodes, "env_steps": self.env_steps, "episodes": result["episodes"],
-               "length": result["mean_length"], "return": result["mean_return"], "value": value}
+               "length": result["mean_length"], "return": result["mean_return"], "value": value, "rate": rate}
         self.evals.append(row)
         self.last_eval = result
         self.files.write_evals(self.evals)
-        self.judge.greedy(value, self.n_episodes)
+        self.judge.evaluated(value, rate, self.n_episodes)
         log_evaluation(self.logger, row, self.success)
         self.console.evaluation(row)
         return result

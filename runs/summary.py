@@ -20,7 +20,10 @@ reader finds a number through it, never by spelling the name itself:
   mean return (a run a tuning study pruned: its last evaluation's, as it makes no final
   one; None without one);
 - ``judged_<measure>``: the mean the verdict compared with the threshold (at the solving
-  point; else the last greedy evaluation's, or the best training window's).
+  point; else the last greedy evaluation's, or the best training window's);
+- ``greedy_rate``: the share of the final greedy evaluation's episodes whose measure
+  reached the threshold (``rate``: the share the task's rule asks; ``eval_episodes``: how
+  many episodes it made).
 
 :func:`summarize_run` returns, for any run folder (it never raises on a damaged one:
 a missing, empty or corrupt file makes the run ``failed``, or ``interrupted`` when it
@@ -31,7 +34,8 @@ can still be resumed, with one line in ``error`` saying which file and what is w
   ``seed``; ``error`` (why a run is not ``ok``), ``resume`` (the command that continues
   an interrupted run), ``warning`` (a finished run's damaged optional files);
 - for a finished run (``status == "ok"``) also: the task's rule, ``measure``, ``unit``,
-  ``window``, ``judge`` (``training`` or ``greedy``), ``threshold``; the outcome,
+  ``window``, ``judge`` (``training`` or ``greedy``), ``threshold``, ``rate`` (None for a
+  run from before rates); the outcome, ``greedy_rate`` (likewise),
   ``solved``, ``decided_by`` (the judge that solved it, else None), ``episodes``,
   ``episodes_to_solve``, ``steps_to_solve``, ``wall_to_solve`` (None unless solved),
   ``env_steps``, ``wall_s`` (the run's own clock), ``process_s`` (its process's seconds when it
@@ -319,6 +323,7 @@ def _finished(run_dir: Path, summary: dict) -> dict:
         episodes_to_solve=at, steps_to_solve=int(steps[at - 1]) if at else None,
         wall_s=_field(summary, "wall_s"), env_steps=_field(summary, "env_steps", int),
         pruned_at=_field(summary, "pruned_at", int, optional=True),
+        rate=_field(summary, "rate", optional=True), greedy_rate=_field(summary, "greedy_rate", optional=True),
     )
     out[keys.train_best_rolling] = _field(summary, keys.train_best_rolling)
     out[keys.train_last] = _field(summary, keys.train_last)
@@ -344,10 +349,17 @@ def final_measure(summary: dict) -> float | None:
 
 
 def succeeded(summary: dict) -> bool:
-    """Whether a finished run's policy meets the task's threshold at its end
-    (:func:`final_measure`): the benchmark's success."""
+    """Whether a finished run's policy meets the task's rule at its end: the benchmark's
+    success. Its final greedy evaluation's pass rate at least the task's ``rate``; a run
+    from before rates (or without a greedy evaluation): :func:`final_measure` at least the
+    threshold."""
+    if summary.get("status") != "ok":
+        return False
+    rate, needed = summary.get("greedy_rate"), summary.get("rate")
+    if rate is not None and needed is not None:
+        return rate >= needed - 1e-12
     value = final_measure(summary)
-    return summary.get("status") == "ok" and value is not None and value >= summary["threshold"]
+    return value is not None and value >= summary["threshold"]
 
 
 SUCCESS_AND_SPEED = "success_and_speed"
@@ -436,7 +448,7 @@ def run_summary(run) -> dict:
         "solved_at": run.solved_at,
         "measure": s.measure, "unit": s.unit, "description": s.description,
         "threshold": s.threshold, "judge": s.judge, "window": s.window,
-        "min_episodes": s.min_episodes,
+        "min_episodes": s.min_episodes, "rate": s.rate,
         keys.judged: judged,
         keys.train_return_mean: _mean(returns),
         keys.train_return_last100: _mean(returns[-RETURN_WINDOW:]),
@@ -445,6 +457,8 @@ def run_summary(run) -> dict:
         keys.train_best100_mean: _mean(np.sort(values)[-BEST_EPISODES:]),
         keys.greedy: greedy,
         keys.greedy_return: final["return"] if final else None,
+        "greedy_rate": final.get("rate") if final else None,  # the share of its episodes that passed
+        "eval_episodes": final["episodes"] if final else None,
         "evaluations": len(run.evals),
         "env_steps": run.env_steps,
         "wall_s": run.wall_s,
@@ -469,6 +483,16 @@ def _greedy_line(s: dict, greedy: str, greedy_return: str) -> str:
             f"makes no final one): {greedy}, {greedy_return}")
 
 
+def _passed(s: dict) -> str:
+    """``, greedy_rate 0.95 (19 of 20 episodes >= 250)``; nothing for a run from before rates."""
+    rate = s.get("greedy_rate")
+    if rate is None:
+        return ""
+    episodes = s.get("eval_episodes")
+    count = f"{round(rate * episodes)} of {episodes} episodes" if episodes else "of its episodes"
+    return f", greedy_rate {_num(rate)} ({count} >= {s['threshold']:g})"
+
+
 def _num(v) -> str:
     return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else f"{v:.4g}"
 
@@ -487,6 +511,9 @@ def _headline(s: dict, unit: str) -> str:
     if s["solved"]:
         confirmed = (f", and the greedy policy's {_num(greedy)}{unit}"
                      if s["decided_by"] == "training" and greedy is not None else "")
+        if s.get("greedy_rate") is not None:
+            confirmed += (f"; at least {s['rate']:.0%} of the greedy episodes passed, in an evaluation and "
+                          "its confirmation from fresh starts")
         return f"solved after {n} episodes: {how} >= {s['threshold']:g}{unit}{confirmed}"
     if s["judge"] == "greedy":
         by = "judged on the greedy policy"
@@ -519,6 +546,7 @@ def verdict_lines(summary: dict, run_dir: Path) -> list[str]:
               "judge": s["decided_by"], k.judged: _num(s[k.judged]), "threshold": f"{s['threshold']:g}",
               **{name: _num(s[name]) for name in (k.train_best_rolling, k.train_last, k.greedy,
                                                    k.train_return_mean, k.greedy_return)},
+              "greedy_rate": _num(s.get("greedy_rate")), "rate": _num(s.get("rate")),
               "wall_s": f"{s['wall_s']:.1f}", "process_s": "-" if s.get("process_s") is None else f"{s['process_s']:.1f}", "run_dir": run_dir}
     return [
         *([f"warning: the physics diverged {diverged} times; each time that copy's episode was "
@@ -527,7 +555,7 @@ def verdict_lines(summary: dict, run_dir: Path) -> list[str]:
         f"  training episodes' {s['description']}: {named(k.train_best_rolling, k.train_last, k.train_best100_mean)}"
         f" (the mean of the {BEST_EPISODES} best episodes: the seeds' \"best {BEST_EPISODES}\")",
         f"  training episodes' return: {named(k.train_return_mean, k.train_return_last100, with_unit=False)}",
-        _greedy_line(s, named(k.greedy), named(k.greedy_return, with_unit=False)),
+        _greedy_line(s, named(k.greedy) + _passed(s), named(k.greedy_return, with_unit=False)),
         *([f"  stopped early by the tuning study (pruned) at episode {s['pruned_at']}"]
           if s.get("pruned_at") is not None else []),
         f"  {s['env_steps']} env steps in {s['wall_s']:.1f}s "

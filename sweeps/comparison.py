@@ -41,13 +41,15 @@ HEAD = ("robot/task", "learner", "swept", "measure", "headline", IQM, "mean +- s
         "solved", "failed", "interrupted", "never_started", "episodes_to_solve", "steps_to_solve")
 TAIL = ("wall_s",)
 # What the console shows (a terminal's width; the files hold every column).
-CONSOLE = ("robot/task", "learner", "swept", "headline", IQM, "seeds", "finished", "solved", "steps_to_solve",
-           "wall_s")
+CONSOLE = ("robot/task", "learner", "swept", "headline", IQM, "greedy_rate", "seeds", "finished", "solved",
+           "steps_to_solve", "wall_s")
 WIDTH = 110
 NUMBERS = ("iqm", "ci_low", "ci_high")  # the headline as numbers, in comparison.csv only
 LEGEND = (f"headline: the number each seed is ranked by (greedy_<measure>: the final greedy evaluation's "
           f"mean, a pruned trial's last; train_<measure>_last<window>: the mean of the last <window> training "
-          f"episodes); {IQM}: its interquartile mean over the finished seeds, 95% percentile bootstrap interval "
+          f"episodes); greedy_rate: the share of the final evaluation's episodes that passed the task's threshold "
+          f"(mean +- std over seeds); {IQM}: its interquartile mean over the finished seeds, 95% percentile "
+          "bootstrap interval "
           "(seeds resampled; 'rough' below 5 seeds, where it spans little more than their range); rows of "
           "different tasks are never pooled")
 
@@ -58,11 +60,12 @@ class NotASweep(Exception):
 
 def named_columns(job: dict) -> tuple[str, ...]:
     """The summary.json names of the numbers a finished job's row shows (its task's measure
-    and window in them): ``greedy_<measure>``, ``greedy_return``,
+    and window in them): ``greedy_<measure>``, ``greedy_rate`` (the share of the final
+    evaluation's episodes that passed), ``greedy_return``,
     ``train_<measure>_best_rolling<window>``, ``train_<measure>_last<window>``,
     ``train_return_last100``."""
     k = measure_keys(job["measure"], job["window"])
-    return (k.greedy, k.greedy_return, k.train_best_rolling, k.train_last, k.train_return_last100)
+    return (k.greedy, "greedy_rate", k.greedy_return, k.train_best_rolling, k.train_last, k.train_return_last100)
 
 
 def _mean_std(values: list) -> str:

@@ -41,14 +41,15 @@ def iqm_ci(values: Iterable[float | None], confidence: float = 0.95, n_resamples
            seed: int = 0) -> tuple[float, float, float]:
     """``(iqm, low, high)``: the IQM of ``values`` (one per seed) and its percentile bootstrap
     confidence interval at ``confidence``, from ``n_resamples`` resamples of the seeds drawn
-    with a generator seeded by ``seed`` (the same values give the same interval).
+    with a generator seeded by ``seed`` (the same values give the same interval, in any
+    order: they are sorted before they are resampled).
 
     One value has no spread to resample: its interval is ``(nan, nan)``. Values all equal
     give the degenerate interval ``(v, v)``. No values: all three NaN. None and NaN are left out.
     """
     if not 0 < confidence < 1:
         raise ValueError(f"confidence must be in (0, 1); got {confidence}")
-    x = _finite(values)
+    x = np.sort(_finite(values))  # the seeds' order is not the interval's
     centre = iqm(x)
     if len(x) < 2:
         return centre, math.nan, math.nan

@@ -106,15 +106,18 @@ JUDGES = ("training", "greedy")
 
 @dataclass(frozen=True)
 class Success:
-    """What "solved" means for a task: a per-episode measure and a threshold on it.
+    """What "solved" means for a task: a per-episode measure, a threshold on it and the
+    share of greedy episodes that must reach it.
 
-    ``measure`` names the value an episode is judged by: ``"length"`` (its
-    number of steps) or a key of the task's ``episode_info``. ``judge`` says
-    which episodes decide: ``"training"``, the mean over the last ``window``
-    training (exploring) episodes, or ``"greedy"``, the mean over one greedy
-    evaluation's episodes. Either way the verdict is ``>= threshold`` after at
-    least ``min_episodes`` training episodes; an infinite threshold never
-    solves (the whole episode budget runs).
+    ``measure`` names the value an episode is judged by: ``"length"`` (its number of
+    steps) or a key of the task's ``episode_info``. An episode *passes* when its measure
+    is ``>= threshold``. ``judge`` says which episodes propose a verdict: ``"training"``,
+    the mean over the last ``window`` training (exploring) episodes (after at least
+    ``min_episodes`` of them), or ``"greedy"``, a greedy evaluation. Where the run has a
+    greedy policy to ask, a verdict holds only when at least ``rate`` of one greedy
+    evaluation's episodes pass and a second evaluation from fresh starts confirms it
+    (:class:`runs.run.SuccessJudge`). An infinite threshold never solves (the whole
+    budget runs).
     """
 
     measure: str
@@ -124,8 +127,9 @@ class Success:
     judge: str = "training"
     window: int = 100
     min_episodes: int = 100
+    rate: float = 0.9
 
-    KEYS = ("measure", "threshold", "judge", "window", "min_episodes")
+    KEYS = ("measure", "threshold", "judge", "window", "min_episodes", "rate")
 
     @classmethod
     def from_config(cls, win: Mapping[str, Any] | None, default: "Success",
@@ -145,27 +149,28 @@ class Success:
                 a judge not in ``JUDGES``, a NaN threshold, a window outside [1, 1000000], ...).
         """
         win = dict(win or {})
-        require(isinstance(win, dict), f"task.win must map {', '.join(cls.KEYS)} to values", win)
         unknown = sorted(set(win) - set(cls.KEYS))
         require(not unknown, f"task.win entries must be among {', '.join(cls.KEYS)}",
                 ", ".join(map(str, unknown)))
         measure = win.get("measure", default.measure)
         require(measure in measures, f"task.win.measure must be one of {', '.join(measures)}", measure)
         threshold = win.get("threshold", default.threshold)
-        require(isinstance(threshold, numbers.Real) and not isinstance(threshold, bool)
-                and not math.isnan(threshold),
-                "task.win.threshold must be a number (inf: never solved, the whole budget runs)",
-                threshold)
+        require(isinstance(threshold, numbers.Real) and not isinstance(threshold, bool) and not math.isnan(threshold),
+                "task.win.threshold must be a number (inf: never solved, the whole budget runs)", threshold)
         judge = win.get("judge", default.judge)
         require(judge in JUDGES, f"task.win.judge must be one of {', '.join(JUDGES)}", judge)
         window = win.get("window", default.window)
         require(whole(window) and 1 <= window <= 1_000_000,
                 "task.win.window must be an integer in [1, 1000000]", window)
         min_episodes = win.get("min_episodes", default.min_episodes)
-        require(whole(min_episodes) and min_episodes >= 0,
-                "task.win.min_episodes must be an integer >= 0", min_episodes)
+        require(whole(min_episodes) and min_episodes >= 0, "task.win.min_episodes must be an integer >= 0",
+                min_episodes)
+        rate = win.get("rate", default.rate)
+        require(isinstance(rate, numbers.Real) and not isinstance(rate, bool) and 0 < rate <= 1,
+                "task.win.rate must be a number in (0, 1]: the share of greedy episodes that must pass", rate)
         unit, description = measures[measure]
-        return cls(measure, unit, description, float(threshold), judge, int(window), int(min_episodes))
+        return cls(measure, unit, description, float(threshold), judge, int(window), int(min_episodes),
+                   float(rate))
 
     def met(self, value: float, episodes: int) -> bool:
         """Whether a mean ``value`` of the measure, after ``episodes`` training episodes, solves.
@@ -178,6 +183,15 @@ class Success:
             True when ``episodes`` >= ``min_episodes`` (and >= 1) and ``value`` >= ``threshold``.
         """
         return episodes >= max(self.min_episodes, 1) and value >= self.threshold
+
+    def pass_rate(self, values: Sequence[float]) -> float:
+        """The share of episodes whose measure (``values``, one per episode) passes: ``>= threshold``."""
+        values = np.asarray(values, dtype=float)
+        return float(np.mean(values >= self.threshold)) if values.size else 0.0
+
+    def rate_met(self, rate: float) -> bool:
+        """Whether a greedy evaluation whose episodes pass at ``rate`` meets the rule."""
+        return rate >= self.rate - 1e-12
 
     def describe(self) -> str:
         """The rule in words.

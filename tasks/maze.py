@@ -46,7 +46,7 @@ from robots.turtlebot import TurtleBot
 from tasks.base import Bounds, PerCopy, Success, Task, common, setup
 from tasks.maze_arena import Maze, maze_arena
 
-SUCCESS = Success("laps", "laps", "laps round the maze without a collision", 2.0, "greedy", 100, 100)
+SUCCESS = Success("laps", "laps", "laps round the maze without a collision", 2.0, "greedy", 100, 0)
 MEASURES = {
     "laps": ("laps", "laps round the maze without a collision"),
     "loop_distance": ("m", "distance along the loop without a collision"),

@@ -59,7 +59,7 @@ from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
 from tasks.base import Bounds, PerCopy, Success, Task, common, setup
 
-SUCCESS = Success("distance_walked", "m", "distance walked", 1.0, "greedy", 100, 100)
+SUCCESS = Success("distance_walked", "m", "distance walked", 1.0, "greedy", 100, 0)
 
 # The five actions on the wheel-speed command.
 WHEEL_FORWARD, WHEEL_BACKWARD, WHEEL_STOP, SPEED_UP, SPEED_DOWN = range(5)

@@ -272,6 +272,7 @@ def test_iqm_ci_holds_the_iqm_and_is_the_same_every_time():
     centre, low, high = iqm_ci([1, 2, 3, 4, 10, 0.5])
     assert centre == iqm([1, 2, 3, 4, 10, 0.5]) and 0.5 <= low < centre < high <= 10
     assert iqm_ci([1, 2, 3, 4, 10, 0.5]) == (centre, low, high)
+    assert iqm_ci([10, 0.5, 4, 1, 3, 2]) == (centre, low, high)  # issue 65: the seeds' order is not the interval's
     narrow = iqm_ci([1, 2, 3, 4, 10, 0.5], confidence=0.5)
     assert low <= narrow[1] <= narrow[2] <= high
     for few in ([1, 2], [1, 2, 3]):  # a percentile bootstrap of their mean
@@ -286,7 +287,7 @@ def test_the_numpy_iqm_and_interval_are_scipys(values):
     IQM is scipy's exactly, the interval's ends within 5 % of its width (other resamples)."""
     from scipy.stats import bootstrap, trim_mean
 
-    x = np.array(values, dtype=float)
+    x = np.sort(np.array(values, dtype=float))  # (iqm_ci resamples the sorted values: any order, one interval)
     assert iqm(values) == pytest.approx(float(trim_mean(x, 0.25)), abs=1e-12)
     theirs = bootstrap((x,), lambda s, axis=-1: trim_mean(s, 0.25, axis=axis), vectorized=True,
                        n_resamples=9999, confidence_level=0.95, method="percentile",

@@ -29,7 +29,7 @@ NUMBERS = {"judged_distance_walked", "train_return_mean", "train_return_last100"
            "train_distance_walked_best100_mean", "greedy_distance_walked", "greedy_return"}
 GENERIC = {"solved", "decided_by", "episodes", "solved_at", "measure", "unit", "description", "threshold",
            "judge", "window", "min_episodes", "evaluations", "env_steps", "wall_s", "process_s", "divergences",
-           "first_step_s"}
+           "first_step_s", "rate", "greedy_rate", "eval_episodes"}
 
 
 def feed(run: Run, episodes: list[tuple[int, float, float]]) -> None:
@@ -44,11 +44,13 @@ EPISODES = [(10, 1.0, 0.1), (20, 0.5, 0.4), (5, 2.0, 0.2), (8, 1.0, 0.9), (12, -
 
 
 def walked_run(tmp_path: Path) -> Run:
-    """Six episodes of known returns and distances, then a greedy evaluation (2.5 m, return 7)."""
+    """Six episodes of known returns and distances, then a greedy evaluation (2.5 m, return 7)
+    and its confirmation (the same)."""
     run = Run(tmp_path, 1, 100, WALK, quiet=True)
     feed(run, EPISODES)
-    run.record_evaluation({"episodes": 3, "mean_length": 30.0, "mean_return": 7.0,
-                           "info_mean": {"distance_walked": 2.5}})
+    for _ in range(2):
+        run.record_evaluation({"episodes": 3, "mean_length": 30.0, "mean_return": 7.0,
+                               "info_mean": {"distance_walked": 2.5}, "info": {"distance_walked": [2.0, 2.5, 3.0]}})
     return run
 
 
@@ -77,8 +79,8 @@ def test_the_verdict_and_its_verdict_line_use_the_same_names(tmp_path):
     assert lines[-1].startswith("VERDICT ")
     assert set(fields) == {"solved", "episodes", "solved_at", "measure", "judge", "judged_distance_walked",
                            "threshold", "train_distance_walked_best_rolling4", "train_distance_walked_last4",
-                           "greedy_distance_walked", "train_return_mean", "greedy_return", "wall_s", "process_s",
-                           "run_dir"}
+                           "greedy_distance_walked", "train_return_mean", "greedy_return", "greedy_rate", "rate",
+                           "wall_s", "process_s", "run_dir"}
     assert set(fields) - {"run_dir"} <= set(s)  # every field is summary.json's, by the same name
     assert fields["greedy_distance_walked"] == "2.5" and fields["solved_at"] == "6"
     text = "\n".join(lines)
