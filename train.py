@@ -16,8 +16,10 @@ machine-readable, its numbers named as in summary.json (:mod:`runs.summary`; ``<
 task's measure, ``<w>`` its window):
 ``VERDICT solved=<true|false> episodes=<n> solved_at=<n|-> measure=<m> judge=<training|greedy>
 judged_<m>=<v> threshold=<v> train_<m>_best_rolling<w>=<v> train_<m>_last<w>=<v> greedy_<m>=<v>
-train_return_mean=<v> greedy_return=<v> wall_s=<v> process_s=<v> run_dir=<path>`` (``wall_s``: the
-run's own clock; ``process_s``: the process's, imports and building included).
+train_return_mean=<v> greedy_return=<v> greedy_rate=<v> rate=<v> wall_s=<v> process_s=<v> run_dir=<path>``
+(``greedy_rate``: the share of the final greedy evaluation's episodes that passed, ``rate``: the
+share the rule asks; ``wall_s``: the run's own clock; ``process_s``: the process's, imports
+and building included).
 """
 
 from __future__ import annotations
