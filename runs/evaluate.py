@@ -12,7 +12,7 @@ line.
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -84,6 +84,13 @@ def _book_step(env, nxt, ret: np.ndarray, length: np.ndarray, alive: np.ndarray,
     alive &= ~ended
 
 
+def start_spread(observations: torch.Tensor, names: Sequence[str]) -> dict[str, float]:
+    """How far an evaluation's starts spread: each observation entry's standard deviation
+    over its episodes' first observations (0 everywhere: every episode starts alike)."""
+    std = observations.double().std(0, unbiased=False) if len(observations) > 1 else torch.zeros(len(names))
+    return {name: round(float(v), 6) for name, v in zip(names, std)}
+
+
 def _summary(ret: np.ndarray, length: np.ndarray, info: dict[str, np.ndarray]) -> dict:
     """An evaluation's result from its copies' returns, lengths and episode infos."""
     return {
@@ -135,6 +142,7 @@ class MemberEvaluations:
         self.observation = torch.zeros(n, len(self.env.task.observation_names))
         # The members evaluating: each one's block and the stream that breaks its greedy ties.
         self.running: dict[int, tuple[int, torch.Generator]] = {}
+        self.spread: dict[int, dict[str, float]] = {}  # each one's starts: how far they spread
 
     @property
     def members(self) -> list[int]:
@@ -150,6 +158,7 @@ class MemberEvaluations:
         self.observation[rows] = self.env.renew_block(block, seed)
         self.ret[rows], self.length[rows], self.alive[rows] = 0.0, 0, True
         self.running[member] = block, greedy_stream()
+        self.spread[member] = start_spread(self.observation[rows], self.env.task.observation_names)
 
     def step(self) -> dict[int, dict]:
         """One step of every evaluation under way, each member's greedy policy acting on its
@@ -172,8 +181,9 @@ class MemberEvaluations:
         for member in members:
             block = env.block(self.running[member][0])
             if not self.alive[block].any():
-                results[member] = _summary(self.ret[block].copy(), self.length[block].copy(),
-                                           {k: v[block].copy() for k, v in self.info.items()})
+                results[member] = {**_summary(self.ret[block].copy(), self.length[block].copy(),
+                                              {k: v[block].copy() for k, v in self.info.items()}),
+                                   "start_spread": self.spread.pop(member)}
                 del self.running[member]
         return results
 
@@ -189,6 +199,7 @@ class MemberEvaluations:
     def drop(self, member: int) -> None:
         """``member``'s evaluation, if one is under way, ends unfinished (its run failed)."""
         running = self.running.pop(member, None)
+        self.spread.pop(member, None)
         if running is not None:
             self.alive[self.env.block(running[0])] = False
             self.env.physics.hold(self.env.block_mask(running[0]))

@@ -32,8 +32,13 @@ bounds (:attr:`OneDiskWalk.observation_high`).
 
 Reset: the cube at rest on its face at ``init_cube_pose`` (x, y, height of its
 bottom above the floor) with the wheel at ``init_roll_vel``, turned about z by
-a seeded uniform yaw in +-``reset_noise`` rad so the copies do not all repeat
-one trajectory. Parameter names are the course YAML's.
+a seeded uniform yaw in +-``reset_noise`` rad (0.05: about 3 degrees) and its
+wheel spinning a seeded uniform +-``wheel_speed_noise`` rad/s off that speed (5:
+the servo brings it to its command within a few steps, rocking the cube but never
+tipping it; 100 rad/s tips it), so that no two copies, and no two greedy episodes,
+repeat one trajectory (with 0.005 rad and no wheel noise a greedy evaluation's 20
+episodes walked 1.49532-1.49544 m: one trajectory, twenty times). Parameter names
+are the course YAML's (the wheel noise is this project's).
 
 Solved (``success``, overridable as ``task.win``): the greedy policy walks at
 least 1 m in the rewarded direction (the sign of
@@ -95,7 +100,9 @@ class OneDiskWalk(Task):
     y_linear_speed_reward_weight: float = param(1000.0, "reward per m/s along y; negative walks "
                                                         "towards -y")
     y_axis_angle_reward_weight: float = param(1000.0, "penalty per |sin yaw|")
-    reset_noise: float = param(0.005, "uniform start yaw perturbation, rad", ge=0)
+    reset_noise: float = param(0.05, "uniform start yaw perturbation, rad", ge=0)
+    wheel_speed_noise: float = param(5.0, "uniform start wheel-speed perturbation, rad/s (the command "
+                                          "stays init_roll_vel)", ge=0)
     max_episode_steps: int = common.max_episode_steps(1000)
     physics_timestep: float = common.physics_timestep(0.001)
     tabular_state: dict | None = common.tabular_state("the course's reduced state")
@@ -148,13 +155,15 @@ class OneDiskWalk(Task):
     def initialize_episode(
         self, physics: BatchedPhysics, mask: np.ndarray, rng: np.random.Generator
     ) -> None:
-        """The cube at rest at ``init_cube_pose``, yawed by a small seeded angle."""
+        """The cube at rest at ``init_cube_pose``, yawed by a small seeded angle, its wheel
+        at ``init_roll_vel`` plus a small seeded speed."""
         n = int(np.count_nonzero(mask))
         yaw = rng.uniform(-self.reset_noise, self.reset_noise, size=n)
+        spin = rng.uniform(-self.wheel_speed_noise, self.wheel_speed_noise, size=n)
         x, y, z = self.init_cube_pose
         rpy = np.stack([np.zeros(n), np.zeros(n), yaw], axis=1)
         self.robot.set_state(physics, mask, [x, y, z + self.robot.half_edge], rpy,
-                             wheel_speed=self.init_roll_vel)
+                             wheel_speed=self.init_roll_vel + spin)
         self.per_copy.command[mask] = self.init_roll_vel
         self.per_copy.start_y[mask] = y
 

@@ -22,7 +22,7 @@ from robots.physics import BatchedPhysics
 from params import ConfigError
 from tasks import factory
 from tasks.env import RobotTaskEnv, compile_model
-from tasks.one_disk_walk import OneDiskWalk
+from tasks.one_disk_walk import WHEEL_STOP, OneDiskWalk
 from tasks.stay_up import StayUp
 
 ALL = np.array([True])
@@ -35,6 +35,7 @@ def make_cube_env():
 
     def make(num_envs: int = 1, seed: int = 0, robot: dict | None = None, **task_kwargs):
         task_kwargs.setdefault("reset_noise", 0.0)
+        task_kwargs.setdefault("wheel_speed_noise", 0.0)
         env = RobotTaskEnv(OneDiskWalk(Cube(**(robot or {})), **task_kwargs),
                            num_envs=num_envs, seed=seed)
         envs.append(env)
@@ -286,6 +287,25 @@ def test_reset_is_at_rest_with_small_seeded_yaw(make_cube_env):
     env.set_seed(3)
     env.reset()
     np.testing.assert_array_equal(env.task.robot.odometry(env.physics).rpy[:, 2], yaw)
+
+
+def test_the_default_starts_differ_in_yaw_and_wheel_speed_and_never_tip_the_cube(make_cube_env):
+    """Issue 65: twenty greedy episodes are twenty trajectories. The default start noise
+    (+-0.05 rad of yaw, +-5 rad/s of wheel speed) gives every copy its own start, and a cube
+    left idle from any of them stays on its face."""
+    env = make_cube_env(20, seed=10_000, reset_noise=0.05, wheel_speed_noise=5.0)
+    env.reset()
+    odom = env.task.robot.odometry(env.physics)
+    yaw, wheel = odom.rpy[:, 2], env.task.robot.wheel_speed(env.physics)
+    assert len(np.unique(yaw)) == 20 and np.all(np.abs(yaw) <= 0.05) and yaw.std() > 0.02
+    assert len(np.unique(wheel)) == 20 and np.all(np.abs(wheel) <= 5.0) and wheel.std() > 2.0
+    start = odom.position.copy()
+    td = env.reset()
+    for _ in range(100):
+        td = env.step(td.set("action", torch.full((20,), WHEEL_STOP))).get("next")
+    odom = env.task.robot.odometry(env.physics)
+    assert np.abs(odom.position[:, :2] - start[:, :2]).max() < 0.005  # rocked at most: no tip (0.2 m)
+    assert np.abs(odom.rpy[:, :2]).max() < 0.05
 
 
 @pytest.mark.parametrize("num_envs", [1, 4])

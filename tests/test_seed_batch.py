@@ -93,6 +93,9 @@ def test_seeds_that_end_at_one_step_are_evaluated_together_as_each_alone(tmp_pat
                         or real(self, member, seed, block))
     run_jobs(jobs(learner, tmp_path, "batch"))
     assert together == [(b, seed + EVAL_SEED_OFFSET, None) for b, seed in enumerate(SEEDS)]
+    for seed in SEEDS:  # its starts and how far they spread: the cart-pole's reset noise
+        spread = json.loads((tmp_path / f"batch{seed}" / "eval.json").read_text())["start_spread"]
+        assert set(spread) == {"cart_pos", "cart_vel", "pole_angle", "pole_vel"} and all(v > 0 for v in spread.values())
     run_alone(learner, tmp_path)
     same_files(tmp_path, SEEDS)
 
