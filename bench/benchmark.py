@@ -255,6 +255,26 @@ def check_budget(job: Job) -> None:
                        f"{cfg.task.max_episode_steps} steps need {need}; give --budget {need} or more")
 
 
+def check_tuned_budget(job: Job) -> None:
+    """:class:`BadInput` when ``job``'s tuned files judge it with another budget than the
+    plan's: a user's run with them (``train.py robot=.. task=.. learner=..``) and the pair's
+    row must be the same run, ``max_env_steps`` the plan's ``budget_steps`` and no episode
+    budget (``max_episodes: 0``)."""
+    if job.setting != "tuned" or not has_tuned_file(job):
+        return
+    from tasks import catalog
+
+    cfg = catalog.compose(overrides=[f"robot={job.robot}", f"task={job.task_name}",
+                                     f"learner={job.base or job.learner}", *job.overrides])
+    steps, episodes = int(cfg.get("max_env_steps") or 0), int(cfg.get("max_episodes") or 0)
+    if (steps, episodes) != (job.budget, 0):
+        files = " + ".join(f"conf/tuned/{name}.yaml" for name in tuned_files(job))
+        raise BadInput(f"{files} judges {job.task} x {job.learner} with max_env_steps={steps} "
+                       f"max_episodes={episodes}, the plan with {job.budget} env steps: a user's run and "
+                       f"the benchmark's row would differ; set max_env_steps: {job.budget} and max_episodes: 0 "
+                       f"there (or give --budget to run another budget on purpose)")
+
+
 def pair_command(job: Job, out: Path) -> tuple[list[str], bool]:
     """The command that trains ``job``'s seeds as one multirun into ``out/<task>/<learner>_<setting>/``,
     and whether it resumes: a pair stopped part way (its sweep folder there, no record)
@@ -575,6 +595,8 @@ def run(args: argparse.Namespace) -> Path:
         todo = [job for job in runnable if not finished(job, out)]
         for job in todo:
             check_budget(job)
+            if args.budget is None:  # the plan's budget: the tuned files must carry it
+                check_tuned_budget(job)
         out.mkdir(parents=True, exist_ok=True)
         commands = [c for c in commands if c != command] + [command]  # run again to go on: listed once
         (out / "plan.json").write_text(json.dumps(

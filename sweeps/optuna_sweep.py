@@ -490,7 +490,8 @@ class TuningSweep:
         if mine_won:
             values = dict(mine_values)
             print(f"{OWN_VALUES} ({plan.objective} {mine:.4g}) beat every trial: the tuned file takes them")
-        text = tuned_text(values, base_values, header)
+        # The budget its pair is judged with: a run with the file is a trial's run (issue 65).
+        text = tuned_text({**values, "max_env_steps": self.budget_steps, "max_episodes": 0}, base_values, header)
         out = sweep_dir / f"tuned_{name}"
         out.write_text(text)
         print(f"tuned file: {out}")

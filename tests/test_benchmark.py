@@ -4,6 +4,7 @@ its one-line errors for bad input."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import shutil
@@ -596,3 +597,19 @@ def test_the_grids_minutes_add_up_its_sweeps_and_its_trials_run_time(tmp_path, m
     assert speed[0] == "cartpole_us_per_copy_step" and 0 < float(speed[1]) < 1e4 and speed[2] == ""
     benchmark.print_grid_minutes(folder)
     assert "the grid command's wall time: 0.30 hours over 2 runs" in capsys.readouterr().out
+
+
+def test_every_tuned_file_of_the_plan_carries_its_pairs_budget():
+    """Issue 65's one budget: a user's run with a pair's tuned files is the benchmark's row
+    (max_env_steps the plan's budget_steps, no episode budget); the benchmark refuses a
+    file that judges its pair with another budget, in one line naming the file."""
+    jobs = benchmark.plan_jobs(benchmark.parse_args(["--settings", "tuned", "--learners", "qlearn", "dqn", "rainbow"]),
+                               benchmark.load_plan(False))
+    for job in jobs:
+        benchmark.check_tuned_budget(job)  # every file as committed
+    job = next(j for j in jobs if j.task == "wall" and j.learner == "qlearn")
+    other = dataclasses.replace(job, overrides=(*job.overrides, "max_episodes=2000"))
+    with pytest.raises(benchmark.BadInput, match=r"^conf/tuned/turtlebot_qlearn.yaml \+ conf/tuned/"
+                       r"turtlebot_wall_qlearn.yaml judges wall x qlearn with max_env_steps=100000 max_episodes=2000, "
+                       r"the plan with 100000 env steps"):
+        benchmark.check_tuned_budget(other)

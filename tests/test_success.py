@@ -280,7 +280,7 @@ def test_the_default_run_is_solved_and_says_so_in_few_lines(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     lines = (proc.stdout + proc.stderr).splitlines()
     assert len(lines) < 60, lines
-    assert lines[0] == "cartpole / stay_up / qlearn, seed 0, 8 copies, up to 4000 episodes"
+    assert lines[0] == "cartpole / stay_up / qlearn, seed 0, 8 copies, up to 300000 env steps"  # the benchmark's budget
     assert lines[1].startswith("tuned: conf/tuned/cartpole_qlearn.yaml changed num_envs 1 -> 8")
     v = verdict(lines)
     assert v["solved"] == "true" and v["judge"] == "training" and float(v["judged_length"]) >= 250
