@@ -55,11 +55,11 @@ BEGIN, END = "<!-- benchmark:begin -->", "<!-- benchmark:end -->"
 SETTINGS = ("published", "tuned")
 STOPPED = 128 + signal.SIGINT  # train.py's exit code when Ctrl-C stopped it (its checkpoints saved)
 SEED_COLUMNS = ("task", "robot/task", "learner", "setting", "seed", "status", "success", "verdict",
-                "measure", "threshold", "greedy", "env_steps", "wall_s", "steps_to_solve",
-                "wall_to_solve", "error", "run_dir")
+                "measure", "threshold", "greedy", "greedy_rate", "env_steps", "wall_s", "steps_to_solve",
+                "wall_to_solve", "stuck", "stuck_steps", "error", "run_dir")
 PAIR_COLUMNS = ("task", "learner", "setting", "seeds", "success", "verdict_solved", "failed",
                 "measure", "greedy_iqm", "ci_low", "ci_high", "steps_to_success", "wall_to_success",
-                "batch_wall_s", "budget_steps", "tuned_file", "note")
+                "batch_wall_s", "budget_steps", "stuck", "tuned_file", "note")
 
 
 class BadInput(Exception):
@@ -384,6 +384,7 @@ def seed_rows(job: Job, sweep: Path) -> list[dict]:
             "success": succeeded(s),
             "verdict": bool(ok and s.get("solved")), "measure": s.get("measure"),
             "threshold": threshold, "greedy": greedy, "greedy_rate": s.get("greedy_rate"), "rate": s.get("rate"),
+            "stuck": s.get("stuck"), "stuck_steps": s.get("stuck_steps"),
             "env_steps": s.get("env_steps"),
             "wall_s": s.get("wall_s"), "steps_to_solve": s.get("steps_to_solve"),
             "wall_to_solve": s.get("wall_to_solve"), "error": s.get("error", ""), "run_dir": s["run_dir"],
@@ -429,9 +430,13 @@ def pair_row(job: Job, rows: list[dict], wall: float | None, note: str = "", tun
         notes.append(f"{unjudged} of {len(won)} successes (the final greedy evaluation) were never judged solved by "
                      "the task's rule during training, so have no time to success" + (
                          "; the medians are of the others" if unjudged < len(won) else ""))
+    stuck = sum(bool(r.get("stuck")) for r in rows)
+    if stuck:  # issue 65: a run at its untrained level for a quarter of its budget or more
+        notes.append(f"{stuck} of {len(rows)} seeds had a stuck start (a quarter of the budget or more at the "
+                     "untrained level)")
     note = "; ".join(notes)
     return {
-        "task": job.task, "learner": job.learner, "setting": job.setting, "seeds": len(rows),
+        "task": job.task, "learner": job.learner, "setting": job.setting, "seeds": len(rows), "stuck": stuck,
         "success": len(won), "verdict_solved": sum(r["verdict"] for r in rows),
         "failed": sum(r["status"] != "ok" for r in rows), "measure": measure,
         "greedy_iqm": centre, "ci_low": low, "ci_high": high,

@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import csv
 import ctypes
+import math
 import os
 import time
 from array import array
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, Protocol
+from typing import Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 import torch
@@ -233,6 +234,51 @@ class SuccessJudge:
         self.next_try = int(state.get("next_confirm", 0))
 
 
+class StartWatch:
+    """Whether a run left its untrained level, and at which env step: the mean measure of
+    its last :data:`EPISODES` training episodes first above that of its first ones by a tenth
+    of the way to the threshold (issue 65: a cart-pole rainbow seed ran 4-step episodes for
+    98k env steps before it escaped). A run that stayed there for :data:`SHARE` of its budget
+    or more had a *stuck start* (:meth:`stuck`)."""
+
+    EPISODES = 20
+    SHARE = 0.25
+
+    def __init__(self, threshold: float) -> None:
+        self.threshold = threshold
+        self.level: float | None = None  # the mean measure of the first EPISODES episodes
+        self.left_at: int | None = None  # env steps when the run first left that level
+        self.known = True  # False: resumed from a checkpoint made before the watch (it tells nothing)
+
+    def booked(self, values: Sequence[float], env_steps: int) -> None:
+        """After each training episode (``values``: every episode's measure so far)."""
+        n = len(values)
+        if not self.known or self.left_at is not None or n < self.EPISODES:
+            return
+        if self.level is None:
+            self.level = float(np.mean(values[:self.EPISODES]))
+        if n >= 2 * self.EPISODES and float(np.mean(values[-self.EPISODES:])) > self.level + self._margin():
+            self.left_at = env_steps
+
+    def _margin(self) -> float:
+        gap = self.threshold - self.level
+        return 0.1 * gap if math.isfinite(gap) and gap > 0 else 0.1 * abs(self.level) + 1e-9
+
+    def stuck_steps(self, env_steps: int) -> int | None:
+        """Env steps the run spent at its untrained level (None: too few episodes to tell)."""
+        if not self.known:
+            return None
+        if self.left_at is not None:
+            return self.left_at
+        return env_steps if self.level is not None else None
+
+    def stuck(self, env_steps: int, budget: int) -> bool:
+        """Whether the run stayed at its untrained level for :data:`SHARE` of ``budget``
+        env steps or more (``budget`` 0: of the env steps it made)."""
+        steps = self.stuck_steps(env_steps)
+        return steps is not None and steps >= self.SHARE * (budget or env_steps) and steps > 0
+
+
 class Run:
     """Records finished episodes of a batched env, judges them, and reports them.
 
@@ -280,6 +326,7 @@ class Run:
         self.last_eval: dict | None = None  # the newest evaluation's full result
         self._log_sizes: dict[str, int] | None = None  # a resumed run's CSV logger bytes to keep
         self.judge = SuccessJudge(success, confirm=self.greedy_eval is not None)
+        self.start_watch = StartWatch(success.threshold)
         self.stop_requested = False
         self.first_step_s: float | None = None  # process start to the first step (``start``)
         self.divergences = 0  # the env's count of physics divergences (truncated episodes)
@@ -452,6 +499,7 @@ class Run:
         log_episode(self.logger, ep, self.success)
         self.console.episode(ep, self.evals[-1] if self.evals else None, self._peek_train_stats)
         self.judge.training(ep.rolling, self.n_episodes)
+        self.start_watch.booked(self.episodes.values, self.env_steps)
         return ep
 
     def record_evaluation(self, result: dict) -> dict:
@@ -542,6 +590,7 @@ class Run:
                 "returns": torch.tensor(np.frombuffer(self.returns, np.float64)),
                 "evals": [dict(r) for r in self.evals],
                 "env_steps": self.env_steps, **self.judge.state_dict(),
+                "start_level": self.start_watch.level, "left_start_at": self.start_watch.left_at,
                 "wall_s": self.wall_s, "last_eval": self.last_eval, "log_sizes": csv_sizes(self.run_dir, self.logger),
                 "train_logged": self._train_logged, "train_due": self._train_due,
                 "ret": torch.from_numpy(self.episodes.running_return.copy()),
@@ -558,6 +607,10 @@ class Run:
         self._last_checkpoint = episodes
         self.evals = [dict(r) for r in state["evals"]]
         self.judge.load_state_dict(state)
+        if "left_start_at" in state:
+            self.start_watch.level, self.start_watch.left_at = state["start_level"], state["left_start_at"]
+        else:  # a checkpoint from before the watch: where its start left is not known
+            self.start_watch.known = False
         self.last_eval = state.get("last_eval")  # the final evaluation's, once it ran
         self._log_sizes = state.get("log_sizes")
         self._train_logged, self._train_due = state.get("train_logged"), bool(state.get("train_due", False))

@@ -21,6 +21,10 @@ reader finds a number through it, never by spelling the name itself:
   one; None without one);
 - ``judged_<measure>``: the mean the verdict compared with the threshold (at the solving
   point; else the last greedy evaluation's, or the best training window's);
+- ``start_level``, ``stuck_steps``, ``stuck``: the mean measure of the first 20 training
+  episodes, the env steps the run spent at that level before it first rose above it
+  (:class:`runs.run.StartWatch`), and whether that was a quarter of its budget or more (a
+  stuck start);
 - ``greedy_rate``: the share of the final greedy evaluation's episodes whose measure
   reached the threshold (``rate``: the share the task's rule asks; ``eval_episodes``: how
   many episodes it made).
@@ -324,6 +328,7 @@ def _finished(run_dir: Path, summary: dict) -> dict:
         wall_s=_field(summary, "wall_s"), env_steps=_field(summary, "env_steps", int),
         pruned_at=_field(summary, "pruned_at", int, optional=True),
         rate=_field(summary, "rate", optional=True), greedy_rate=_field(summary, "greedy_rate", optional=True),
+        stuck=summary.get("stuck"), stuck_steps=_field(summary, "stuck_steps", int, optional=True),
     )
     out[keys.train_best_rolling] = _field(summary, keys.train_best_rolling)
     out[keys.train_last] = _field(summary, keys.train_last)
@@ -464,6 +469,9 @@ def run_summary(run) -> dict:
         "wall_s": run.wall_s,
         "process_s": getattr(run, "process_s", None),  # the process's seconds when the run ended
         "divergences": run.divergences,
+        # the untrained level (the first 20 episodes' mean measure) and the env steps spent there
+        "start_level": run.start_watch.level, "stuck_steps": run.start_watch.stuck_steps(run.env_steps),
+        "stuck": run.start_watch.stuck(run.env_steps, run.max_env_steps),
         # imports, config and build: process start to the first env step (this process's)
         "first_step_s": run.first_step_s,
         **({"pruned_at": run.pruned_at} if run.pruned_at is not None else {}),
@@ -481,6 +489,14 @@ def _greedy_line(s: dict, greedy: str, greedy_return: str) -> str:
         return "  greedy policy: not evaluated (pruned before its first evaluation; a pruned run makes no final one)"
     return (f"  greedy policy, its last evaluation before it was pruned ({s['evaluations']} in all; a pruned run "
             f"makes no final one): {greedy}, {greedy_return}")
+
+
+def _stuck_line(s: dict, unit: str) -> str:
+    """The verdict's line on a stuck start (:class:`runs.run.StartWatch`)."""
+    steps, made = s["stuck_steps"], s["env_steps"]
+    when = "and never left it" if steps >= made else f"for its first {steps:,} env steps ({steps / made:.0%} of {made:,})"
+    return (f"  a stuck start: it stayed at its untrained level (mean {s['description']} {_num(s['start_level'])}"
+            f"{unit} over its first 20 episodes) {when}")
 
 
 def _passed(s: dict) -> str:
@@ -558,6 +574,7 @@ def verdict_lines(summary: dict, run_dir: Path) -> list[str]:
         _greedy_line(s, named(k.greedy) + _passed(s), named(k.greedy_return, with_unit=False)),
         *([f"  stopped early by the tuning study (pruned) at episode {s['pruned_at']}"]
           if s.get("pruned_at") is not None else []),
+        *([_stuck_line(s, unit)] if s.get("stuck") else []),
         f"  {s['env_steps']} env steps in {s['wall_s']:.1f}s "
         f"({s['env_steps'] / max(s['wall_s'], 1e-9):.0f} steps/s)"
         + (f"; the process so far: {s['process_s']:.1f}s (imports, building, files included)"

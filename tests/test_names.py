@@ -29,7 +29,7 @@ NUMBERS = {"judged_distance_walked", "train_return_mean", "train_return_last100"
            "train_distance_walked_best100_mean", "greedy_distance_walked", "greedy_return"}
 GENERIC = {"solved", "decided_by", "episodes", "solved_at", "measure", "unit", "description", "threshold",
            "judge", "window", "min_episodes", "evaluations", "env_steps", "wall_s", "process_s", "divergences",
-           "first_step_s", "rate", "greedy_rate", "eval_episodes"}
+           "first_step_s", "rate", "greedy_rate", "eval_episodes", "start_level", "stuck_steps", "stuck"}
 
 
 def feed(run: Run, episodes: list[tuple[int, float, float]]) -> None:
@@ -186,5 +186,5 @@ def test_the_docs_name_what_the_code_logs():
     k = measure_keys("length", 100)
     assert fields == ["solved", "episodes", "solved_at", "measure", "judge", k.judged, "threshold",
                       k.train_best_rolling, k.train_last, k.greedy, k.train_return_mean, k.greedy_return,
-                      "wall_s", "process_s", "run_dir"]
+                      "greedy_rate", "rate", "wall_s", "process_s", "run_dir"]
     assert not math.isnan(float(dict(f.split("=", 1) for f in example.split()[1:])[k.greedy]))

@@ -340,3 +340,21 @@ def test_the_verdicts_count_of_evaluations_reads_as_english():
 
     assert "final evaluation (1 evaluation in all): g, r" in _greedy_line({"evaluations": 1}, "g", "r")
     assert "final evaluation (16 evaluations in all): g, r" in _greedy_line({"evaluations": 16}, "g", "r")
+
+
+def test_a_run_that_stays_at_its_untrained_level_says_it_had_a_stuck_start(tmp_path):
+    """Issue 65: a cart-pole rainbow seed ran 4-step episodes for ~98k env steps before it
+    escaped. A run at its untrained level (its first 20 episodes' mean) for a quarter of its
+    budget or more says so in one line; one that leaves it early does not."""
+    stuck = Run(tmp_path / "stuck", 1, 0, StayUp(CartPole()).success, quiet=True, max_env_steps=2000)
+    feed(stuck, [4] * 300 + [200] * 40)  # 1,200 env steps at 4 a step, then it learns
+    s = stuck.close()
+    assert s["start_level"] == 4.0 and s["stuck"] and s["stuck_steps"] > 0.25 * 2000
+    line = next(line for line in verdict_lines(s, tmp_path) if "stuck start" in line)
+    assert line.startswith("  a stuck start: it stayed at its untrained level (mean steps balanced 4 steps over "
+                           "its first 20 episodes) for its first ")
+    quick = Run(tmp_path / "quick", 1, 0, StayUp(CartPole()).success, quiet=True, max_env_steps=20000)
+    feed(quick, [10] * 20 + [150] * 30)
+    s = quick.close()
+    assert not s["stuck"] and s["stuck_steps"] < 0.25 * 20000
+    assert not any("stuck start" in line for line in verdict_lines(s, tmp_path))
