@@ -60,6 +60,8 @@ OmegaConf.register_new_resolver("if_run_folder",
 # launching process into each job's config, so every job of a sweep, in any worker process
 # (joblib, submitit), resolves hydra.sweep.dir to the launching process's folder.
 OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True, use_cache=True)
+# A mode=eval folder says so in its name (``..._qlearn_eval_<pid>``): it is not a training run.
+OmegaConf.register_new_resolver("eval_mark", lambda mode: "_eval" if mode == "eval" else "", replace=True)
 
 _IN_JOB = False  # from main on, an unexpected exception is a bug: its trace is shown
 _LAUNCHER_PID = None  # the process that runs Hydra's launcher (jobs in a joblib worker differ)

@@ -312,4 +312,5 @@ def start_run(cfg: DictConfig, run_dir: Path, choices: Mapping[str, str | None],
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
     (run_dir / "run.json").write_text(json.dumps(
         {group: choices.get(group) for group in ("robot", "task", "learner", "tuned", "tuned_task")}
-        | {"seed": int(cfg.seed), "overrides": overrides} | new_run_identity(), indent=1))
+        | {"seed": int(cfg.seed), "overrides": overrides, "mode": str(cfg.mode)}
+        | ({"checkpoint": str(cfg.checkpoint)} if cfg.mode == "eval" else {}) | new_run_identity(), indent=1))

@@ -48,7 +48,7 @@ from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.console import Tee, banner_lines, copies, tee_console
-from runs.evaluate import MemberEvaluations, describe_evaluation, measure_of, starts_seed
+from runs.evaluate import MemberEvaluations, describe_evaluation, episode_values, measure_of, starts_seed
 from runs.folder import WRITE_FAILED, cannot_write, check_new_run, model_path, run_lock, start_run, taken
 from runs.job import NOT_BATCHED, Job, batchable
 from runs.layout import train_command
@@ -56,7 +56,7 @@ from runs.loggers import log_hparams, make_logger, run_scalar_names
 from runs.loop import train
 from runs.run import Hooks, Progress, Run
 from runs.signals import stop_on_signals
-from runs.summary import verdict_lines
+from runs.summary import eval_verdict_lines, verdict_lines
 from runs.training_state import (load_training_state, restore_training_state, save_training_state,
                                  seed_everything)
 from tasks.base import Success
@@ -858,8 +858,11 @@ def report(seed: Seed, summary: dict, result: dict | None) -> None:
     cfg, run_dir, success = seed.cfg, seed.run_dir, seed.success
     if result is not None:
         print(describe_evaluation(result, success))
+        rate = success.pass_rate(episode_values(result, success.measure))
         (run_dir / "eval.json").write_text(json.dumps(
-            {"measure": success.measure, "value": measure_of(result, success.measure), **result},
+            {"measure": success.measure, "value": measure_of(result, success.measure), "threshold": success.threshold,
+             "greedy_rate": rate, "rate": success.rate, "passed": success.rate_met(rate),
+             **({"mode": "eval", "checkpoint": str(cfg.checkpoint)} if cfg.mode == "eval" else {}), **result},
             indent=1))
         summary["eval"] = result
     seed.close_evaluations()
@@ -875,4 +878,7 @@ def report(seed: Seed, summary: dict, result: dict | None) -> None:
         (run_dir / "summary.json").write_text(json.dumps(
             {k: v for k, v in summary.items() if k != "eval"}, indent=1))
         for line in verdict_lines(summary, run_dir):
+            print(line)
+    elif result is not None:  # mode=eval: the checkpoint's evaluation, its own verdict
+        for line in eval_verdict_lines(result, success, str(cfg.checkpoint), run_dir):
             print(line)

@@ -75,7 +75,7 @@ from runs.metrics_files import rolling_field
 # A run's status: "ok" (finished: summary.json without "interrupted"), "interrupted"
 # (Ctrl-C, or killed: partial metrics), "failed" (error.txt, or nothing usable),
 # "never started" (no folder, or one without run.json and metrics.csv).
-STATUSES = ("ok", "interrupted", "failed", "never started")
+STATUSES = ("ok", "interrupted", "failed", "never started", "evaluation")
 
 RETURN_WINDOW = 100  # train_return_last100's episodes
 BEST_EPISODES = 100  # train_<measure>_best100_mean's episodes (the seeds' "best 100")
@@ -243,7 +243,17 @@ def _names(run_dir: Path) -> dict:
                 pass
     overrides = out.get("overrides")
     out["overrides"] = [str(o) for o in overrides] if isinstance(overrides, list) else None
+    # run.json says an evaluation folder's mode; one written before it did, its command line does
+    out["mode"] = "eval" if chosen_mode(run_dir) == "eval" or "mode=eval" in (out["overrides"] or []) else "train"
     return out
+
+
+def chosen_mode(run_dir: Path) -> str | None:
+    """run.json's ``mode`` (``train`` or ``eval``), None where it has none."""
+    try:
+        return read_json(run_dir / "run.json").get("mode")
+    except (Unusable, AttributeError):
+        return None
 
 
 def summarize_run(run_dir: Path | str) -> dict:
@@ -261,6 +271,8 @@ def summarize_run(run_dir: Path | str) -> dict:
     if not run_dir.is_dir():
         return out | {"error": "no run folder"}
     out.update(_names(run_dir))
+    if out.pop("mode", "train") == "eval":
+        return out | _evaluation(run_dir)
     try:
         state = _state(run_dir)
     except Unusable as err:
@@ -285,6 +297,20 @@ def _state(run_dir: Path) -> dict:
     if summary.get("interrupted"):
         return _interrupted(run_dir, f"stopped after episode {summary.get('episodes', '?')} (Ctrl-C)")
     return _finished(run_dir, summary)
+
+
+def _evaluation(run_dir: Path) -> dict:
+    """A ``mode=eval`` folder: status ``evaluation`` with its checkpoint and the numbers of its
+    eval.json (``failed`` where it has none: the evaluation did not end)."""
+    try:
+        result = read_json(run_dir / "eval.json")
+    except Unusable as err:
+        return {"status": "failed", "error": f"an evaluation folder (mode=eval): {err}"}
+    measure = result.get("measure", "?")
+    return {"status": "evaluation", "checkpoint": result.get("checkpoint"), "measure": measure,
+            "greedy": result.get("value"), f"greedy_{measure}": result.get("value"),
+            "greedy_rate": result.get("greedy_rate"), "passed": result.get("passed"),
+            "episodes": result.get("episodes")}
 
 
 def _unfinished(run_dir: Path, why: str) -> dict:
@@ -489,6 +515,25 @@ def _greedy_line(s: dict, greedy: str, greedy_return: str) -> str:
         return "  greedy policy: not evaluated (pruned before its first evaluation; a pruned run makes no final one)"
     return (f"  greedy policy, its last evaluation before it was pruned ({s['evaluations']} in all; a pruned run "
             f"makes no final one): {greedy}, {greedy_return}")
+
+
+def eval_verdict_lines(result: dict, success, checkpoint: str, run_dir: Path) -> list[str]:
+    """A ``mode=eval`` folder's verdict: whether the checkpoint's greedy policy passed the
+    task's rule in this one evaluation, and its ``VERDICT mode=eval ...`` line (an evaluation
+    folder is not a training run: it has no summary.json, and ``compare.py`` lists it apart)."""
+    values = result["lengths"] if success.measure == "length" else result["info"][success.measure]
+    rate = success.pass_rate(values)
+    passed = success.rate_met(rate)
+    value = float(np.mean(values)) if len(values) else float("nan")
+    fields = {"mode": "eval", "passed": str(passed).lower(), "measure": success.measure,
+              f"greedy_{success.measure}": _num(value), "greedy_rate": _num(rate), "rate": _num(success.rate),
+              "threshold": f"{success.threshold:g}", "episodes": result["episodes"],
+              "greedy_return": _num(result["mean_return"]), "checkpoint": checkpoint, "run_dir": run_dir}
+    return [f"{'passed' if passed else 'did not pass'}: {round(rate * len(values))} of {len(values)} greedy episodes "
+            f"reached {success.threshold:g} (the rule asks {success.rate:.0%}; one evaluation of {checkpoint}, "
+            "not a training run)",
+            f"results in {run_dir}",
+            "VERDICT " + " ".join(f"{name}={value}" for name, value in fields.items())]
 
 
 def _stuck_line(s: dict, unit: str) -> str:

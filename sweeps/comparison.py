@@ -31,7 +31,8 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from runs.loggers import run_scalar_names, write_sweep_hparams
-from runs.summary import Unusable, measure_keys, read_json
+from runs.layout import is_run_folder, is_sweep_folder
+from runs.summary import Unusable, measure_keys, read_json, summarize_run
 from sweeps.comparison_plot import X_AXES, plot
 from sweeps.stats import format_iqm_ci, iqm_ci
 from sweeps.folder import sweep_jobs, swept_keys, swept_label
@@ -66,6 +67,10 @@ def named_columns(job: dict) -> tuple[str, ...]:
     ``train_return_last100``."""
     k = measure_keys(job["measure"], job["window"])
     return (k.greedy, "greedy_rate", k.greedy_return, k.train_best_rolling, k.train_last, k.train_return_last100)
+
+
+def _num(v) -> str:
+    return "-" if v is None else f"{v:.4g}"
 
 
 def _mean_std(values: list) -> str:
@@ -132,10 +137,26 @@ def job_line(job: dict) -> str | None:
     return f"{job['status']}: {where}: {job.get('error', 'no verdict')}"
 
 
+EVALUATION = "evaluation (mode=eval, not a training run): "  # the line of each evaluation folder
+
+
+def evaluation_line(job: dict) -> str:
+    """One line on an evaluation folder (``mode=eval``): its checkpoint and outcome."""
+    measure = job.get("measure", "?")
+    return (f"{job['run_dir']}: {'passed' if job.get('passed') else 'did not pass'}, greedy_{measure} "
+            f"{_num(job.get('greedy'))}, greedy_rate {_num(job.get('greedy_rate'))} "
+            f"(checkpoint {job.get('checkpoint')})")
+
+
 def compare(sweep_dir: Path) -> tuple[list[dict], list[str]]:
     """The table's rows, in robot/task and learner order (swept settings in the sweep's
-    order), and one line per job that did not finish (after notes on the sweep)."""
+    order), and one line per job that did not finish (after notes on the sweep); the
+    evaluation folders (``mode=eval``) are not training runs: a line each, apart."""
     jobs, notes = sweep_jobs(sweep_dir)
+    evaluations = [j for j in jobs if j["status"] == "evaluation"]
+    jobs = [j for j in jobs if j["status"] != "evaluation"]
+    if evaluations:
+        notes = notes + [f"{EVALUATION}{evaluation_line(j)}" for j in evaluations]
     keys = swept_keys(jobs)
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for job in jobs:
@@ -189,9 +210,18 @@ def report(sweep_dir: Path, stopped: str | None = None, x: str = "env_steps") ->
         raise ValueError(f"the comparison plot's x-axis must be one of {', '.join(X_AXES)}; got {x!r}")
     if not sweep_dir.is_dir():
         raise NotASweep(f"{sweep_dir} is not a folder (give a Hydra multirun sweep folder)")
+    if is_run_folder(sweep_dir):  # one run: what it holds, not a comparison
+        print(one_run(sweep_dir))
+        return []
     rows, lines = compare(sweep_dir)
+    if not rows and any(line.startswith(EVALUATION) for line in lines):  # evaluation folders alone
+        print("\n".join(lines))
+        return []
     if not rows:
-        raise NotASweep(f"{sweep_dir} holds no run folders of train.py")
+        below = sorted(p.name for p in sweep_dir.iterdir() if p.is_dir() and is_sweep_folder(p))
+        hint = f"; it holds sweeps, give one of them: {', '.join(below[:5])}{' ...' if len(below) > 5 else ''}" \
+            if below else ""
+        raise NotASweep(f"{sweep_dir} holds no run folders of train.py{hint}")
     stop = sweep_dir / ".stop"
     if stopped or stop.is_file():
         signal = stopped or stop.read_text(errors="replace").strip() or "a signal"
@@ -204,6 +234,21 @@ def report(sweep_dir: Path, stopped: str | None = None, x: str = "env_steps") ->
     print(f"\nwrote {sweep_dir / 'comparison.csv'}, comparison.md and comparison.png")
     hparams_for_tensorboard(sweep_dir)
     return rows
+
+
+def one_run(run_dir: Path) -> str:
+    """What ``compare.py`` answers for a single run's folder: its status and headline, and
+    that a comparison takes a folder of runs."""
+    s = summarize_run(run_dir)
+    if s["status"] == "evaluation":
+        what = f"an evaluation (mode=eval): {evaluation_line(s)}"
+    elif s["status"] == "ok":
+        what = (f"a finished run of {s.get('robot')}/{s.get('task')} x {s.get('learner')}, seed {s.get('seed')}: "
+                f"solved={str(s['solved']).lower()}, {s['headline']} {_num(s['headline_value'])}")
+    else:
+        what = f"a run that is {s['status']}: {s.get('error', '')}"
+    return (f"{run_dir} is one run's folder, {what}; compare.py compares the runs of a folder that holds "
+            f"several (a sweep's, or {run_dir.parent})")
 
 
 def hparams_for_tensorboard(sweep_dir: Path) -> None:

@@ -134,10 +134,11 @@ def swept_keys(jobs: list[dict]) -> list[str]:
 
 
 def swept_label(job: dict, keys: list[str]) -> str:
-    """``learner.alpha=0.05 learner.gamma=0.9``: the job's values of the swept ``keys``."""
+    """``learner.alpha=0.05 learner.gamma=0.9``: the job's values of the swept ``keys`` it set
+    (those it left at their defaults are left out: ``(defaults)`` where it set none)."""
     if not keys:
         return "-"
     if job["overrides"] is None:
         return "? (overrides unknown)"
     given = overrides_dict(job["overrides"])
-    return " ".join(f"{k}={given[k]}" if k in given else f"{k}=(default)" for k in keys)
+    return " ".join(f"{k}={given[k]}" for k in keys if k in given) or "(defaults)"

@@ -40,7 +40,7 @@ TRIED = [
     ["hydra.run.dir=/"], ["learner.number_splits=1e308"], ["learner.number_splits=0"],
     ["learner.number_splits=[10,10,10,1e308]"], ["learner.number_splits.pole_vel=-2"],
     # issues 35 and 36: old keys name their new place; an override that would change nothing
-    ["learner.nepisodes=5"], ["+learner.nsteps=5"], ["max_episodes=0"], ["win.min_episodes=5"],
+    ["learner.nepisodes=5"], ["+learner.nsteps=5"], ["max_episodes=0", "max_env_steps=0"], ["win.min_episodes=5"],
     ["+win.threshold=3"], ["learner.number_splits={}"], ["task.tabular_state={}"], ["~logger"],
     ["checkpoint=/dev/null"], ["learner=dqn", "learner.epsilon._target_=nosuch.Thing"],
     ["learner=dqn", "learner.epsilon._target_=learners.schedules.Nope"], ["learner.epsilon.steps=3"],

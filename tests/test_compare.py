@@ -261,6 +261,24 @@ def test_a_folder_without_jobs_is_an_error(tmp_path, capsys):
     assert "holds no run folders" in capsys.readouterr().err
 
 
+def test_a_date_folder_of_sweeps_says_to_give_one_of_them(tmp_path, capsys):
+    """Issue 67: ``compare.py multirun/<date>`` named no way on: it lists the sweeps below."""
+    for name in ("10-00-00_1", "11-00-00_2"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "multirun.yaml").write_text("{}\n")
+    assert compare.main([str(tmp_path)]) == 2
+    assert "it holds sweeps, give one of them: 10-00-00_1, 11-00-00_2" in capsys.readouterr().err
+
+
+def test_a_swept_label_leaves_out_the_defaults():
+    """Issue 67: the swept column ran past 200 characters of '(default)'."""
+    from sweeps.folder import swept_label
+
+    keys = ["learner.alpha", "learner.gamma", "learner.epsilon"]
+    assert swept_label({"overrides": ["learner.alpha=0.1"]}, keys) == "learner.alpha=0.1"
+    assert swept_label({"overrides": ["seed=3"]}, keys) == "(defaults)"
+
+
 def test_iqm_is_the_mean_of_the_middle_half_and_few_values_are_their_mean():
     assert iqm([1, 2, 3, 4]) == 2.5
     assert iqm([4, 1, 100, 2, 3, -50, 2.5, 3.5]) == 2.75  # 2, 2.5, 3, 3.5

@@ -83,6 +83,20 @@ def test_saved_model_loads_for_eval_and_training(short_run):
     proc = train(tmp, "mode=eval", f"checkpoint={model}", "eval_episodes=2", name="eval")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "greedy evaluation over 2 episodes" in proc.stdout
+    # Issue 67: an evaluation folder says what it is, with its own verdict, and compare.py lists it apart.
+    fields = verdict(proc.stdout)
+    assert fields["mode"] == "eval" and fields["checkpoint"] == str(model) and fields["episodes"] == "2"
+    assert fields["passed"] in ("true", "false") and float(fields["greedy_rate"]) in (0.0, 0.5, 1.0)
+    import json
+
+    assert json.loads((tmp / "eval" / "run.json").read_text())["mode"] == "eval"
+    assert not (tmp / "eval" / "summary.json").exists()  # not a training run
+    import compare
+
+    assert compare.main([str(tmp)]) == 0  # the folder of both: the run compared, the evaluation apart
+    listed = (tmp / "comparison.md").read_text()
+    assert f"evaluation (mode=eval, not a training run): {tmp / 'eval'}: " in listed
+    assert f"failed: {tmp / 'eval'}" not in listed
     proc = train(tmp, f"checkpoint={model}", "max_episodes=5", "eval_episodes=0", name="more")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert verdict(proc.stdout)["episodes"] == "5"

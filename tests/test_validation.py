@@ -182,7 +182,8 @@ CASES = [
     (["learner.epsilon=1.5"], "learner.epsilon", "1.5"),
     (["learner.epsilon_discount=0"], "learner.epsilon_discount", "0"),
     (["max_episodes=-1"], "max_episodes", "-1"),
-    (["max_episodes=0"], "max_episodes and max_env_steps are both 0", "max_episodes=0, max_env_steps=0"),
+    (["max_episodes=0", "max_env_steps=0"], "max_episodes and max_env_steps are both 0",
+     "max_episodes=0, max_env_steps=0"),
     (["task.max_episode_steps=2.5"], "task.max_episode_steps", "2.5"),
     (["+learner.nepisodes=5"], "learner.nepisodes is now max_episodes", "max_episodes=5"),
     (["+learner.nsteps=300"], "learner.nsteps is now task.max_episode_steps", "task.max_episode_steps=300"),
@@ -288,7 +289,7 @@ RANGES = {
     "learner.gamma": ("cartpole", "qlearn", "learner", real(lambda x: 0 <= x <= 1)),
     "learner.epsilon": ("cartpole", "qlearn", "learner", real(lambda x: 0 <= x <= 1)),
     "learner.epsilon_discount": ("cartpole", "qlearn", "learner", real(lambda x: 0 < x <= 1)),
-    "max_episodes": ("cartpole", "qlearn", "none", integer_in(1, 10**9)),
+    "max_episodes": ("cartpole", "qlearn", "none", integer_in(0, 10**9)),  # 0: its tuned file's env steps budget it
     "learner.lr": ("cartpole", "dqn", "learner", real(lambda x: x > 0)),
     "learner.lr_decay": ("cartpole", "dqn", "learner", real(lambda x: x >= 0)),
     "learner.updates": ("cartpole", "dqn", "learner", real(lambda x: x > 0)),
