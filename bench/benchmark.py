@@ -486,8 +486,8 @@ def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str], figures: 
                   + " IQM [95% CI] | steps to success | s to success | s, all seeds |",
                   "|---|---|---|---|---|---|---|"]
         if figures and task in figures:  # before the table: the figure, then its numbers
-            lines[-2:-2] = [f"![{task}: each learner's greedy measure against env steps, and at the end]"
-                            f"({figures[task]})", ""]
+            lines[-2:-2] = [f"[![{task}: each learner's greedy measure against env steps, and at the end]"
+                            f"({figures[task]})]({figures[task]})", ""]  # a click opens it at full size
         notes = []
         for p in mine:
             success = f"{p['success']}/{p['seeds']}" if p["seeds"] else "-"

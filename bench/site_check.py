@@ -7,9 +7,13 @@ and a Chromium: ``pip install playwright`` and ``apt-get install chromium``, or
 Builds the site (``mkdocs build --strict``), serves it on a local port, and in headless
 Chromium: opens the home page, follows the navigation to every page (each must answer
 and carry its title), searches for a few things a new user looks for (each must find a
-page), and writes screenshots of the home, benchmark, search and API pages to ``--out``.
+page), and writes screenshots of the home, benchmark, search and API pages to ``--out``;
+then shoots the pages with the widest tables (:data:`WIDE`) at a laptop's and a phone's
+width (:data:`WIDTHS`), and counts the tables whose right edge lies beyond the page with
+no scroll to reach it (``cut``) and every request to a host other than the local one
+(``outside``: a web font, a script from a CDN; the site must read offline).
 
-Last line: ``SITE pages=<n> nav_ok=<n> searches_ok=<n>/<m> shots=<folder>``.
+Last line: ``SITE pages=<n> nav_ok=<n> searches_ok=<n>/<m> cut_tables=<n> outside_requests=<n> shots=<folder>``.
 """
 
 from __future__ import annotations
@@ -25,6 +29,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SEARCHES = ("resume", "tune", "own robot", "solved", "mlflow", "rainbow")
+WIDTHS = {"laptop": 1280, "phone": 390}
+WIDE = ("", "getting-started/", "benchmark/", "reference/parameters/", "solved/")  # pages with wide tables
+# A table whose content is wider than its box and whose box cannot scroll: cut at its edge.
+CUT = """() => [...document.querySelectorAll('.md-typeset table')].filter(t => {
+  const box = t.closest('.md-typeset__table') || t;
+  const scrolls = ['auto', 'scroll'].includes(getComputedStyle(box).overflowX);
+  return t.scrollWidth > box.clientWidth + 1 && !scrolls;
+}).length"""
 
 
 class _Quiet(http.server.SimpleHTTPRequestHandler):
@@ -49,7 +61,8 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     with sync_playwright() as p:
         browser = p.chromium.launch(**({"executable_path": args.chromium} if args.chromium else {}),
-                                    args=["--no-sandbox"])
+                                    args=["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                                          "--disable-component-update", "--no-first-run"])
         page = browser.new_page(viewport={"width": 1280, "height": 900})
         page.goto(base + "/")
         page.wait_for_timeout(1000)
@@ -81,9 +94,23 @@ def main() -> None:
             print(f"search {words!r}: {hits} results, first {first}")
             if i == 0:
                 page.screenshot(path=str(args.out / "search.png"))
+        cut, outside = 0, []
+        for name, width in WIDTHS.items():
+            shot = browser.new_page(viewport={"width": width, "height": 900})
+            shot.on("request", lambda r: outside.append(r.url) if not r.url.startswith((base, "data:")) else None)
+            for path in WIDE:
+                shot.goto(base + "/" + path)
+                shot.wait_for_timeout(600)
+                cut += shot.evaluate(CUT)
+                label = path.strip("/").replace("/", "-") or "home"
+                shot.screenshot(path=str(args.out / f"{label}-{name}.png"), full_page=path == "getting-started/")
+            shot.close()
+        for url in sorted(set(outside)):
+            print(f"outside request: {url}")
         browser.close()
     server.shutdown()
-    print(f"SITE pages={len(pages)} nav_ok={nav_ok} searches_ok={found}/{len(SEARCHES)} shots={args.out}")
+    print(f"SITE pages={len(pages)} nav_ok={nav_ok} searches_ok={found}/{len(SEARCHES)} cut_tables={cut} "
+          f"outside_requests={len(set(outside))} shots={args.out}")
 
 
 if __name__ == "__main__":

@@ -15,7 +15,12 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
     if page.file.src_uri != "index.md":
         return markdown
     text = README.read_text().replace("](docs/", "](")
+    # The README's way to this site is the site itself here: where to start instead.
+    text = SERVE.sub("**Documentation:** this site. Start with [Getting started](getting-started.md).", text)
     return text.replace("MIT (`LICENSE`)", "MIT (the repository's `LICENSE`)")
+
+
+SERVE = re.compile(r"\*\*Documentation:\*\*.*?Start with\s+\[Getting started\]\(getting-started\.md\)\.", re.S)
 
 
 ROLE = re.compile(r":(?:meth|class|func|mod|attr|data|exc|obj):<code>~?")
