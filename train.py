@@ -44,7 +44,7 @@ from params import ConfigError
 from runs.command import config_dir_args, end_promptly, flags_first, hydra_error, one_line, physical
 from runs.folder import MadeFolders, WRITE_FAILED, cannot_write, check_output_folder, with_run_choices, write_hydra_record
 from runs.job import compose_job, keep_failure, refusals
-from runs.layout import is_run_folder, is_sweep_folder
+from runs.layout import compare_command, is_run_folder, is_sweep_folder, train_command
 from runs.settings import check_hydra_key, moved, moved_to
 from runs.signals import hold_early
 from tasks.catalog import GROUPS, names, use_config_dirs, with_tuned_layers
@@ -60,6 +60,9 @@ OmegaConf.register_new_resolver("if_run_folder",
 # launching process into each job's config, so every job of a sweep, in any worker process
 # (joblib, submitit), resolves hydra.sweep.dir to the launching process's folder.
 OmegaConf.register_new_resolver("pid", lambda: str(os.getpid()), replace=True, use_cache=True)
+# --help names the command the user ran (python train.py, or the installed mujoco-rl-train).
+OmegaConf.register_new_resolver("train_command", train_command, replace=True)
+OmegaConf.register_new_resolver("compare_command", compare_command, replace=True)
 # A mode=eval folder says so in its name (``..._qlearn_eval_<pid>``): it is not a training run.
 OmegaConf.register_new_resolver("eval_mark", lambda mode: "_eval" if mode == "eval" else "", replace=True)
 

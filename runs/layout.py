@@ -7,6 +7,12 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+def compare_command() -> str:
+    """How to run the comparison, in the form :func:`train_command` was run: the installed
+    ``mujoco-rl-compare``, else ``python compare.py``."""
+    return "mujoco-rl-compare" if train_command().startswith("mujoco-rl-train") else "python compare.py"
+
+
 def train_command() -> str:
     """How a printed command starts: the command the user ran, ``mujoco-rl-train`` where the
     installed command started this process, else ``python train.py``."""

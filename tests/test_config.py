@@ -1,5 +1,6 @@
 """Every config composes and instantiates; the task follows the robot; tuned values follow both."""
 
+import sys
 from pathlib import Path
 
 import pytest
@@ -212,3 +213,14 @@ def test_help_is_the_projects_own_page_in_one_screen():
         assert any(line.startswith(group) for line in page.splitlines()), group
     assert "cartpole" in page and "qlearn" in page and "rainbow" in page
     assert len(page.strip().splitlines()) <= 40
+
+
+def test_help_names_the_command_the_user_ran(monkeypatch):
+    """Issue 67: the installed ``mujoco-rl-train --help`` said ``python train.py``."""
+    from runs.layout import compare_command, train_command
+
+    assert (train_command(), compare_command()) == ("python train.py", "python compare.py")
+    monkeypatch.setattr(sys, "argv", ["/venv/bin/mujoco-rl-train", "--help"])
+    assert (train_command(), compare_command()) == ("mujoco-rl-train", "mujoco-rl-compare")
+    page = OmegaConf.create({"t": "${train_command:} robot=<robot>; ${compare_command:} <sweep>"})
+    assert page.t == "mujoco-rl-train robot=<robot>; mujoco-rl-compare <sweep>"
