@@ -15,6 +15,7 @@ import argparse
 import functools
 import math
 import sys
+import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Callable, Iterator, Mapping, Sequence
@@ -46,6 +47,22 @@ def evaluation_line(row: dict, success: Success) -> str:
     passed = f" passed={row['rate']:.0%}" if row.get("rate") is not None else ""
     return (f"greedy evaluation at episode {row['episode']}: {success.measure}={row['value']:.4g}{passed} "
             f"length={row['length']:.1f} return={row['return']:.1f}")
+
+
+class Ticker:
+    """A line every ``every`` seconds while a long piece of work runs (an evaluation alone, a
+    video): ``<label>: <n>/<total> <unit>, <s> s``; nothing for work shorter than that. Call
+    it with the count done so far."""
+
+    def __init__(self, label: str, total: int, unit: str, every: float = 5.0) -> None:
+        self.label, self.total, self.unit, self.every = label, int(total), unit, float(every)
+        self.t0 = self.last = time.monotonic()
+
+    def __call__(self, done: int) -> None:
+        now = time.monotonic()
+        if now - self.last >= self.every:
+            self.last = now
+            print(f"{self.label}: {done}/{self.total} {self.unit}, {now - self.t0:.0f} s", flush=True)
 
 
 def _live(ep: Episode, live: Mapping[str, float] | None) -> list[str]:

@@ -12,7 +12,7 @@ line.
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -187,14 +187,18 @@ class MemberEvaluations:
                 del self.running[member]
         return results
 
-    def alone(self, member: int, seed: int) -> dict:
+    def alone(self, member: int, seed: int, progress: Callable[[int], None] | None = None) -> dict:
         """``member``'s evaluation from ``seed``'s starts on block 0, made now (none other
-        under way): its result."""
+        under way): its result. ``progress``: told after each step how many of its episodes
+        have ended."""
         self.start(member, seed, 0)
+        rows = self.env.block(0)
         while True:
             results = self.step()
             if member in results:
                 return results[member]
+            if progress is not None:
+                progress(int((~self.alive[rows]).sum()))
 
     def drop(self, member: int) -> None:
         """``member``'s evaluation, if one is under way, ends unfinished (its run failed)."""

@@ -47,7 +47,7 @@ from tensordict import TensorDict, TensorDictBase
 from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
-from runs.console import Tee, banner_lines, copies, tee_console
+from runs.console import Tee, Ticker, banner_lines, copies, tee_console
 from runs.evaluate import MemberEvaluations, describe_evaluation, episode_values, measure_of, starts_seed
 from runs.folder import WRITE_FAILED, cannot_write, check_new_run, model_path, run_lock, start_run, taken
 from runs.job import NOT_BATCHED, Job, batchable
@@ -202,7 +202,8 @@ class Seed:
         starts (:func:`runs.evaluate.starts_seed`), made now."""
         if episodes not in self.evaluations:
             self.evaluations[episodes] = MemberEvaluations(self.cfg, self.member.learner, 1, episodes)
-        return self.evaluations[episodes].alone(self.member.index, starts_seed(self.eval_seed, k))
+        return self.evaluations[episodes].alone(self.member.index, starts_seed(self.eval_seed, k),
+                                                Ticker("greedy evaluation", episodes, "episodes ended"))
 
     def close_evaluations(self) -> None:
         for evaluations in self.evaluations.values():
@@ -871,7 +872,8 @@ def report(seed: Seed, summary: dict, result: dict | None) -> None:
 
         video_env = build_env(cfg, 1, int(cfg.seed) + VIDEO_SEED_OFFSET)
         with seed.member.greedy():
-            record_video(video_env, seed.member.policy, run_dir / "policy.mp4", n_steps=int(cfg.video_steps))
+            record_video(video_env, seed.member.policy, run_dir / "policy.mp4", n_steps=int(cfg.video_steps),
+                         progress=Ticker("recording the policy's video", int(cfg.video_steps), "steps"))
         video_env.close()
         print(f"policy video in {run_dir / 'policy.mp4'}")
     if cfg.mode == "train":

@@ -40,6 +40,7 @@ def record_video(
     camera: str | int | None = None,
     width: int = 480,
     height: int = 360,
+    progress: Callable[[int], None] | None = None,
 ) -> int:
     """Writes an MP4 of ``policy`` acting in ``env`` (copy 0); returns the frame count.
 
@@ -48,6 +49,7 @@ def record_video(
     resets. ``fps`` defaults to real time (one frame per ``task.running_step``),
     ``camera`` (a name or an index of the model's) to the task's first camera; a camera
     the model lacks is a ``ValueError`` listing its cameras. Width and height must be even.
+    ``progress``: told after each step how many steps are done.
     """
     if n_steps < 0:
         raise ValueError(f"n_steps must be >= 0; got {n_steps}")
@@ -66,10 +68,12 @@ def record_video(
             td = env.reset()
             writer.append_data(env.render(width, height, camera, 0))
             frames += 1
-            for _ in range(n_steps):
+            for i in range(n_steps):
                 td = env.step(policy(td))
                 writer.append_data(env.render(width, height, camera, 0))
                 frames += 1
+                if progress is not None:
+                    progress(i + 1)
                 td = env.maybe_reset(step_mdp(td))
     finally:
         writer.close()
@@ -106,6 +110,9 @@ def video_of_run(run_dir: Path | str, n_steps: int = 500, out: Path | str | None
         load_model(run_dir / "model.pt", learner)
         out = Path(out) if out else run_dir / "policy.mp4"
         with learner.greedy():
+            from runs.console import Ticker
+
+            kwargs.setdefault("progress", Ticker("recording the video", n_steps, "steps"))
             record_video(env, learner.policy, out, n_steps=n_steps, **kwargs)
     finally:
         env.close()

@@ -260,3 +260,17 @@ def test_eval_of_a_folder_without_model_is_one_line(tmp_path, monkeypatch, capsy
     code = cli(["mode=eval", f"checkpoint={empty}", f"hydra.run.dir={tmp_path / 'run'}"], monkeypatch)
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "is a folder without model.pt" in err[0]
+
+
+def test_a_ticker_speaks_every_few_seconds_of_a_long_piece_of_work(capsys, monkeypatch):
+    """Issue 67: an evaluation sat silent for 52 s, a video for 175 s. A Ticker prints a line
+    every ``every`` seconds while the work goes on, and nothing for work shorter than that."""
+    from runs import console
+
+    clock = iter([0.0, 1.0, 5.5, 6.0, 11.0])
+    monkeypatch.setattr(console.time, "monotonic", lambda: next(clock))
+    tick = console.Ticker("greedy evaluation", 20, "episodes ended")
+    for done in (3, 8, 9, 15):
+        tick(done)
+    assert capsys.readouterr().out.splitlines() == ["greedy evaluation: 8/20 episodes ended, 6 s",
+                                                    "greedy evaluation: 15/20 episodes ended, 11 s"]
