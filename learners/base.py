@@ -302,7 +302,7 @@ class MemberPolicy(TensorDictModuleBase):
 class Member:
     """Member ``index`` of ``learner`` seen alone: its numbers, its policy, its saved states;
     all a run reads of one member. It asks the learner's member-wise calls, which a learner
-    answers for one member index ``b``: ``stats(b)``, ``train_stats(b, reset)``,
+    answers for one member index ``b``: ``stats(b)``, ``train_stats(b, reset)``, ``advice(b)``,
     ``model_state(b)``, ``load_model_state(b, state, where)``, ``training_state(b)`` and
     ``load_training_state(b, state)``.
 
@@ -336,6 +336,11 @@ class Member:
     def stats(self) -> dict[str, float]:
         """The member's numbers recorded with each episode it finishes (:meth:`Learner.stats`)."""
         return self.learner.stats(self.index)
+
+    def advice(self) -> dict[str, str]:
+        """What the member's numbers so far say about its settings, a line per subject (a
+        value range its returns lie beyond, ...): the run prints each subject once."""
+        return self.learner.advice(self.index)
 
     def train_stats(self, reset: bool = True) -> dict[str, float]:
         """The member's ``train/*`` numbers (:meth:`Learner.train_stats`).

@@ -24,6 +24,7 @@ follow training (ruippeixotog's "run" phase).
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -34,7 +35,7 @@ from torchrl.modules import MLP, DistributionalQValueActor, NoisyLinear, QValueA
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
 from learners.member import ObsScale, ReplayLearner
-from learners.transitions import Transitions
+from learners.transitions import Transitions, unpack
 from params import require
 from params.declare import REQUIRED, check_fields, param
 
@@ -274,10 +275,32 @@ class DQN(ReplayLearner):
         if self.distributional:
             from learners.distributional import c51_terms
 
-            loss, value, target, _ = c51_terms(q, target_q, batch, gamma, self.double_dqn, self.z)
-            return loss, value, target, loss.detach()
+            loss, value, target, m = c51_terms(q, target_q, batch, gamma, self.double_dqn, self.z)
+            # the projected targets' mass on the support's two end atoms: near 1 when the returns
+            # lie beyond [v_min, v_max] (they are clipped there)
+            return loss, value, target, loss.detach(), {"support_edge": (m[..., :1] + m[..., -1:]).detach()}
         value, target = td_terms(q, target_q, batch, gamma, self.double_dqn)
         return _DISTANCES[self.loss_function](value, target, reduction="none"), value, target, target - value.detach()
+
+    def advice(self, b: int) -> dict[str, str]:
+        """C51 (``value_range``): a value range the task's returns lie beyond. Either the mean reward of the
+        member's stored transitions, earned every step, makes a discounted return
+        ``r / (1 - gamma)`` outside ``[v_min, v_max]`` (after 1,000 transitions), or most
+        of the projected targets' mass sits on the support's end atoms."""
+        buffer, own, numbers = self.buffers[b], self.settings[b], self.trackers[b].latest
+        stored = buffer.stored()
+        if not self.distributional or stored < 1000:
+            return {}
+        reward = float(unpack(buffer.rows[:stored]).reward.mean())
+        steady = reward / (1 - own.gamma) if own.gamma < 1 else math.copysign(math.inf, reward)
+        edge = numbers.get("support_edge", 0.0)
+        if own.v_min <= steady <= own.v_max and edge < 0.5:
+            return {}
+        return {"value_range": f"learner.v_min/v_max [{own.v_min:g}, {own.v_max:g}] may not hold this task's returns: its mean "
+                f"reward {reward:.3g} a step (after reward_scale) earned every step is a discounted return of "
+                f"{steady:.3g} at gamma {own.gamma:g}, and {edge:.0%} of the C51 targets' mass sits on the "
+                f"support's end atoms (the returns are clipped there); set them to the task's discounted returns "
+                f"(bench/benchmark.yaml's dqn_c51 task_overrides list each shipped task's)"}
 
     def transitions_of(self, tensordict: TensorDictBase, own: DQN | None = None) -> Transitions:
         """The transitions of ``tensordict``, the terminating rewards replaced if

@@ -104,6 +104,11 @@ class MemberLearner:
         None: its updates do not follow its steps."""
         return None
 
+    def advice(self, b: int) -> dict[str, str]:
+        """What member ``b``'s numbers so far say about its settings: a line per subject (a run
+        prints each subject once, the first time it is given); none by default."""
+        return {}
+
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
         """Every member's exploring actions on its block; only ``live`` members draw."""
         if live is None or len(live) == self.members:
@@ -513,17 +518,23 @@ class UpdateStats:
         """A new interval, starting now after ``updates`` optimizer steps."""
         self.pending: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
         self.norms: list[torch.Tensor] = []
+        self.extras: dict[str, list[torch.Tensor]] = {}  # an algorithm's own numbers, per transition
+        self.extra_sums: dict[str, float] = {}
         self.loss_sum = self.q_sum = self.td_sum = self.norm_sum = 0.0
         self.count = self.values = self.n_norms = 0
         self.since, self.t0 = updates, time.perf_counter()
 
     def add(self, loss: torch.Tensor | float, q: torch.Tensor, target: torch.Tensor,
-            grad_norm: torch.Tensor | None) -> None:
-        """One update: its loss, ``q`` and ``target`` (detached), its gradient norm if known."""
+            grad_norm: torch.Tensor | None, extras: Mapping[str, torch.Tensor] | None = None) -> None:
+        """One update: its loss, ``q`` and ``target`` (detached), its gradient norm if known,
+        and the algorithm's own numbers of its transitions (``extras``: their means are read
+        under their names)."""
         self.count += 1
         self.pending.append((torch.as_tensor(loss, device=q.device), q, target))
         if grad_norm is not None:
             self.norms.append(grad_norm)
+        for name, value in (extras or {}).items():
+            self.extras.setdefault(name, []).append(value)
         if len(self.pending) >= self.FOLD:
             self._fold()
 
@@ -541,6 +552,10 @@ class UpdateStats:
             self.norm_sum += float(torch.stack(self.norms).sum())
             self.n_norms += len(self.norms)
             self.norms.clear()
+        for name, values in self.extras.items():
+            if values:
+                self.extra_sums[name] = self.extra_sums.get(name, 0.0) + float(torch.cat(values).sum())
+                values.clear()
 
     def read(self, updates: int, reset: bool = True) -> dict[str, float]:
         """The interval's means (``loss``, ``q_mean``, ``td_error``, ``grad_norm``), the
@@ -551,6 +566,8 @@ class UpdateStats:
                            "td_error": self.td_sum / self.values}
         if self.n_norms:
             self.latest["grad_norm"] = self.norm_sum / self.n_norms
+        if self.count:
+            self.latest.update({name: total / self.values for name, total in self.extra_sums.items()})
         rate = (updates - self.since) / max(time.perf_counter() - self.t0, 1e-9)
         stats = {**self.latest, "updates": float(updates), "updates_per_s": rate}
         if reset:
@@ -863,8 +880,9 @@ class ReplayLearner(MemberLearner):
             online, valued = self.net.with_noise(online, noise), self.net.with_noise(valued, target_noise)
         gamma = self.own("gamma", due, params.dtype, params.device)
         gamma = gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma
-        loss, q, td_target, errors = self.terms(lambda x: self.net.q(online, x), lambda x: self.net.q(valued, x),
-                                                batch, gamma)
+        loss, q, td_target, errors, *extra = self.terms(lambda x: self.net.q(online, x),
+                                                        lambda x: self.net.q(valued, x), batch, gamma)
+        extras = extra[0] if extra else {}  # the algorithm's own numbers of each transition
         if self.prioritized:  # importance-weighted; the rows take their new errors
             loss = loss * torch.stack(weights).to(loss.device).unsqueeze(-1)
             for j, b in enumerate(due):
@@ -882,7 +900,8 @@ class ReplayLearner(MemberLearner):
                     self.target.index_copy_(0, rows, target)
         for j, b in enumerate(due):
             self.trackers[b].add(loss[j].detach(), q[j].detach(), td_target[j],
-                                 norms[j] if self.settings[b].grad_clip > 0 else None)
+                                 norms[j] if self.settings[b].grad_clip > 0 else None,
+                                 {name: value[j].detach() for name, value in extras.items()})
 
     def _follow(self, due: list[int], params: torch.Tensor, target: torch.Tensor) -> None:
         """The target networks of ``due`` after their step: Polyak averaging by ``tau``, a

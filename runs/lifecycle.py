@@ -670,7 +670,7 @@ def make_run(seed: Seed, resume: bool, progress: Progress | None,
                   greedy_eval=(seed.side_eval or partial(seed.evaluate, int(cfg.eval_episodes)))
                   if cfg.eval_episodes else None,
                   final_eval=seed.side_eval if seed.final_episodes == int(cfg.eval_episodes) else None,
-                  train_stats=learner.train_stats, progress=progress)
+                  train_stats=learner.train_stats, advice=learner.advice, progress=progress)
     run = Run(seed.run_dir, env.num_envs, int(cfg.max_episodes), seed.success, logger=logger,
               extra_fields=tuple(learner.stats), quiet=bool(cfg.quiet), verbose=bool(cfg.get("verbose", False)),
               log_every=int(cfg.get("log_every", 0)), checkpoint_every=int(cfg.get("checkpoint_every", 0)),

@@ -92,6 +92,8 @@ class Hooks:
     - ``final_eval()``: starts the final greedy evaluation of a run whose budget is spent, made
       later as ``greedy_eval``'s are (None: the caller makes it once the run has ended);
     - ``train_stats(reset=True)``: the learner's ``train/*`` numbers;
+    - ``advice()``: what the learner's numbers say about its settings, a line per subject
+      (each subject printed once);
     - ``progress``: a tuning trial's :class:`Progress` report.
     """
 
@@ -99,6 +101,7 @@ class Hooks:
     greedy_eval: Callable[[int], dict | None] | None = None
     final_eval: Callable[[int], None] | None = None
     train_stats: Callable[..., dict[str, float]] | None = None
+    advice: Callable[[], dict[str, str]] | None = None
     progress: Progress | None = None
 
 
@@ -312,7 +315,8 @@ class Run:
         self.max_env_steps, self.stop_when_solved = int(max_env_steps), bool(stop_when_solved)
         hooks = hooks or Hooks()
         self._save, self.greedy_eval, self.final_eval = hooks.checkpoint, hooks.greedy_eval, hooks.final_eval
-        self.train_stats, self.progress = hooks.train_stats, hooks.progress
+        self.train_stats, self.progress, self.advice = hooks.train_stats, hooks.progress, hooks.advice
+        self._advised: set[str] = set()  # the subjects of the learner's advice already printed
         self._next_progress = 0
         self._told = False  # the progress hook was told the run stopped solved
         self.pruned_at: int | None = None  # the episode a tuning study stopped the run at
@@ -552,6 +556,10 @@ class Run:
         if final or self._train_due or since >= TRAIN_LOG_STEPS:
             log_train(self.logger, self.train_stats(), self.env_steps)
             self._train_logged, self._train_due = self.env_steps, False
+            for subject, line in (self.advice() if self.advice is not None else {}).items():
+                if subject not in self._advised:  # once a run
+                    self._advised.add(subject)
+                    self.console.write(f"warning: {line}")
 
     @property
     def wall_s(self) -> float:

@@ -84,3 +84,26 @@ def test_actions_are_the_argmax_of_the_means_and_the_saved_actor_agrees():
         acted = saved.actor(TensorDict({"observation": obs[16 * b:16 * (b + 1)]}, batch_size=[16]))
         assert torch.equal(acted.get("action"), action[16 * b:16 * (b + 1)])
         assert acted.get("action_value").shape == (16, 11, 2)  # TorchRL's [atoms, actions]
+
+
+@pytest.mark.parametrize("v_max, warned", [(20.0, True), (150.0, False)])
+def test_a_value_range_the_returns_lie_beyond_is_said_once(v_max, warned):
+    """Issue 67: rainbow's [-10, 10] against cart-pole's returns of up to 100 gave no word. A
+    C51 learner whose stored rewards, earned every step, make a discounted return beyond
+    [v_min, v_max] says so (the run prints each subject once); one whose range holds them
+    does not. The targets' mass on the end atoms is a train/* number (support_edge)."""
+    learner = built(f"learner.v_max={v_max}", "learner.gamma=0.99", "learner.reward_scale=1.0")
+    rows = Transitions(observation=torch.zeros(1200, 4), action=torch.zeros(1200, 1, dtype=torch.int64),
+                       reward=torch.ones(1200, 1), next_observation=torch.zeros(1200, 4),
+                       terminated=torch.zeros(1200, 1, dtype=torch.bool), steps=None)
+    from learners.transitions import pack
+
+    learner.buffers[0].put(pack(rows))
+    advice = learner.advice(0)
+    assert bool(advice) == warned
+    if warned:
+        assert advice["value_range"].startswith(f"learner.v_min/v_max [-5, {v_max:g}] may not hold this task's "
+                                                "returns: its mean reward 1 a step")
+        assert "discounted return of 100 at gamma 0.99" in advice["value_range"]
+    learner.optimize(3)
+    assert 0.0 <= learner.train_stats(0)["support_edge"] <= 1.0
