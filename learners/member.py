@@ -109,6 +109,13 @@ class MemberLearner:
         prints each subject once, the first time it is given); none by default."""
         return {}
 
+    def end_episodes(self, ended: Mapping[int, int]) -> None:
+        """After each finished episode of a member: its exploration schedule's episode step
+        (``schedules``: one per member, :mod:`learners.schedules`)."""
+        for b, count in ended.items():
+            for _ in range(count):
+                self.schedules[b].episode_end()
+
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
         """Every member's exploring actions on its block; only ``live`` members draw."""
         if live is None or len(live) == self.members:
@@ -803,10 +810,10 @@ class ReplayLearner(MemberLearner):
     def end_episodes(self, ended: Mapping[int, int]) -> None:
         """After each finished episode of a member: the schedule's episode step and, with
         ``train_every=episode``, its updates; then the updates owed run."""
-        for b, count in ended.items():
-            for _ in range(count):
-                self.schedules[b].episode_end()
-                if self.train_every == "episode":
+        super().end_episodes(ended)
+        if self.train_every == "episode":
+            for b, count in ended.items():
+                for _ in range(count):
                     self._owe(b, self.settings[b].updates)
         self.settle()
 

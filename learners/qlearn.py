@@ -35,6 +35,7 @@ from tensordict import TensorDictBase
 from learners.base import StateMismatch, check_state
 from learners.discretizer import MAX_SPLITS, MemberDiscretizers
 from learners.member import MemberLearner, MemberTables, draws
+from learners.schedules import EpisodeDecayEpsilon
 from params import require
 from params.declare import check_fields, param
 from params.private_api import with_entries
@@ -84,14 +85,19 @@ class QLearn(MemberLearner):
         self._members(generators, variants)
         self._bounds, self.n_actions = task.tabular_bounds, int(task.n_actions)
         self._lay_out()
-        self.epsilons = [float(own.epsilon) for own in self.settings]
+        self.schedules = [self._schedule(own) for own in self.settings]
 
     def renew(self, b: int, generator: torch.Generator, variant: QLearn | None = None) -> None:
         """Member ``b`` made anew from ``generator`` and ``variant`` (None: this learner's
         settings); the other members' tables kept as they are."""
         self.generators[b], self.settings[b] = generator, self.variant(variant)
         self._lay_out({i: (self.table[i], self.visited[i]) for i in range(self.members) if i != b})
-        self.epsilons[b] = float(self.settings[b].epsilon)
+        self.schedules[b] = self._schedule(self.settings[b])
+
+    @staticmethod
+    def _schedule(own: QLearn) -> EpisodeDecayEpsilon:
+        """A member's exploration from its settings: the original's decay per episode."""
+        return EpisodeDecayEpsilon(own.epsilon, own.epsilon_min, own.epsilon_discount)
 
     def _lay_out(self, kept: Mapping[int, tuple[torch.Tensor, torch.Tensor]] | None = None) -> None:
         """Every member's discretizer and its table, fresh (at its ``initial_q``, unvisited)
@@ -116,13 +122,13 @@ class QLearn(MemberLearner):
 
     def stats(self, b: int) -> dict[str, float]:
         own = self.settings[b]
-        return {"alpha": own.alpha, "gamma": own.gamma, "epsilon": self.epsilons[b]}
+        return {"alpha": own.alpha, "gamma": own.gamma, "epsilon": self.schedules[b].value}
 
     def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
         """``train/*``: ``epsilon`` and ``visited_fraction``, the share of member ``b``'s
         (state, action) pairs updated at least once (``reset``: the common signature's)."""
         visited = self.visited[b]
-        return {"epsilon": self.epsilons[b], "visited_fraction": int(visited.count_nonzero()) / visited.numel()}
+        return {"epsilon": self.schedules[b].value, "visited_fraction": int(visited.count_nonzero()) / visited.numel()}
 
     # -- acting --------------------------------------------------------------
     def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
@@ -140,9 +146,9 @@ class QLearn(MemberLearner):
         drawn = draws(generators, size, lambda g, out: torch.rand(size, generator=g, dtype=torch.float64, out=out),
                       torch.float64)
         if greedy or k == 1:  # one epsilon: a Python number (the comparison is the same)
-            epsilon = 0.0 if greedy else self.epsilons[members[0]]
+            epsilon = 0.0 if greedy else self.schedules[members[0]].value
         else:
-            epsilon = torch.from_numpy(np.array([[self.epsilons[b]] for b in members], dtype=np.float64))
+            epsilon = torch.from_numpy(np.array([[self.schedules[b].value] for b in members], dtype=np.float64))
         action = self.choose(q, epsilon, drawn)
         shape = td.batch_size
         return with_entries(td, state_index=state.reshape(shape), action_value=q.reshape(*shape, a).to(torch.float32),
@@ -199,19 +205,11 @@ class QLearn(MemberLearner):
         values.view(-1).index_add_(0, pair, increment)
         seen.view(-1).index_fill_(0, pair, True)
 
-    def end_episodes(self, ended: Mapping[int, int]) -> None:
-        """After each finished episode of a member: its epsilon decays (down to ``epsilon_min``)."""
-        for b, count in ended.items():
-            own = self.settings[b]
-            for _ in range(count):
-                if self.epsilons[b] > own.epsilon_min:
-                    self.epsilons[b] *= own.epsilon_discount
-
     # -- persistence ---------------------------------------------------------
     def model_state(self, b: int) -> dict:
         """Member ``b``'s Q-table, its visited flags, epsilon and the state mapping (``model.pt``)."""
         return {"kind": "qlearn", "table": self.table[b].clone(), "visited": self.visited[b].clone(),
-                "epsilon": self.epsilons[b], "discretizer": self.discretizers[b].describe(),
+                "epsilon": self.schedules[b].value, "discretizer": self.discretizers[b].describe(),
                 "n_actions": self.n_actions}
 
     def training_state(self, b: int) -> dict:
@@ -234,7 +232,7 @@ class QLearn(MemberLearner):
 
     def load_training_state(self, b: int, state: Mapping) -> None:
         self.load_model_state(b, state, "the training checkpoint")
-        self.epsilons[b] = float(state["epsilon"])
+        self.schedules[b].load_state_dict({"value": state["epsilon"]})
         self.generators[b].set_state(state["generator"])
 
 

@@ -129,3 +129,24 @@ class LinearEpsilon:
 
     def load_state_dict(self, state: dict) -> None:
         self.done_steps = state["done_steps"]
+
+
+class EpisodeDecayEpsilon:
+    """The original Q-learner's: after each episode, epsilon *= ``discount`` while it is above
+    ``epsilon_min`` (so it may end just below it); a member's own, made from its settings."""
+
+    def __init__(self, epsilon: float, epsilon_min: float, discount: float) -> None:
+        self.value, self.epsilon_min, self.discount = float(epsilon), float(epsilon_min), float(discount)
+
+    def step(self, n: int = 1) -> None:
+        pass
+
+    def episode_end(self) -> None:
+        if self.value > self.epsilon_min:
+            self.value *= self.discount
+
+    def state_dict(self) -> dict:
+        return {"value": self.value}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.value = float(state["value"])

@@ -105,17 +105,17 @@ def test_greedy_action_and_epsilon_decay_with_floor():
     q.table[0][1] = torch.tensor([0.0, 1.0])
     td = TensorDict({"observation": torch.tensor([[1.5, 0, 0]] * 50)}, batch_size=[50])
     assert (q.member(0).policy(td)["action"] == 1).all()
-    q.epsilons[0] = 0.9
+    q.schedules[0].value = 0.9
     for expected in (0.45, 0.225, 0.1125, 0.1125):
         q.end_episodes({0: 1})
-        assert q.epsilons[0] == pytest.approx(expected)
+        assert q.schedules[0].value == pytest.approx(expected)
 
 
 def test_epsilon_one_explores_uniformly_and_noise_option_too():
     for noise in (False, True):
         q = learner(noise_exploration=noise)
         q.table[0][1] = torch.tensor([0.0, 1.0])
-        q.epsilons[0] = 1.0
+        q.schedules[0].value = 1.0
         td = TensorDict({"observation": torch.tensor([[1.5, 0, 0]] * 2000)}, batch_size=[2000])
         share = q.member(0).policy(td)["action"].float().mean().item()
         # Plain epsilon: uniform (0.5). Noise of the Q magnitude: still favours the best action.
