@@ -366,7 +366,7 @@ def test_config_picks_the_maze_and_the_tuned_learner():
     assert cfg.task._target_ == "tasks.maze.MazeTask"
     tuned = OmegaConf.load(ROOT / "conf" / "tuned" / "turtlebot_qlearn.yaml").learner  # the maze study's
     assert (cfg.learner.alpha, cfg.learner.gamma, cfg.learner.epsilon) == (tuned.alpha, tuned.gamma, tuned.epsilon)
-    assert (cfg.max_episodes, cfg.task.max_episode_steps) == (500, 500)
+    assert (cfg.max_episodes, cfg.max_env_steps, cfg.task.max_episode_steps) == (0, 100_000, 500)  # the benchmark's budget
     task = build_task(cfg)
     assert (task.n_actions, task.n_observations, task.min_range) == (3, 6, 0.5)
     np.testing.assert_allclose(task.speeds, [[0.5, 0.0], [0.1, 0.3], [0.1, -0.3]])
