@@ -384,13 +384,27 @@ def seed_rows(job: Job, sweep: Path) -> list[dict]:
             "success": succeeded(s),
             "verdict": bool(ok and s.get("solved")), "measure": s.get("measure"),
             "threshold": threshold, "greedy": greedy, "greedy_rate": s.get("greedy_rate"), "rate": s.get("rate"),
-            "stuck": s.get("stuck"), "stuck_steps": s.get("stuck_steps"),
+            **_start_watch(s, job.budget),
             "env_steps": s.get("env_steps"),
             "wall_s": s.get("wall_s"), "steps_to_solve": s.get("steps_to_solve"),
             "wall_to_solve": s.get("wall_to_solve"), "error": s.get("error", ""), "run_dir": s["run_dir"],
             "evaluations": [list(point) for point in run_evaluations(s, "env_steps")] if ok else [],
         })
     return rows
+
+
+def _start_watch(summary: dict, budget: int) -> dict:
+    """``stuck`` and ``stuck_steps`` of a finished seed, replayed from its folder's files
+    (:meth:`runs.run.StartWatch.of_folder`: the same for a run made before the watch read
+    greedy evaluations); its summary's where the files cannot be read."""
+    from runs.run import StartWatch
+
+    try:
+        watch = StartWatch.of_folder(Path(summary["run_dir"]), summary["measure"], summary["threshold"])
+    except (OSError, KeyError, TypeError, ValueError):
+        return {"stuck": summary.get("stuck"), "stuck_steps": summary.get("stuck_steps")}
+    steps = int(summary.get("env_steps") or 0)
+    return {"stuck": watch.stuck(steps, budget), "stuck_steps": watch.stuck_steps(steps)}
 
 
 def pair_seeds(job: Job, out: Path) -> tuple[list[dict], str]:

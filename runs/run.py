@@ -239,10 +239,12 @@ class SuccessJudge:
 
 class StartWatch:
     """Whether a run left its untrained level, and at which env step: the mean measure of
-    its last :data:`EPISODES` training episodes first above that of its first ones by a tenth
-    of the way to the threshold (issue 65: a cart-pole rainbow seed ran 4-step episodes for
-    98k env steps before it escaped). A run that stayed there for :data:`SHARE` of its budget
-    or more had a *stuck start* (:meth:`stuck`)."""
+    its last :data:`EPISODES` training episodes, or a greedy evaluation's, first above that of
+    its first training episodes by a tenth of the way to the threshold (issue 65: a cart-pole
+    rainbow seed ran 4-step episodes for 98k env steps before it escaped; on the wall an
+    exploring Q-learner's training episodes stay short while its greedy policy drives). A run
+    that stayed there for :data:`SHARE` of its budget or more had a *stuck start*
+    (:meth:`stuck`)."""
 
     EPISODES = 20
     SHARE = 0.25
@@ -261,6 +263,32 @@ class StartWatch:
         if self.level is None:
             self.level = float(np.mean(values[:self.EPISODES]))
         if n >= 2 * self.EPISODES and float(np.mean(values[-self.EPISODES:])) > self.level + self._margin():
+            self.left_at = env_steps
+
+    @classmethod
+    def of_folder(cls, run_dir: Path, measure: str, threshold: float) -> StartWatch:
+        """The watch of a run, replayed from its folder's metrics.csv (each training episode's
+        measure) and evals.csv (each greedy evaluation's mean), in the order the run made
+        them: what a run made before the watch read greedy evaluations says today."""
+        watch, values = cls(threshold), []
+        with open(run_dir / "metrics.csv", newline="") as f:
+            episodes = [(float(r[measure]), int(r["env_steps"])) for r in csv.DictReader(f)]
+        evals_csv = run_dir / "evals.csv"
+        evals = []
+        if evals_csv.is_file():
+            with open(evals_csv, newline="") as f:
+                evals = [(float(r[measure]), int(r["env_steps"])) for r in csv.DictReader(f)]
+        for i, (value, steps) in enumerate(episodes):
+            values.append(value)
+            watch.booked(values, steps)
+            later = episodes[i + 1][1] if i + 1 < len(episodes) else math.inf
+            while evals and evals[0][1] < later:  # an evaluation follows the episodes of its step
+                watch.evaluated(*evals.pop(0))
+        return watch
+
+    def evaluated(self, value: float, env_steps: int) -> None:
+        """A greedy evaluation's mean measure ``value`` at ``env_steps``."""
+        if self.known and self.left_at is None and self.level is not None and value > self.level + self._margin():
             self.left_at = env_steps
 
     def _margin(self) -> float:
@@ -517,6 +545,7 @@ class Run:
         self.last_eval = result
         self.files.write_evals(self.evals)
         self.judge.evaluated(value, rate, self.n_episodes)
+        self.start_watch.evaluated(value, self.env_steps)
         log_evaluation(self.logger, row, self.success)
         self.console.evaluation(row)
         return result

@@ -358,3 +358,21 @@ def test_a_run_that_stays_at_its_untrained_level_says_it_had_a_stuck_start(tmp_p
     s = quick.close()
     assert not s["stuck"] and s["stuck_steps"] < 0.25 * 20000
     assert not any("stuck start" in line for line in verdict_lines(s, tmp_path))
+
+
+def test_a_greedy_policy_that_drives_is_no_stuck_start_and_the_folder_replays_the_watch(tmp_path):
+    """On the wall an exploring Q-learner's training episodes stay at their start while its
+    greedy policy drives: a greedy evaluation above the level ends the stuck start too. The
+    watch replayed from the run's folder (what the benchmark reads) says what the run said."""
+    success = Success("length", "steps", "steps lasted", 250.0, "greedy", 100, 0)
+    run = Run(tmp_path, 1, 0, success, quiet=True, max_env_steps=4000, eval_every=30,
+              hooks=Hooks(greedy_eval=lambda k: lengths_result([200.0] * 20)))
+    for _ in range(300):
+        feed(run, [8])
+        run.end_step(None)
+    s = run.close()
+    assert s["start_level"] == 8.0 and not s["stuck"] and s["stuck_steps"] == 30 * 8  # its first evaluation
+    from runs.run import StartWatch
+
+    replayed = StartWatch.of_folder(tmp_path, "length", 250.0)
+    assert (replayed.level, replayed.stuck_steps(s["env_steps"])) == (s["start_level"], s["stuck_steps"])
