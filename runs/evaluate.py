@@ -113,6 +113,12 @@ def episode_values(result: Mapping, measure: str) -> list[float]:
     return list(result["lengths"] if measure == "length" else result["info"][measure])
 
 
+def pass_rate(result: Mapping, success: Success) -> float:
+    """The share of an :func:`evaluate` result's episodes whose measure reaches the task's
+    threshold (:meth:`tasks.base.Success.pass_rate`)."""
+    return success.pass_rate(episode_values(result, success.measure))
+
+
 def starts_seed(seed: int, k: int) -> int:
     """The seed of a run's ``k``-th greedy evaluation's starts, from its evaluation seed:
     ``seed`` itself for the first, then one of its own for each (every evaluation from
@@ -216,7 +222,7 @@ def describe_evaluation(result: dict, success: Success) -> str:
     """``greedy evaluation over N episodes: <measure> m +- s <unit>, length ..., return ...``."""
     values = result["lengths"] if success.measure == "length" else result["info"][success.measure]
     extra = "".join(f", {k} {v:.3f}" for k, v in result["info_mean"].items() if k != success.measure)
-    passed = int(round(success.pass_rate(values) * len(values)))
+    passed = int(round(pass_rate(result, success) * len(values)))
     return (f"greedy evaluation over {result['episodes']} episodes: {success.description} "
             f"{measure_of(result, success.measure):.4g} +- {np.std(values):.3g} {success.unit}, "
             f"{passed}/{len(values)} episodes >= {success.threshold:g} (solved at {success.rate:.0%}, "

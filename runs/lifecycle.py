@@ -48,7 +48,7 @@ from learners.base import Member
 from params import ConfigError
 from runs.checkpoint import CheckpointError, load_model, save_model
 from runs.console import Tee, Ticker, banner_lines, copies, tee_console
-from runs.evaluate import MemberEvaluations, describe_evaluation, episode_values, measure_of, starts_seed
+from runs.evaluate import MemberEvaluations, describe_evaluation, measure_of, pass_rate, starts_seed
 from runs.folder import WRITE_FAILED, cannot_write, check_new_run, model_path, run_lock, start_run, taken
 from runs.job import NOT_BATCHED, Job, batchable
 from runs.layout import train_command
@@ -859,12 +859,12 @@ def report(seed: Seed, summary: dict, result: dict | None) -> None:
     cfg, run_dir, success = seed.cfg, seed.run_dir, seed.success
     if result is not None:
         print(describe_evaluation(result, success))
-        rate = success.pass_rate(episode_values(result, success.measure))
-        (run_dir / "eval.json").write_text(json.dumps(
-            {"measure": success.measure, "value": measure_of(result, success.measure), "threshold": success.threshold,
-             "greedy_rate": rate, "rate": success.rate, "passed": success.rate_met(rate),
-             **({"mode": "eval", "checkpoint": str(cfg.checkpoint)} if cfg.mode == "eval" else {}), **result},
-            indent=1))
+        rate = pass_rate(result, success)
+        record = {"measure": success.measure, "value": measure_of(result, success.measure),
+                  "threshold": success.threshold, "greedy_rate": rate, "rate": success.rate,
+                  "passed": success.rate_met(rate),
+                  **({"mode": "eval", "checkpoint": str(cfg.checkpoint)} if cfg.mode == "eval" else {}), **result}
+        (run_dir / "eval.json").write_text(json.dumps(record, indent=1))
         summary["eval"] = result
     seed.close_evaluations()
     if cfg.video:  # the greedy policy on a fresh one-copy env
@@ -882,5 +882,5 @@ def report(seed: Seed, summary: dict, result: dict | None) -> None:
         for line in verdict_lines(summary, run_dir):
             print(line)
     elif result is not None:  # mode=eval: the checkpoint's evaluation, its own verdict
-        for line in eval_verdict_lines(result, success, str(cfg.checkpoint), run_dir):
+        for line in eval_verdict_lines(record, run_dir):
             print(line)

@@ -36,7 +36,7 @@ from tensordict import TensorDictBase
 
 from runs.console import Console
 from runs.metrics_files import Episode
-from runs.evaluate import episode_values, measure_of
+from runs.evaluate import measure_of, pass_rate
 from runs.loggers import csv_sizes, cut_csv_files, finish_log, log_episode, log_evaluation, log_train
 from runs.metrics_files import MetricsFiles
 from runs.summary import run_summary
@@ -473,7 +473,7 @@ class Run:
     def _take_evaluation(self, result: dict) -> None:
         """Records the boundary's evaluation ``result`` (judged); the next one it owes now, if any."""
         self.record_evaluation(result)
-        self._owed = "confirm" if self.judge.owed and not self.stop_requested else None
+        self._owed = self._evaluation_owed()  # after it, only a confirmation can be owed
 
     def _close_boundary(self, td: TensorDictBase) -> None:
         """The rest of a step boundary, after its evaluation: a solved run told to the
@@ -538,7 +538,7 @@ class Run:
         """Records a greedy evaluation's ``result`` (evals.csv, the logger, the console) and
         judges it (:meth:`SuccessJudge.evaluated`): it may propose, confirm or turn down a verdict."""
         value = measure_of(result, self.success.measure)
-        rate = self.success.pass_rate(episode_values(result, self.success.measure))
+        rate = pass_rate(result, self.success)
         row = {"episode": self.n_episodes, "env_steps": self.env_steps, "episodes": result["episodes"],
                "length": result["mean_length"], "return": result["mean_return"], "value": value, "rate": rate}
         self.evals.append(row)

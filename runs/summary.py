@@ -517,21 +517,19 @@ def _greedy_line(s: dict, greedy: str, greedy_return: str) -> str:
             f"makes no final one): {greedy}, {greedy_return}")
 
 
-def eval_verdict_lines(result: dict, success, checkpoint: str, run_dir: Path) -> list[str]:
-    """A ``mode=eval`` folder's verdict: whether the checkpoint's greedy policy passed the
-    task's rule in this one evaluation, and its ``VERDICT mode=eval ...`` line (an evaluation
-    folder is not a training run: it has no summary.json, and ``compare.py`` lists it apart)."""
-    values = result["lengths"] if success.measure == "length" else result["info"][success.measure]
-    rate = success.pass_rate(values)
-    passed = success.rate_met(rate)
-    value = float(np.mean(values)) if len(values) else float("nan")
-    fields = {"mode": "eval", "passed": str(passed).lower(), "measure": success.measure,
-              f"greedy_{success.measure}": _num(value), "greedy_rate": _num(rate), "rate": _num(success.rate),
-              "threshold": f"{success.threshold:g}", "episodes": result["episodes"],
-              "greedy_return": _num(result["mean_return"]), "checkpoint": checkpoint, "run_dir": run_dir}
-    return [f"{'passed' if passed else 'did not pass'}: {round(rate * len(values))} of {len(values)} greedy episodes "
-            f"reached {success.threshold:g} (the rule asks {success.rate:.0%}; one evaluation of {checkpoint}, "
-            "not a training run)",
+def eval_verdict_lines(record: dict, run_dir: Path) -> list[str]:
+    """A ``mode=eval`` folder's verdict from its eval.json ``record``: whether the checkpoint's
+    greedy policy passed the task's rule in this one evaluation, and its ``VERDICT mode=eval
+    ...`` line (an evaluation folder is not a training run: it has no summary.json, and
+    ``compare.py`` lists it apart)."""
+    measure, episodes, rate = record["measure"], record["episodes"], record["greedy_rate"]
+    fields = {"mode": "eval", "passed": str(record["passed"]).lower(), "measure": measure,
+              f"greedy_{measure}": _num(record["value"]), "greedy_rate": _num(rate), "rate": _num(record["rate"]),
+              "threshold": f"{record['threshold']:g}", "episodes": episodes,
+              "greedy_return": _num(record["mean_return"]), "checkpoint": record["checkpoint"], "run_dir": run_dir}
+    return [f"{'passed' if record['passed'] else 'did not pass'}: {round(rate * episodes)} of {episodes} greedy "
+            f"episodes reached {record['threshold']:g} (the rule asks {record['rate']:.0%}; one evaluation of "
+            f"{record['checkpoint']}, not a training run)",
             f"results in {run_dir}",
             "VERDICT " + " ".join(f"{name}={value}" for name, value in fields.items())]
 
