@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -66,8 +67,9 @@ def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
         ax.set_ylabel(label)
     _mark_success(axes[0, 0], rows, evals, success)
     axes[-1, 0].set_xlabel("episode")
-    fig.suptitle(f"{Path(out_png).parent.name}\nsolved when {success.describe()} "
-                 f"({'greedy policy' if success.judge == 'greedy' else 'training episodes'})",
-                 fontsize=9)
+    from runs.console import solved_when  # the console's words for the rule
+
+    rule = textwrap.fill(f"solved when {solved_when(success)}", 120)
+    fig.suptitle(f"{Path(out_png).parent.name}\n{rule}", fontsize=8)
     fig.tight_layout()
     fig.savefig(out_png, dpi=100)
