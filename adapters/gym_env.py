@@ -108,8 +108,23 @@ def action_index(action: Any, n: int) -> int:
                      f"array of shape () or (1,) holding one); got {reprlib.repr(action)}")
 
 
+def continuous_action(action: Any, dims: int) -> np.ndarray:
+    """``action`` as a float ``(1, dims)`` array in [-1, 1] (values outside are clipped, as
+    Gymnasium's ``ClipAction`` would): a number or a sequence of ``dims`` finite numbers;
+    else a ``ValueError``."""
+    try:
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        a = np.asarray([np.nan])
+    if a.size != dims or not np.isfinite(a).all():
+        raise ValueError(f"action must be {dims} finite number(s) in [-1, 1] (a float, a list or an array "
+                         f"of shape ({dims},)); got {reprlib.repr(action)}")
+    return np.clip(a, -1.0, 1.0).reshape(1, dims)
+
+
 class MujocoRLEnv(gym.Env):
-    """One copy of a robot's task as a ``gymnasium.Env`` (discrete actions)."""
+    """One copy of a robot's task as a ``gymnasium.Env``: discrete actions, or with
+    ``actions="continuous"`` the task's continuous form (a ``Box`` in [-1, 1])."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
@@ -122,9 +137,12 @@ class MujocoRLEnv(gym.Env):
         camera: str | int | None = None,
         robot_params: Mapping[str, Any] | None = None,
         config_dirs: Sequence[str] = (),
+        actions: str = "discrete",
         **task_params: Any,
     ) -> None:
         """``task_params`` override ``task.*`` and ``robot_params`` ``robot.*`` of the config;
+        ``actions``: ``discrete`` (``Discrete(n_actions)``) or ``continuous`` (``Box(-1, 1,
+        (dims,))``, each number scaled to its command's range, as SAC and PPO take it);
         ``camera`` (a name or an index) defaults to the task's first camera (else MuJoCo's
         free camera); ``config_dirs``: config folders besides ``conf/`` (a user's robots)."""
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -133,21 +151,24 @@ class MujocoRLEnv(gym.Env):
         self._made_with = copy.deepcopy(dict(robot=robot, render_mode=render_mode, width=width,
                                              height=height, camera=camera,
                                              robot_params=robot_params,
-                                             config_dirs=list(config_dirs), **task_params))
+                                             config_dirs=list(config_dirs), actions=actions, **task_params))
         if config_dirs:
             catalog.use_config_dirs(config_dirs)
         self.config = self._config(robot, robot_params or {}, task_params)
         task = factory.build_task(self.config)
         if "max_episode_steps" not in task_params:
             task.max_episode_steps = _NO_LIMIT  # gymnasium.make's TimeLimit truncates
-        self.torchrl_env = RobotTaskEnv(task, num_envs=1, seed=0)  # the one copy underneath
+        self.torchrl_env = RobotTaskEnv(task, num_envs=1, seed=0, actions=actions)  # the one copy underneath
         self.task = task
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
         self.camera = self.torchrl_env.check_camera(camera)
         self.metadata = {**self.metadata, "render_fps": 1.0 / float(task.running_step)}
         self.observation_space = observation_space(task)
-        self.action_space = spaces.Discrete(int(task.n_actions))
+        if actions == "continuous":
+            self.action_space = spaces.Box(-1.0, 1.0, (task.action_range.dims,), dtype=np.float32)
+        else:
+            self.action_space = spaces.Discrete(int(task.n_actions))
         self._td = None
         self._seeded = False
 
@@ -168,11 +189,16 @@ class MujocoRLEnv(gym.Env):
         return self._obs(self._td), {}
 
     def step(self, action):
-        """``action``: an integer in ``[0, n_actions)`` (see :func:`action_index`)."""
+        """``action``: an integer in ``[0, n_actions)`` (see :func:`action_index`), or for the
+        continuous form ``dims`` numbers in [-1, 1] (:func:`continuous_action`)."""
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        index = action_index(action, int(self.action_space.n))
-        self._td.set("action", torch.tensor([index], dtype=torch.int64))
+        if isinstance(self.action_space, spaces.Box):
+            value = continuous_action(action, self.action_space.shape[0])
+            self._td.set("action", torch.tensor(value, dtype=torch.float32))
+        else:
+            index = action_index(action, int(self.action_space.n))
+            self._td.set("action", torch.tensor([index], dtype=torch.int64))
         nxt = self.torchrl_env.step(self._td).get("next")
         self._td = nxt.exclude("reward", "done", "terminated", "truncated")
         terminated = bool(nxt.get("terminated").item())

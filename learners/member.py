@@ -62,6 +62,7 @@ class MemberLearner:
 
     members = 0
     MEMBER_WISE = ()  # settings members of one batch may differ in (the learner says)
+    schedules: Sequence = ()  # each member's exploration schedule, where the algorithm has one
 
     def _members(self, generators: torch.Generator | Sequence[torch.Generator] | None,
                  variants: Sequence[Any] | None) -> None:
@@ -113,7 +114,7 @@ class MemberLearner:
         """After each finished episode of a member: its exploration schedule's episode step
         (``schedules``: one per member, :mod:`learners.schedules`)."""
         for b, count in ended.items():
-            for _ in range(count):
+            for _ in range(count * bool(self.schedules)):
                 self.schedules[b].episode_end()
 
     def act(self, td: TensorDictBase, live: Sequence[int] | None = None) -> TensorDictBase:
@@ -126,6 +127,25 @@ class MemberLearner:
     def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
                     generators: Sequence[torch.Generator | None]) -> TensorDictBase:
         raise NotImplementedError
+
+
+LANES = 64  # a multiple of every CPU's vector loop (2 x 16 floats with AVX-512)
+
+
+def lanes(f: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+    """``f(x)`` for an elementwise ``f`` (tanh, softplus, log, exp), each member's numbers as
+    alone: each member's row of ``x`` (its first dimension) is padded to a multiple of
+    :data:`LANES` numbers, so that every number takes the vectorised loop, whatever the
+    number of members. (PyTorch computes a tensor's tail past its last full vector by scalar
+    code, whose transcendental functions differ in the last bit from the vectorised ones:
+    without it a member's softplus would depend on how many members precede it.)"""
+    k = x.shape[0] if x.dim() else 1
+    flat = x.reshape(k, -1)
+    m = flat.shape[1]
+    wide = -(-m // LANES) * LANES
+    if wide != m:
+        flat = torch.cat((flat, flat.new_ones(k, wide - m)), 1)
+    return f(flat.contiguous())[:, :m].reshape(x.shape)
 
 
 def draws(generators: Sequence[torch.Generator | None], size: int, draw: Callable[..., None],
@@ -177,7 +197,7 @@ class ObsScale(nn.Module):
         return x * self.scale
 
 
-_FUNCTIONS = {nn.Tanh: torch.tanh, nn.ReLU: torch.relu}
+_FUNCTIONS = {nn.Tanh: lambda x: lanes(torch.tanh, x), nn.ReLU: torch.relu}
 
 
 class MemberNets:
@@ -217,7 +237,7 @@ class MemberNets:
                 self.plan.append(tuple(slots))
                 if noisy:
                     self.noisy_sizes.append((inp, out))
-            elif type(layer) in _FUNCTIONS:
+            elif type(layer) in _FUNCTIONS:  # (a tanh by lanes: each member's numbers as alone)
                 self.plan.append(_FUNCTIONS[type(layer)])
             elif not isinstance(layer, nn.Unflatten):
                 self.plan.append(layer.forward)
@@ -587,7 +607,150 @@ class UpdateStats:
 FORMAT = 2
 
 
-class ReplayLearner(MemberLearner):
+class ReplayMembers(MemberLearner):
+    """The replay bookkeeping of every member of a replay-buffer learner, whatever its
+    networks: each member's buffer (and n-step queues, priorities), its update credit, and
+    the rounds in which the updates owed run (:meth:`settle` calls the learner's
+    ``_update(due, stored, minibatch)`` for the members of one minibatch size).
+
+    Its settings read here: ``updates``, ``train_every``, ``learning_starts``,
+    ``buffer_size``, ``batch_size``, ``n_step``, ``prioritized`` (``priority_*``),
+    ``device``. When it trains (``train_every``): ``episode``: ``updates`` minibatches after
+    each finished episode; ``step``: ``updates`` minibatches per collected transition
+    (fractions carried over), once the buffer holds ``learning_starts``. The updates owed
+    run in rounds: a round updates every member that still owes one, the others'
+    parameters and optimizer state untouched.
+    """
+
+    action_width = 1  # numbers of an action in a replay row (a continuous learner: its dims)
+
+    def _row_width(self) -> int:
+        """A replay row's numbers (:func:`pack`); n-step rows carry their steps."""
+        return 2 * self.n_obs + self.action_width + 2 + (self.n_step > 1)
+
+    def _buffer(self, own: Any) -> RowReplayBuffer:
+        """An empty replay buffer of a member with settings ``own`` (its priorities too)."""
+        buffer = RowReplayBuffer(own.buffer_size, self._row_width(), own.batch_size, self.device)
+        if self.prioritized:  # Rainbow's parts load where they are used
+            from learners.priority import Priorities
+
+            buffer.priorities = Priorities(own.buffer_size, own.priority_alpha, own.priority_eps, self.device)
+        return buffer
+
+    def _minibatches(self) -> dict[int, torch.Tensor]:
+        """A round's minibatches, per minibatch size among the members: as many as members of it."""
+        sizes = [v.batch_size for v in self.settings]
+        return {size: torch.empty(sizes.count(size), size, self._row_width(), device=self.device) for size in sizes}
+
+    def store(self, td: TensorDictBase, live: Sequence[int] | None = None) -> int:
+        """Each live member adds its block's transitions to its replay buffer (with
+        ``n_step`` > 1, the n-step rows that leave its queues); the block size."""
+        n = td.numel() // self.members
+        flat = td.reshape(-1)
+        if self.n_step > 1:
+            self._queues(n)
+            done = flat.get(("next", "done")).reshape(-1)
+            for b in everyone(self, live):
+                block = slice(b * n, (b + 1) * n)
+                rows = self.nsteps[b].push(self.transitions_of(flat[block], self.settings[b]), done[block])
+                if rows is not None:
+                    self.buffers[b].put(pack(rows).to(self.device))
+            return n
+        alike = all(v is self.settings[0] for v in self.settings)
+        rows = pack(self.transitions_of(td, self)).to(self.device) if alike else None
+        for b in everyone(self, live):
+            block = rows[b * n:(b + 1) * n] if alike else pack(
+                self.transitions_of(flat[b * n:(b + 1) * n], self.settings[b])).to(self.device)
+            self.buffers[b].put(block)
+        return n
+
+    def _queues(self, copies: int) -> None:
+        """Each member's n-step queues for ``copies`` copies (made at the first step or the
+        first loaded state, when the copies are known)."""
+        if not self.nsteps:
+            from learners.nstep import NStep
+
+            self.nsteps = [NStep(self.n_step, copies, self.n_obs, own.gamma) for own in self.settings]
+
+    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
+        """Each live member stores its block's transitions and counts them (schedule, update
+        credit with ``train_every=step``); then the updates owed run."""
+        n = self.store(td, live)
+        for b in everyone(self, live):
+            if self.schedules:
+                self.schedules[b].step(n)
+            if self.train_every == "step":
+                self._owe(b, self.settings[b].updates * n)
+        self.settle()
+
+    def optimize(self, n: int, members: Sequence[int] | None = None) -> None:
+        """``n`` updates of each of ``members`` (all by default) on its replay buffer, now."""
+        for b in everyone(self, members):
+            self.owed[b] += n
+        self.settle()
+
+    def end_episodes(self, ended: Mapping[int, int]) -> None:
+        """After each finished episode of a member: the schedule's episode step and, with
+        ``train_every=episode``, its updates; then the updates owed run."""
+        super().end_episodes(ended)
+        if self.train_every == "episode":
+            for b, count in ended.items():
+                for _ in range(count):
+                    self._owe(b, self.settings[b].updates)
+        self.settle()
+
+    def _owe(self, b: int, updates: float) -> None:
+        """Adds ``updates`` to member ``b``'s credit once its buffer holds ``learning_starts``
+        transitions; the whole ones are owed."""
+        if self.buffers[b].stored() < max(self.settings[b].learning_starts, 1):
+            return
+        self.credit[b] += updates
+        whole = int(self.credit[b])
+        self.credit[b] -= whole
+        self.owed[b] += whole
+
+    def phase(self, b: int) -> tuple[Hashable, Hashable] | None:
+        """Member ``b``'s update credit with ``train_every=step`` once it learns (its
+        ``updates`` a step with it): members of one phase owe their updates at the same steps."""
+        if self.train_every != "step" or self.buffers[b].stored() < max(self.settings[b].learning_starts, 1):
+            return None
+        return self.settings[b].updates, self.credit[b]
+
+    def settle(self) -> None:
+        """Runs the updates the members owe, in rounds: a round updates every member that still
+        owes one (each member's updates in its order, as alone), those of one minibatch size
+        together."""
+        owed, self.owed = self.owed, [0] * self.members
+        stored = {b: self.buffers[b].stored() for b in range(self.members) if owed[b]}
+        for done in range(max(owed)):
+            due = [b for b in stored if owed[b] > done]
+            for size in sorted({self.settings[b].batch_size for b in due}):
+                self._update([b for b in due if self.settings[b].batch_size == size], stored, self._minibatch[size])
+
+    def _sample(self, due: list[int], stored: Mapping[int, int], minibatch: torch.Tensor) -> tuple[list, list]:
+        """Each due member's minibatch into ``minibatch``'s rows, drawn from its own stream;
+        with prioritized replay, their rows' indices and importance weights."""
+        drawn, weights = [], []
+        if self.prioritized:
+            from learners.priority import annealed_beta
+        for j, b in enumerate(due):
+            if self.prioritized:
+                v = self.settings[b]
+                beta = annealed_beta(v.priority_beta, self.steps[b], v.priority_beta_updates)
+                _, index, weight = self.buffers[b].sample_prioritized(stored[b], beta, self.generators[b],
+                                                                      out=minibatch[j])
+                drawn.append(index)
+                weights.append(weight)
+            else:
+                self.buffers[b].sample_rows(stored[b], self.generators[b], out=minibatch[j])
+        return drawn, weights
+
+    def begin(self) -> None:
+        for b, tracker in enumerate(self.trackers):
+            tracker.restart(self.steps[b])
+
+
+class ReplayLearner(ReplayMembers):
     """The members of a replay-buffer learner with one network (and its target network).
 
     The algorithm (a subclass, a dataclass of its settings) gives:
@@ -665,24 +828,6 @@ class ReplayLearner(MemberLearner):
     def exp_avg_sq(self) -> torch.Tensor:
         return self.adam.exp_avg_sq
 
-    def _row_width(self) -> int:
-        """A replay row's numbers (:func:`pack`); n-step rows carry their steps."""
-        return 2 * self.n_obs + 3 + (self.n_step > 1)
-
-    def _buffer(self, own: Any) -> RowReplayBuffer:
-        """An empty replay buffer of a member with settings ``own`` (its priorities too)."""
-        buffer = RowReplayBuffer(own.buffer_size, self._row_width(), own.batch_size, self.device)
-        if self.prioritized:  # Rainbow's parts load where they are used
-            from learners.priority import Priorities
-
-            buffer.priorities = Priorities(own.buffer_size, own.priority_alpha, own.priority_eps, self.device)
-        return buffer
-
-    def _minibatches(self) -> dict[int, torch.Tensor]:
-        """A round's minibatches, per minibatch size among the members: as many as members of it."""
-        sizes = [v.batch_size for v in self.settings]
-        return {size: torch.empty(sizes.count(size), size, self._row_width(), device=self.device) for size in sizes}
-
     @torch.no_grad()
     def renew(self, b: int, generator: torch.Generator, variant: Any | None = None) -> None:
         """Member ``b`` made anew from ``generator`` and ``variant`` (None: this learner's
@@ -732,10 +877,6 @@ class ReplayLearner(MemberLearner):
         return {**stats, **explores, "lr": self.lr_of(b)}
 
     # -- acting --------------------------------------------------------------
-    def begin(self) -> None:
-        for b, tracker in enumerate(self.trackers):
-            tracker.restart(self.steps[b])
-
     def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
                     generators: Sequence[torch.Generator | None]) -> TensorDictBase:
         """The actions of ``members`` (None: all) on their blocks of ``td`` (block ``j`` is
@@ -761,108 +902,6 @@ class ReplayLearner(MemberLearner):
         return [torch.stack(parts) for parts in zip(*found)]
 
     # -- learning ------------------------------------------------------------
-    def store(self, td: TensorDictBase, live: Sequence[int] | None = None) -> int:
-        """Each live member adds its block's transitions to its replay buffer (with
-        ``n_step`` > 1, the n-step rows that leave its queues); the block size."""
-        n = td.numel() // self.members
-        flat = td.reshape(-1)
-        if self.n_step > 1:
-            self._queues(n)
-            done = flat.get(("next", "done")).reshape(-1)
-            for b in everyone(self, live):
-                block = slice(b * n, (b + 1) * n)
-                rows = self.nsteps[b].push(self.transitions_of(flat[block], self.settings[b]), done[block])
-                if rows is not None:
-                    self.buffers[b].put(pack(rows).to(self.device))
-            return n
-        alike = all(v is self.settings[0] for v in self.settings)
-        rows = pack(self.transitions_of(td, self)).to(self.device) if alike else None
-        for b in everyone(self, live):
-            block = rows[b * n:(b + 1) * n] if alike else pack(
-                self.transitions_of(flat[b * n:(b + 1) * n], self.settings[b])).to(self.device)
-            self.buffers[b].put(block)
-        return n
-
-    def _queues(self, copies: int) -> None:
-        """Each member's n-step queues for ``copies`` copies (made at the first step or the
-        first loaded state, when the copies are known)."""
-        if not self.nsteps:
-            from learners.nstep import NStep
-
-            self.nsteps = [NStep(self.n_step, copies, self.n_obs, own.gamma) for own in self.settings]
-
-    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
-        """Each live member stores its block's transitions and counts them (schedule, update
-        credit with ``train_every=step``); then the updates owed run."""
-        n = self.store(td, live)
-        for b in everyone(self, live):
-            self.schedules[b].step(n)
-            if self.train_every == "step":
-                self._owe(b, self.settings[b].updates * n)
-        self.settle()
-
-    def optimize(self, n: int, members: Sequence[int] | None = None) -> None:
-        """``n`` updates of each of ``members`` (all by default) on its replay buffer, now."""
-        for b in everyone(self, members):
-            self.owed[b] += n
-        self.settle()
-
-    def end_episodes(self, ended: Mapping[int, int]) -> None:
-        """After each finished episode of a member: the schedule's episode step and, with
-        ``train_every=episode``, its updates; then the updates owed run."""
-        super().end_episodes(ended)
-        if self.train_every == "episode":
-            for b, count in ended.items():
-                for _ in range(count):
-                    self._owe(b, self.settings[b].updates)
-        self.settle()
-
-    def _owe(self, b: int, updates: float) -> None:
-        """Adds ``updates`` to member ``b``'s credit once its buffer holds ``learning_starts``
-        transitions; the whole ones are owed."""
-        if self.buffers[b].stored() < max(self.settings[b].learning_starts, 1):
-            return
-        self.credit[b] += updates
-        whole = int(self.credit[b])
-        self.credit[b] -= whole
-        self.owed[b] += whole
-
-    def phase(self, b: int) -> tuple[Hashable, Hashable] | None:
-        """Member ``b``'s update credit with ``train_every=step`` once it learns (its
-        ``updates`` a step with it): members of one phase owe their updates at the same steps."""
-        if self.train_every != "step" or self.buffers[b].stored() < max(self.settings[b].learning_starts, 1):
-            return None
-        return self.settings[b].updates, self.credit[b]
-
-    def settle(self) -> None:
-        """Runs the updates the members owe, in rounds: a round updates every member that still
-        owes one (each member's updates in its order, as alone), those of one minibatch size
-        together."""
-        owed, self.owed = self.owed, [0] * self.members
-        stored = {b: self.buffers[b].stored() for b in range(self.members) if owed[b]}
-        for done in range(max(owed)):
-            due = [b for b in stored if owed[b] > done]
-            for size in sorted({self.settings[b].batch_size for b in due}):
-                self._update([b for b in due if self.settings[b].batch_size == size], stored, self._minibatch[size])
-
-    def _sample(self, due: list[int], stored: Mapping[int, int], minibatch: torch.Tensor) -> tuple[list, list]:
-        """Each due member's minibatch into ``minibatch``'s rows, drawn from its own stream;
-        with prioritized replay, their rows' indices and importance weights."""
-        drawn, weights = [], []
-        if self.prioritized:
-            from learners.priority import annealed_beta
-        for j, b in enumerate(due):
-            if self.prioritized:
-                v = self.settings[b]
-                beta = annealed_beta(v.priority_beta, self.steps[b], v.priority_beta_updates)
-                _, index, weight = self.buffers[b].sample_prioritized(stored[b], beta, self.generators[b],
-                                                                      out=minibatch[j])
-                drawn.append(index)
-                weights.append(weight)
-            else:
-                self.buffers[b].sample_rows(stored[b], self.generators[b], out=minibatch[j])
-        return drawn, weights
-
     def _update(self, due: list[int], stored: Mapping[int, int], minibatch: torch.Tensor) -> None:
         """One update of each member of ``due`` (all of one minibatch size): its minibatch,
         the algorithm's loss (:meth:`terms`), gradients by autograd, its clipped norm, its
@@ -1000,5 +1039,299 @@ class ReplayLearner(MemberLearner):
             self.target[b] = self.params[b]
 
 
-__all__ = ["FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
+class MemberGroup:
+    """One network of every member with its Adam, and its target network where asked: the
+    parameters ``[members, P]`` as :class:`MemberNets` lays out one member's ``template`` (or,
+    without a template, ``P`` plain numbers such as SAC's log-alpha), their latest gradients
+    and Adam's moments. An actor-critic has several (:class:`ActorCriticLearner`)."""
+
+    def __init__(self, template: nn.Sequential | None, initial: Sequence[torch.Tensor],
+                 device: torch.device | str, target: bool = False) -> None:
+        self.net = None if template is None else MemberNets(template, device)
+        self.params = torch.stack(list(initial)).to(device)
+        self.target = self.params.clone() if target else None
+        self.adam = MemberAdam(self.params)
+        self.grads = torch.zeros_like(self.params)
+
+    def renew(self, b: int, initial: torch.Tensor) -> None:
+        """Member ``b`` from ``initial`` (``[P]``), its target a copy and its Adam at its start."""
+        self.params[b] = initial
+        if self.target is not None:
+            self.target[b] = self.params[b]
+        self.adam.reset(b)
+        self.grads[b].zero_()
+
+    def open(self, rows: torch.Tensor | None) -> GroupStep:
+        """The :class:`GroupStep` of one update of the members at ``rows`` (None: all)."""
+        return GroupStep(self, rows)
+
+    def state(self, b: int) -> dict:
+        """Member ``b``'s parameters (a template's ``state_dict``, or its numbers), target and Adam."""
+        def of(vector: torch.Tensor) -> Any:
+            return vector.clone() if self.net is None else self.net.state(vector)
+
+        found = {"net": of(self.params[b]), "exp_avg": self.adam.exp_avg[b].clone(),
+                 "exp_avg_sq": self.adam.exp_avg_sq[b].clone(), "steps": self.adam.steps[b]}
+        return found | ({} if self.target is None else {"target_net": of(self.target[b])})
+
+    @torch.no_grad()
+    def load(self, b: int, state: Mapping, optimizer: bool = True) -> None:
+        """Member ``b`` from a :meth:`state` (``optimizer``: its Adam and target too)."""
+        def vector(saved: Any) -> torch.Tensor:
+            return saved.to(self.params.device) if self.net is None else self.net.vector_of(saved, self.params.device)
+
+        self.params[b] = vector(state["net"])
+        if self.target is not None:
+            self.target[b] = vector(state["target_net"]) if optimizer and "target_net" in state else self.params[b]
+        if optimizer:
+            self.adam.exp_avg[b] = state["exp_avg"].to(self.params.device)
+            self.adam.exp_avg_sq[b] = state["exp_avg_sq"].to(self.params.device)
+            self.adam.steps[b] = int(state["steps"])
+
+
+class GroupStep:
+    """One update of some members' :class:`MemberGroup`: their parameters as autograd leaves
+    (``__call__``: the network on inputs ``[k, n, in]``), the same weights without gradient
+    (:meth:`frozen`), the target network (:meth:`target`) or the plain numbers (``value``),
+    then :meth:`step` (clip, Adam, Polyak averaging) and the write-back."""
+
+    def __init__(self, group: MemberGroup, rows: torch.Tensor | None) -> None:
+        self.group, self.rows = group, rows
+        if rows is None:  # every member: its own tensors, in place
+            self.params, self.grads, self.targets = group.params, group.grads, group.target
+            self.grads.zero_()
+        else:  # the due members' rows, written back after the step
+            self.params = group.params.index_select(0, rows)
+            self.grads = torch.zeros_like(self.params)
+            self.targets = None if group.target is None else group.target.index_select(0, rows)
+        if group.net is None:
+            self.value = self.params.detach().requires_grad_(True)
+            self.value.grad = self.grads
+        else:
+            self.layers = group.net.layers(self.params, self.grads)
+
+    def __call__(self, x: torch.Tensor) -> Any:
+        return self.group.net.q(self.layers, x)
+
+    def frozen(self, x: torch.Tensor) -> Any:
+        """The network on ``x`` without gradient to its weights (to the input, still)."""
+        return self.group.net.q(self.params, x)
+
+    def target(self, x: torch.Tensor) -> Any:
+        """The target network on ``x``."""
+        return self.group.net.q(self.targets, x)
+
+    @torch.no_grad()
+    def step(self, due: Sequence[int], lrs: Sequence[float], clip: float | torch.Tensor = 0.0,
+             tau: float | torch.Tensor = 0.0) -> torch.Tensor:
+        """The members' gradient norms (before clipping them to ``clip``), after their Adam step
+        (learning rates ``lrs``) and their target's Polyak averaging by ``tau``."""
+        norms = clip_norms(self.grads, clip)
+        self.group.adam.step(self.rows, self.params, self.grads, due, lrs)
+        if self.targets is not None and (isinstance(tau, torch.Tensor) or tau):
+            self.targets.lerp_(self.params, tau)
+        if self.rows is not None:
+            self.group.params.index_copy_(0, self.rows, self.params)
+            self.group.grads.index_copy_(0, self.rows, self.grads)
+            if self.targets is not None:
+                self.group.target.index_copy_(0, self.rows, self.targets)
+        return norms
+
+
+class ActorCriticLearner(ReplayMembers):
+    """The members of a replay-buffer actor-critic on continuous actions (SAC, TD3): several
+    networks, each a :class:`MemberGroup` with its own Adam, and the replay bookkeeping of
+    :class:`ReplayMembers`.
+
+    The algorithm (a subclass, a dataclass of its settings) gives:
+
+    - ``networks(task)``: ``{name: (template, target)}``, one member's networks on the CPU
+      (``actor`` among them, and the group ``critic`` names, which every update steps)
+      (``nn.Sequential`` of :class:`MemberNets`'s layers; None for plain numbers), and
+      ``initial(name, own)``: a plain group's starting numbers; ``policy(template)``: the
+      actor as ``model.pt`` holds it; ``arch()`` and ``kind``;
+    - ``draw_update(generator, batch_size)``: one member's random numbers for one update;
+    - ``losses(nets, batch, noise, gamma, own)``: ``(loss, stepped, record)``: each member's
+      loss (``[k]``, autograd reaching each group through ``nets``), the groups its update
+      steps and ``(q, target, extras)`` for the statistics;
+    - ``act_with(actor, observation, noise)``: actions from the actor network, ``noise``
+      None for the greedy action; ``draw_act(generator, n)``: one member's step noise;
+    - ``transitions_of(td, own)``: the transitions a member with settings ``own`` stores.
+
+    Settings read here, besides :class:`ReplayMembers`'s: ``lr`` (and ``<group>_lr`` where the
+    algorithm has one, as ``alpha_lr``), ``tau``, ``grad_clip``, ``learning_starts`` (until
+    its buffer holds that many, a member acts uniformly at random).
+    """
+
+    ACTIONS = "continuous"
+    n_step, prioritized, train_every = 1, False, "step"
+    critic = "critic"  # the group every update steps: its steps count the updates, its norms are shown
+
+    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None,
+              variants: Sequence[Any] | None = None) -> None:
+        """Every network of one member per generator, drawn from its stream in the order of
+        ``networks`` (as ``nn.Linear`` draws from torch's global stream), then its replay buffer."""
+        from tasks.base import check_action_form
+
+        check_action_form(task, "continuous", self.kind)
+        self._members(generators, variants)
+        self.n_obs, self.n_actions = len(task.observation_names), task.action_range.dims
+        self.action_width = self.n_actions
+        with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
+            plan = self.networks(task)
+        self.templates = {name: template for name, (template, _) in plan.items()}
+        starts = [self._initial(g, own) for g, own in zip(self.generators, self.settings)]
+        self.groups = {name: MemberGroup(template, [start[name] for start in starts], self.device, target)
+                       for name, (template, target) in plan.items()}
+        self.policy_module = self.policy(self.templates["actor"])
+        self.credit = [0.0] * self.members
+        self.owed = [0] * self.members
+        self.trackers = [UpdateStats() for _ in range(self.members)]
+        self.buffers = [self._buffer(v) for v in self.settings]
+        self._minibatch = self._minibatches()
+        self.nsteps: list = []
+
+    def _initial(self, generator: torch.Generator, own: Any) -> dict[str, torch.Tensor]:
+        """One member's starting parameters of every group, drawn from ``generator`` in order."""
+        found = {}
+        for name, template in self.templates.items():
+            if template is None:
+                found[name] = self.initial(name, own)
+            else:
+                found[name] = MemberNets(template).initial(generator)
+        return found
+
+    @torch.no_grad()
+    def renew(self, b: int, generator: torch.Generator, variant: Any | None = None) -> None:
+        """Member ``b`` made anew from ``generator`` and ``variant`` (None: this learner's
+        settings), as :meth:`build` makes a member; the others are left as they are."""
+        own = self.variant(variant)
+        self.generators[b], self.settings[b] = generator, own
+        for name, start in self._initial(generator, own).items():
+            self.groups[name].renew(b, start.to(self.device))
+        self.credit[b], self.owed[b] = 0.0, 0
+        self.trackers[b] = UpdateStats()
+        self.buffers[b] = self._buffer(own)
+        self._minibatch = self._minibatches()
+
+    @property
+    def steps(self) -> list[int]:
+        """Each member's updates (its ``critic`` group's Adam steps: every update steps it)."""
+        return self.groups[self.critic].adam.steps
+
+    def lr_of(self, b: int, group: str) -> float:
+        """Member ``b``'s learning rate of ``group``: its ``<group>_lr`` setting, else ``lr``."""
+        own = self.settings[b]
+        return float(getattr(own, f"{group}_lr", own.lr))
+
+    # -- acting --------------------------------------------------------------
+    def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
+                    generators: Sequence[torch.Generator | None]) -> TensorDictBase:
+        """The actions of ``members`` (None: all) on their blocks of ``td``, ``generators[j]``
+        drawing block ``j``'s noise; a member whose buffer holds fewer than ``learning_starts``
+        transitions acts uniformly at random; greedy: the actor's deterministic action."""
+        members = list(range(self.members)) if members is None else list(members)
+        k = len(members)
+        observation = td.get("observation").reshape(k, -1, self.n_obs).to(self.device)
+        n = observation.shape[1]
+        noise = None
+        if not greedy:
+            noise = torch.zeros(k, n, self.n_actions)
+            for j, (b, g) in enumerate(zip(members, generators)):
+                if g is not None:
+                    noise[j] = self.draw_act(g, n, self._warming(b))
+        params = self.groups["actor"].params[members] if k != self.members else self.groups["actor"].params
+        with torch.no_grad():
+            action = self.act_with(lambda x: self.groups["actor"].net.q(params, x), observation,
+                                   None if noise is None else noise.to(self.device))
+            if noise is not None:
+                warming = [j for j, b in enumerate(members) if self._warming(b) and generators[j] is not None]
+                if warming:
+                    action[warming] = noise[warming].to(action.device)
+        return with_entries(td, action=action.reshape(*td.batch_size, self.n_actions).cpu())
+
+    def _warming(self, b: int) -> bool:
+        """Whether member ``b`` still acts at random (its buffer below ``learning_starts``)."""
+        return self.buffers[b].stored() < self.settings[b].learning_starts
+
+    # -- learning ------------------------------------------------------------
+    def _update(self, due: list[int], stored: Mapping[int, int], minibatch: torch.Tensor) -> None:
+        """One update of each member of ``due`` (all of one minibatch size): its minibatch and
+        its update's random numbers from its own stream, the algorithm's losses, gradients by
+        autograd, and each stepped group's clipped Adam step and Polyak averaging."""
+        k = len(due)
+        self._sample(due, stored, minibatch)
+        batch = unpack(minibatch[:k], continuous=self.n_actions)
+        noise = torch.stack([self.draw_update(self.generators[b], minibatch.shape[1]) for b in due]).to(self.device)
+        rows = None if k == self.members else torch.tensor(due, device=self.device)
+        nets = {name: group.open(rows) for name, group in self.groups.items()}
+        gamma = self.own("gamma", due, torch.float32, self.device)
+        gamma = gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma
+        loss, stepped, (q, target, extras) = self.losses(nets, batch, noise, gamma, [self.settings[b] for b in due])
+        loss.sum().backward()
+        clip = self.own("grad_clip", due, torch.float32, self.device)
+        tau = self.own("tau", due, torch.float32, self.device)
+        norms = {name: nets[name].step(due, [self.lr_of(b, name) for b in due], clip,
+                                       tau if self.groups[name].target is not None else 0.0) for name in stepped}
+        critic = norms.get(self.critic)
+        for j, b in enumerate(due):
+            self.trackers[b].add(loss[j].detach(), q[j].detach(), target[j],
+                                 critic[j] if critic is not None and self.settings[b].grad_clip > 0 else None,
+                                 {name: value[j].detach() for name, value in extras.items()})
+
+    def stats(self, b: int) -> dict[str, float]:
+        return {"alpha": self.lr_of(b, "actor"), "gamma": self.settings[b].gamma}
+
+    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
+        """``train/*`` of member ``b``: ``loss`` (the critics'), ``q_mean``, ``td_error`` and the
+        algorithm's own means (as ``loss_actor``, ``entropy``, ``alpha``), over the updates
+        since the last reset; ``lr``, ``updates`` and ``updates_per_s``."""
+        return {**self.trackers[b].read(self.steps[b], reset), "lr": self.lr_of(b, "actor")}
+
+    # -- persistence ---------------------------------------------------------
+    def _check_arch(self, arch: dict, where: str) -> None:
+        if arch != self.arch():
+            raise StateMismatch(f"checkpoint {where} does not fit this run: it has networks {arch}, "
+                                f"this run builds {self.arch()}")
+
+    def training_state(self, b: int) -> dict:
+        """Everything member ``b``'s next update depends on: every group, its replay buffer,
+        update credit and random stream (for resuming)."""
+        return {"format": 1, "arch": self.arch(), "groups": {n: g.state(b) for n, g in self.groups.items()},
+                "credit": self.credit[b], "buffer": self.buffers[b].state_dict(),
+                "generator": self.generators[b].get_state()}
+
+    @torch.no_grad()
+    def load_training_state(self, b: int, state: Mapping) -> None:
+        own = {k: v for k, v in self.training_state(b).items() if k != "generator"}
+        check_state(state, own, "the training checkpoint")
+        self._check_arch(state["arch"], "the training checkpoint")
+        check_state(state, own, "the training checkpoint", deep=("groups",))
+        for name, group in self.groups.items():
+            group.load(b, state["groups"][name])
+        self.credit[b] = float(state["credit"])
+        self.buffers[b].load_state_dict(state["buffer"])
+        self.generators[b].set_state(state["generator"])
+
+    def model_state(self, b: int) -> dict:
+        """Member ``b``'s trained networks (``model.pt``): the policy as TorchRL's actor
+        (``actor``: loads into :meth:`policy`'s module), and every group's parameters."""
+        self.groups["actor"].net.load(self.groups["actor"].params[b])
+        return {"kind": self.kind, "arch": self.arch(),
+                "actor": {k: v.clone() for k, v in self.policy_module.state_dict().items()},
+                "groups": {n: {"net": g.state(b)["net"]} for n, g in self.groups.items()},
+                "optimizer_steps": self.steps[b]}
+
+    @torch.no_grad()
+    def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
+        """Loads saved networks into member ``b`` (its optimizers start afresh)."""
+        own = self.model_state(b)
+        check_state(ckpt, own, where)
+        self._check_arch(ckpt["arch"], where)
+        check_state(ckpt, own, where, deep=("groups",))
+        for name, group in self.groups.items():
+            group.load(b, ckpt["groups"][name], optimizer=False)
+
+
+__all__ = ["ActorCriticLearner", "GroupStep", "MemberGroup", "ReplayMembers", "FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
            "MemberNets", "MemberTables", "UpdateStats", "adam_step", "clip_norms", "draws"]

@@ -170,6 +170,16 @@ class MjcfRobot(Robot):
             raise missing_name("actuator", str(name), order, where)
         return order.index(str(name))
 
+    def control_range(self, name: str, where: str) -> tuple[float, float] | None:
+        """The ``[low, high]`` command range the model gives actuator ``name`` (after its
+        defaults classes and a control mode's change; None: the model leaves it unlimited)."""
+        column = self.actuator_column(name, where)
+        model = mujoco.MjModel.from_xml_string(self.mjcf_model.to_xml_string(), assets=self.mjcf_model.get_assets())
+        if not model.actuator_ctrllimited[column]:
+            return None
+        low, high = (float(v) for v in model.actuator_ctrlrange[column])
+        return (low, high) if low < high else None
+
     # -- control modes -------------------------------------------------------------
     def _set_control(self, name: str, spec) -> None:
         """Replaces actuator ``name`` with one of ``spec``'s mode and gain, on the same joint and

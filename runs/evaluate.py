@@ -175,7 +175,7 @@ class MemberEvaluations:
             acting[env.block(self.running[member][0])] = True
         rows = torch.from_numpy(acting)
         observed = TensorDict({"observation": self.observation[rows]}, batch_size=[int(acting.sum())])
-        action = torch.zeros(env.num_envs, dtype=torch.int64)
+        action = env.action_spec.zero()  # the rows of blocks not evaluating: a null action
         with torch.no_grad():
             action[rows] = self.learner.act_members(observed, members, True,
                                                     [self.running[m][1] for m in members]).get("action")

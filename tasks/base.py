@@ -101,6 +101,78 @@ class Bounds:
         return cls(tuple(names), tuple(indices), np.asarray(low), np.asarray(high))
 
 
+@dataclass(frozen=True)
+class ActionRange:
+    """A task's continuous actions: one number in [-1, 1] per named command, scaled to the
+    command's ``[low, high]`` (a TorchRL ``Bounded`` spec of ``len(names)``, as a model's
+    control range is scaled for SAC, TD3 and PPO)."""
+
+    names: tuple[str, ...]
+    low: np.ndarray
+    high: np.ndarray
+
+    @property
+    def dims(self) -> int:
+        """The number of continuous actions."""
+        return len(self.names)
+
+    def command(self, action: np.ndarray) -> np.ndarray:
+        """Each copy's commands for its actions.
+
+        Args:
+            action: ``(num_envs, dims)``, each in [-1, 1] (values outside are clipped to it).
+
+        Returns:
+            ``(num_envs, dims)``: ``low + (action + 1) / 2 * (high - low)``.
+        """
+        action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1, self.dims), -1.0, 1.0)
+        return self.low + (action + 1.0) * 0.5 * (self.high - self.low)
+
+    @classmethod
+    def of(cls, ranges: Mapping[str, Sequence[float]]) -> "ActionRange":
+        """The range of ``{name: [low, high]}``, each a pair of finite numbers with low < high.
+
+        Raises:
+            ConfigError: if a pair is not that.
+        """
+        for name, pair in ranges.items():
+            require(isinstance(pair, (Sequence, np.ndarray)) and len(pair) == 2 and all(finite(v) for v in pair)
+                    and pair[0] < pair[1], f"the continuous action {name} must range over [low, high], two "
+                    "finite numbers with low < high", pair)
+        return cls(tuple(str(n) for n in ranges), np.asarray([float(p[0]) for p in ranges.values()]),
+                   np.asarray([float(p[1]) for p in ranges.values()]))
+
+
+ACTION_FORMS = ("discrete", "continuous")
+
+
+def action_forms(task: Any) -> tuple[str, ...]:
+    """The action forms ``task`` offers: ``discrete`` (``n_actions`` > 0) and ``continuous``
+    (an ``action_range``)."""
+    found = ("discrete",) if int(getattr(task, "n_actions", 0) or 0) > 0 else ()
+    return found + (("continuous",) if getattr(task, "action_range", None) is not None else ())
+
+
+def check_action_form(task: Any, form: str, learner: str = "") -> None:
+    """One line unless ``task`` offers actions of ``form`` (the learner's).
+
+    Args:
+        task: the task.
+        form: ``discrete`` or ``continuous``.
+        learner: the learner's name, for the message.
+
+    Raises:
+        ConfigError: if ``form`` is not an action form or the task does not offer it.
+    """
+    require(form in ACTION_FORMS, f"actions must be one of {', '.join(ACTION_FORMS)}", form)
+    offered = action_forms(task)
+    who = f"learner={learner}" if learner else f"a {form} learner"
+    other = {"discrete": "learner=qlearn, dqn or rainbow", "continuous": "learner=sac"}
+    require(form in offered, f"{who} acts on {form} actions and task {getattr(task, 'name', type(task).__name__)} "
+            f"declares none (it offers {', '.join(offered) or 'no actions'}: use "
+            f"{' or '.join(other[f] for f in offered)})", form)
+
+
 JUDGES = ("training", "greedy")
 
 
@@ -260,7 +332,9 @@ class Task(abc.ABC):
     """The task contract. Besides the methods below, a task has these attributes:
 
     - ``robot`` (:class:`~robots.base.Robot`): the robot it has;
-    - ``n_actions`` (int): actions are ``Discrete(n_actions)``;
+    - ``n_actions`` (int): the discrete actions are ``Discrete(n_actions)`` (0: none);
+    - ``action_range`` (:class:`ActionRange` or None): the continuous actions, one per
+      command in [-1, 1] (None: none); a task offers one form or both;
     - ``observation_names`` (tuple of str): the observation's entries, in order;
     - ``running_step`` (s of simulated time per step), ``physics_timestep`` (s)
       and ``n_substeps`` (physics steps per env step);
@@ -271,6 +345,13 @@ class Task(abc.ABC):
 
     Every method works on the whole batch of copies at once.
     """
+
+    action_range: ActionRange | None = None  # no continuous form unless the task gives one
+
+    @staticmethod
+    def continuous(action: np.ndarray) -> bool:
+        """Whether ``action`` (as :meth:`apply_action` gets it) is of the continuous form."""
+        return np.asarray(action).dtype.kind == "f"
 
     @abc.abstractmethod
     def build_arena(self) -> Any:
@@ -310,7 +391,8 @@ class Task(abc.ABC):
 
         Args:
             physics: the batch of copies, whose controls the robot sets.
-            action: int ``(num_envs,)``: each copy's action, an index among ``n_actions``.
+            action: int ``(num_envs,)``: each copy's action, an index among ``n_actions``; or, for
+                the continuous form, float ``(num_envs, action_range.dims)`` in [-1, 1].
         """
 
     @abc.abstractmethod
@@ -404,7 +486,7 @@ CONTRACT = (
     "build_arena", "bind", "initialize_episode", "apply_action", "observation", "terminated",
     "reward", "episode_info", "state_dict", "load_state_dict",
 )
-_TYPES = {"robot": Robot, "tabular_bounds": Bounds, "success": Success, "per_copy": PerCopy}
+_TYPES = {"robot": Robot, "action_range": (ActionRange, type(None)), "tabular_bounds": Bounds, "success": Success, "per_copy": PerCopy}
 
 
 def check_task(task: Any) -> None:
@@ -418,7 +500,7 @@ def check_task(task: Any) -> None:
             ``success`` or ``per_copy`` is of another type, or it does not derive from :class:`Task`.
     """
     missing = [m for m in CONTRACT if not hasattr(task, m)]
-    wrong = [f"{m} is not a {t.__name__}" for m, t in _TYPES.items()
+    wrong = [f"{m} is not a {(t[0] if isinstance(t, tuple) else t).__name__}" for m, t in _TYPES.items()
              if hasattr(task, m) and not isinstance(getattr(task, m), t)]
     if not isinstance(task, Task):
         wrong.append("it does not derive from tasks.base.Task")

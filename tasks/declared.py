@@ -6,7 +6,9 @@
   in order; a vector quantity gives ``name_0``, ``name_1``, ...;
 - ``terms``: more named quantities, not observed, for reward, termination and measures;
 - ``actions``: the discrete action set, command vectors of some actuators (every step
-  sets them; an actuator no action names keeps 0);
+  sets them; an actuator no action names keeps 0), and the continuous form (``continuous``:
+  actuators, each driven by one action in [-1, 1] scaled to its control range; by default
+  the discrete set's actuators), or the continuous form alone;
 - ``rewards``: the reward is a weighted sum of named terms (``alive``, ``action_cost``, a term, a term's
   distance to a target);
 - ``termination``: ``[low, high]`` per term; outside, the episode terminates;
@@ -31,7 +33,7 @@ from params.declare import REQUIRED, check_fields, param
 from robots.mjcf_robot import MjcfRobot
 from robots.physics import BatchedPhysics
 from tasks import terms as T
-from tasks.base import Bounds, PerCopy, Success, Task, common, substeps_for
+from tasks.base import ActionRange, Bounds, PerCopy, Success, Task, common, substeps_for
 
 _RESET_KEYS = ("joints", "position_noise", "velocity_noise")
 
@@ -46,7 +48,9 @@ class DeclaredTask(Task):
     observations: dict = param(REQUIRED, "observed quantities, name: {source: model name, axis, "
                                          "index, apply} (docs/own-robot.md)")
     actions: dict = param(REQUIRED, "the discrete action set: {actuators: [..], commands: [[..]]} "
-                                    "or {values: {actuator: [..]}} (every combination)")
+                                    "or {values: {actuator: [..]}} (every combination); continuous: "
+                                    "[actuator, ..] or {actuator: [low, high]} for the continuous form "
+                                    "(default: the discrete set's actuators over their control ranges)")
     rewards: dict = param(REQUIRED, "reward terms, name: {alive | action_cost | term | a quantity, "
                                    "weight, target, kernel}; the reward is their weighted sum")
     terms: dict | None = param(None, "more named quantities (not observed) for reward, "
@@ -76,8 +80,12 @@ class DeclaredTask(Task):
         self.observation_names = tuple(n for t in self._obs_terms.values() for n in t.labels())
         require(len(self.observation_names) > 0, "task.observations must name at least one "
                 "quantity", self.observations)
-        self._columns, self._commands = T.action_set(self.robot, self.actions)
+        actions = T.action_set(self.robot, self.actions)
+        self._columns, self._commands = actions.columns, actions.commands
         self.n_actions = len(self._commands)
+        if actions.continuous is not None:
+            self._continuous_columns, ranges = actions.continuous
+            self.action_range = ActionRange.of(ranges)
         # After the names: a task written for another model says so before its timing does.
         self.n_substeps = substeps_for(self.running_step, self.physics_timestep)
         self._rewards = [T.reward_term(self.robot, str(k), v, self._terms, f"task.rewards.{k}")
@@ -155,7 +163,10 @@ class DeclaredTask(Task):
         self.robot.command(physics, self._columns, self.per_copy.command)
 
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
-        self.per_copy.command[:] = self._commands[action]
+        if self.continuous(action):
+            self.per_copy.command[:, self._continuous_columns] = self.action_range.command(action)
+        else:
+            self.per_copy.command[:] = self._commands[action]
         self.robot.command(physics, self._columns, self.per_copy.command)
 
     def observation(self, physics: BatchedPhysics) -> np.ndarray:

@@ -4,7 +4,9 @@
 of it per call (``batch_size=[num_envs]``). Keys:
 
 - ``observation``: float32 ``[num_envs, n_obs]``
-- ``action``: int64 ``[num_envs]`` in ``[0, n_actions)``
+- ``action``: int64 ``[num_envs]`` in ``[0, n_actions)``; with ``actions="continuous"``
+  (the task's continuous form, for SAC and its kind), float32 ``[num_envs, dims]`` in
+  [-1, 1], a TorchRL ``Bounded`` spec
 - ``reward``: float32 ``[num_envs, 1]``
 - ``terminated`` (the task failed or succeeded), ``truncated`` (time limit),
   ``done = terminated | truncated``: bool ``[num_envs, 1]``
@@ -51,12 +53,12 @@ import mujoco
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase, is_non_tensor, is_tensor_collection
-from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from params.private_api import get_entry, has_names, new_tensordict, set_entry
 from robots.physics import BatchedPhysics
-from tasks.base import Task, check_task
+from tasks.base import Task, check_action_form, check_task
 
 _log = logging.getLogger(__name__)
 
@@ -101,9 +103,10 @@ class RobotTaskEnv(EnvBase):
     """A batched TorchRL environment for any task and the robot it has."""
 
     def __init__(self, task: Task, num_envs: int = 1, seed: int | Sequence[int] = 0,
-                 nthread: int | None = None):
+                 nthread: int | None = None, actions: str = "discrete"):
         seeds = _seed_blocks(num_envs, seed)
         check_task(task)
+        check_action_form(task, actions)
         super().__init__(batch_size=torch.Size([int(num_envs)]), device="cpu")
         self.task = task
         self.num_envs = int(num_envs)
@@ -111,18 +114,8 @@ class RobotTaskEnv(EnvBase):
         self.physics = BatchedPhysics(self.model, self.num_envs, nthread=nthread)
         task.bind(self.physics)
         n = self.num_envs
-        n_obs = len(task.observation_names)
-        self.observation_spec = Composite(
-            observation=Unbounded(shape=(n, n_obs), dtype=torch.float32), shape=(n,)
-        )
-        self.action_spec = Categorical(task.n_actions, shape=(n,), dtype=torch.int64)
-        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
-        self.done_spec = Composite(
-            done=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool),
-            shape=(n,),
-        )
+        self.actions = actions
+        self._make_specs(task, n, actions)
         self.elapsed_steps = np.zeros(n, dtype=np.int64)
         self.divergences = 0  # diverged steps (ended episodes) since construction
         self.ended_info: dict[str, np.ndarray] = {}  # episode_info at each copy's last episode end
@@ -136,6 +129,26 @@ class RobotTaskEnv(EnvBase):
         self._render_data: mujoco.MjData | None = None
         self.camera_names = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_CAMERA, i)
                              for i in range(self.model.ncam)]
+
+    def _make_specs(self, task: Task, n: int, actions: str) -> None:
+        """The observation, action (``actions``' form), reward and done specs of ``n`` copies."""
+        n_obs = len(task.observation_names)
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(n, n_obs), dtype=torch.float32), shape=(n,)
+        )
+        if actions == "continuous":
+            self.action_shape: tuple[int, ...] = (n, task.action_range.dims)
+            self.action_spec = Bounded(-1.0, 1.0, shape=self.action_shape, dtype=torch.float32)
+        else:
+            self.action_shape = (n,)
+            self.action_spec = Categorical(task.n_actions, shape=(n,), dtype=torch.int64)
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
+        self.done_spec = Composite(
+            done=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            terminated=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            truncated=Categorical(2, shape=(n, 1), dtype=torch.bool),
+            shape=(n,),
+        )
 
     # -- EnvBase -----------------------------------------------------------------
     def _set_seed(self, seed: int | Sequence[int] | None) -> None:
@@ -202,7 +215,7 @@ class RobotTaskEnv(EnvBase):
                                        "truncated": torch.from_numpy(false.copy())})
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action").reshape(self.num_envs).cpu().numpy()
+        action = tensordict.get("action").reshape(self.action_shape).cpu().numpy()
         return self._advance(action, device=None)[0]
 
     def _step_and_maybe_reset(self, tensordict: TensorDictBase
@@ -263,7 +276,7 @@ class RobotTaskEnv(EnvBase):
         if (action is None or get_entry(tensordict, "next") is not None
                 or get_entry(tensordict, "_step") is not None or get_entry(tensordict, "_reset") is not None):
             return None
-        return action.numpy().reshape(self.num_envs)
+        return action.numpy().reshape(self.action_shape)
 
     def _advance(self, action: np.ndarray, device: torch.device | None
                  ) -> tuple[TensorDictBase, dict, np.ndarray, np.ndarray]:

@@ -19,7 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from params import ConfigError, locate
 from robots.base import Robot
-from tasks.base import Task
+from tasks.base import Task, check_action_form
 from tasks.env import RobotTaskEnv
 
 
@@ -71,6 +71,35 @@ def build_task(cfg: DictConfig) -> Task:
     return _build(cfg.task, "task", Task, robot=build_robot(cfg))
 
 
+def action_form(cfg: DictConfig) -> str:
+    """The action form a composed config's learner acts on: its class's ``ACTIONS``
+    (``discrete`` unless it says ``continuous``); ``discrete`` without a learner.
+
+    Args:
+        cfg: a composed config.
+
+    Returns:
+        ``discrete`` or ``continuous``.
+    """
+    target = (cfg.get("learner") or {}).get("_target_") if isinstance(cfg, (DictConfig, Mapping)) else None
+    try:
+        cls = locate(str(target)) if target else None
+    except Exception:  # noqa: BLE001 - a learner that cannot be found is refused where it is built
+        cls = None
+    return str(getattr(cls, "ACTIONS", "discrete"))
+
+
+def learner_name(cfg: DictConfig) -> str:
+    """The learner's name as a user picked it (``learner=<name>``), else its class's."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        return str(HydraConfig.get().runtime.choices["learner"])
+    except Exception:  # noqa: BLE001 - no Hydra run: the class's name
+        target = str((cfg.get("learner") or {}).get("_target_", ""))
+        return target.rsplit(".", 1)[-1].lower()
+
+
 def build_env(cfg: DictConfig, num_envs: int | None = None,
               seed: int | Sequence[int] | None = None) -> RobotTaskEnv:
     """The batched env of a composed config.
@@ -83,10 +112,13 @@ def build_env(cfg: DictConfig, num_envs: int | None = None,
             None: ``cfg.seed``.
 
     Returns:
-        A new env, with a fresh task and robot.
+        A new env, with a fresh task and robot, whose actions are the form the config's
+        learner acts on (:func:`action_form`).
 
     Raises:
-        ConfigError: as :func:`build_task` does.
+        ConfigError: as :func:`build_task` does, or if the task offers no actions of the learner's form.
     """
-    return RobotTaskEnv(build_task(cfg), num_envs=int(cfg.num_envs if num_envs is None else num_envs),
-                        seed=int(cfg.seed) if seed is None else seed)
+    task, form = build_task(cfg), action_form(cfg)
+    check_action_form(task, form, learner_name(cfg))
+    return RobotTaskEnv(task, num_envs=int(cfg.num_envs if num_envs is None else num_envs),
+                        seed=int(cfg.seed) if seed is None else seed, actions=form)

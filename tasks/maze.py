@@ -6,7 +6,10 @@ tasks/maze_arena.py.
 Actions (the original's three): 0 forward (``linear_forward_speed``, no
 turning), 1 turn left (``linear_turn_speed``, +``angular_speed``), 2 turn right
 (``linear_turn_speed``, -``angular_speed``). Each holds for ``running_step``
-seconds of simulated time.
+seconds of simulated time. The continuous form (SAC and its kind): two actions in
+[-1, 1], the turn rate (x ``angular_speed``, left positive) and the speed (from
+``linear_turn_speed`` at -1 to ``linear_forward_speed`` at 1); the three discrete
+actions are corners and an edge's middle of that square.
 
 Observation: the laser fan cut into ``n_observations`` equal sectors, right to
 left (``laser_0`` is the rightmost); each sector reports its nearest reading, no
@@ -14,7 +17,9 @@ hit counting as the laser's maximum range, rounded to one decimal.
 
 The episode terminates on a collision: any laser reading below ``min_range``, or
 the base touching a wall. Reward: ``forwards_reward`` for a forward step,
-``turn_reward`` for a turn, -``end_episode_points`` on the colliding step. The
+``turn_reward`` for a turn, -``end_episode_points`` on the colliding step; a
+continuous step earns between the two by how straight and fast it drives
+(``turn_reward + (forwards_reward - turn_reward) * (1 - |turn|) * speed share``). The
 environment truncates after ``max_episode_steps``.
 
 Episodes start at one of the maze's start poses (chosen by the environment's
@@ -43,7 +48,7 @@ from params import require
 from params.declare import param
 from robots.physics import BatchedPhysics
 from robots.turtlebot import TurtleBot
-from tasks.base import Bounds, PerCopy, Success, Task, common, setup
+from tasks.base import ActionRange, Bounds, PerCopy, Success, Task, common, setup
 from tasks.maze_arena import Maze, maze_arena
 
 SUCCESS = Success("laps", "laps", "laps round the maze without a collision", 2.0, "greedy", 100, 0)
@@ -114,6 +119,12 @@ class MazeTask(Task):
         # The last action, and the odometer and loop progress of the episode.
         self.per_copy = PerCopy(action=((), np.int64), prev_xy=(2,), distance=(), winding=(),
                                 along=())
+        # The continuous form: a turn rate in [-1, 1] x angular_speed and a speed from
+        # linear_turn_speed (-1) to linear_forward_speed (1).
+        slow, fast = sorted((self.linear_turn_speed, self.linear_forward_speed))
+        slow = slow if fast - slow > 1e-9 else min(0.0, fast - 1.0)
+        self.action_range = ActionRange.of({"turn": [-self.angular_speed, self.angular_speed],
+                                            "speed": [slow, fast]})
 
     def _check_laser(self) -> None:
         """A fan that sees every wall the base can reach: both sides (``laser_fov`` >= pi) and
@@ -193,8 +204,16 @@ class MazeTask(Task):
         c.distance[mask] = c.winding[mask] = c.along[mask] = 0.0
 
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
-        self.per_copy.action = np.asarray(action, dtype=np.int64).copy()
-        linear, angular = self.speeds[self.per_copy.action].T
+        if self.continuous(action):  # the share of a forward step's reward: straight and fast
+            angular, linear = self.action_range.command(action).T
+            slow, fast = self.action_range.low[1], self.action_range.high[1]
+            straight = 1.0 - np.abs(angular) / self.angular_speed
+            self._forward = straight * (linear - slow) / (fast - slow)
+            self._continuous = True
+        else:
+            self.per_copy.action = np.asarray(action, dtype=np.int64).copy()
+            linear, angular = self.speeds[self.per_copy.action].T
+            self._continuous = False
         self.robot.command_velocity(physics, linear, angular)
 
     def scan(self, physics: BatchedPhysics) -> np.ndarray:
@@ -218,7 +237,11 @@ class MazeTask(Task):
     def reward(
         self, physics: BatchedPhysics, observation: np.ndarray, terminated: np.ndarray
     ) -> np.ndarray:
-        return np.where(terminated, -self.end_episode_points, self.rewards[self.per_copy.action])
+        if getattr(self, "_continuous", False):
+            step = self.turn_reward + (self.forwards_reward - self.turn_reward) * self._forward
+        else:
+            step = self.rewards[self.per_copy.action]
+        return np.where(terminated, -self.end_episode_points, step)
 
     def episode_info(self, physics: BatchedPhysics) -> dict[str, np.ndarray]:
         """Per copy, since the episode began: ``distance``, the path length driven (m);

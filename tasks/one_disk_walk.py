@@ -5,6 +5,10 @@ Actions are ``Discrete(5)`` on a persistent wheel-speed command: 0 sets it to
 ``roll_speed_increment_value``, 4 subtracts it; the command is then clipped to
 +-``roll_speed_fixed_value``.
 
+The continuous form (SAC and its kind): one action in [-1, 1], the wheel-speed command
+itself, scaled to +-``roll_speed_fixed_value`` (the discrete actions 0, 1 and 2 are its
+ends and its middle).
+
 Observation (the original's, rounded as it did): wheel speed (0 decimals),
 y distance from the episode's start, roll, pitch, y linear speed, yaw
 (1 decimal each).
@@ -62,7 +66,7 @@ from params.declare import param
 from robots.cube import Cube
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, PerCopy, Success, Task, common, setup
+from tasks.base import ActionRange, Bounds, PerCopy, Success, Task, common, setup
 
 SUCCESS = Success("distance_walked", "m", "distance walked", 1.0, "greedy", 100, 0)
 
@@ -128,6 +132,8 @@ class OneDiskWalk(Task):
             or {"wheel_speed": [-105.0, 105.0], "y_speed": [-0.75, 0.75], "yaw": [-0.15, 0.15]},
             self.observation_names)
         self.per_copy = PerCopy(command=(), start_y=(), prev_y=())
+        fixed = self.roll_speed_fixed_value
+        self.action_range = ActionRange.of({"wheel_speed_command": [-fixed, fixed]})
 
     def _check_wheel(self) -> None:
         """Wheel speeds the robot can be commanded."""
@@ -170,11 +176,14 @@ class OneDiskWalk(Task):
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
         fixed, inc = self.roll_speed_fixed_value, self.roll_speed_increment_value
         cmd = self.per_copy.command
-        cmd[action == WHEEL_FORWARD] = fixed
-        cmd[action == WHEEL_BACKWARD] = -fixed
-        cmd[action == WHEEL_STOP] = 0.0
-        cmd[action == SPEED_UP] += inc
-        cmd[action == SPEED_DOWN] -= inc
+        if self.continuous(action):
+            cmd[:] = self.action_range.command(action)[:, 0]
+        else:
+            cmd[action == WHEEL_FORWARD] = fixed
+            cmd[action == WHEEL_BACKWARD] = -fixed
+            cmd[action == WHEEL_STOP] = 0.0
+            cmd[action == SPEED_UP] += inc
+            cmd[action == SPEED_DOWN] -= inc
         np.clip(cmd, -fixed, fixed, out=cmd)
         self.robot.command_wheel_speed(physics, cmd)
         self.per_copy.prev_y = self.robot.odometry(physics).position[:, 1]

@@ -5,6 +5,10 @@ command and action 0 subtracts it; with 4 actions, 3 and 2 do the same with
 10 x ``pos_step``. The command persists between steps (it accumulates) and, in
 velocity control, is clipped to +-``max_base_velocity``.
 
+The continuous form (SAC and its kind): one action in [-1, 1], the change of the cart
+command scaled to the discrete actions' largest (+-``pos_step``, or +-10 x ``pos_step``
+with 4 actions): the discrete actions are its ends and its middle.
+
 Observation: cart position, cart velocity, pole angle, pole angular velocity.
 Reward +1 per step. The episode terminates when the cart leaves
 [``min_base_pose_x``, ``max_base_pose_x``] or the pole leaves
@@ -29,7 +33,7 @@ from params.declare import param
 from robots.cartpole import CONTROL_TYPES, CartPole
 from robots.physics import BatchedPhysics
 from tasks.arena import floor_arena
-from tasks.base import Bounds, PerCopy, Success, Task, common, setup
+from tasks.base import ActionRange, Bounds, PerCopy, Success, Task, common, setup
 
 # The seeds' win rule: judged on the training episodes, as they did.
 SUCCESS = Success("length", "steps", "steps balanced", 250.0, "training", 100, 100)
@@ -70,6 +74,8 @@ class StayUp(Task):
         # Action -> change of the cart command.
         steps = [-self.pos_step, self.pos_step, -10 * self.pos_step, 10 * self.pos_step]
         self._deltas = np.asarray(steps[: self.n_actions])
+        largest = float(np.abs(self._deltas).max())
+        self.action_range = ActionRange.of({"cart_command_change": [-largest, largest]})
         self.per_copy = PerCopy(command=())
         self.tabular_bounds = Bounds.from_config(
             self.tabular_state
@@ -114,7 +120,7 @@ class StayUp(Task):
 
     def apply_action(self, physics: BatchedPhysics, action: np.ndarray) -> None:
         command = self.per_copy.command
-        command += self._deltas[action]
+        command += self.action_range.command(action)[:, 0] if self.continuous(action) else self._deltas[action]
         if self.control_type == "velocity":
             np.clip(command, -self.max_base_velocity, self.max_base_velocity, out=command)
         self.robot.command(physics, command)

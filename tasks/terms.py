@@ -1,6 +1,6 @@
 """The terms a declared task is made of, parsed from its YAML (Isaac Lab's manager-based
 terms, dm_control's suite observations): named quantities of the robot, reward terms,
-the discrete action set, termination bounds, episode measures.
+the action set (discrete, continuous or both), termination bounds, episode measures.
 
 A quantity is a mapping with one source and what to take of it::
 
@@ -243,31 +243,88 @@ def _tolerance(spec: Any, where: str) -> dict:
 
 
 # -- actions -----------------------------------------------------------------------
-def action_set(robot: MjcfRobot, spec: Any) -> tuple[np.ndarray, np.ndarray]:
-    """``(columns, commands)``: the actuators the actions drive (indices in the model's order)
-    and one row of their commands per action. ``task.actions`` is either
-    ``{actuators: [a, b], commands: [[..], [..]]}`` or ``{values: {a: [..], b: [..]}}``
-    (every combination of the per-actuator values)."""
-    spec = _mapping(spec, "task.actions", "{actuators: [names], commands: [[values], ...]} or "
-                                          "{values: {actuator: [values], ...}}")
+ACTIONS_SHAPE = ("{values: {actuator: [values], ...}} or {actuators: [names], commands: [[values], ...]} "
+                 "(the discrete set), optionally with continuous: [actuators] or {actuator: [low, high]} "
+                 "(the continuous form); or continuous alone")
+
+
+@dataclass
+class ActionSet:
+    """A declared task's actions: the actuators they drive (``columns``, indices in the model's
+    order), one row of commands per discrete action (``commands``, ``[n_actions, columns]``;
+    none: ``[0, columns]``) and the continuous form (``continuous``: for each of its
+    actuators its column's place in ``columns`` and its ``[low, high]``; None: no such form)."""
+
+    columns: np.ndarray
+    commands: np.ndarray
+    continuous: tuple[np.ndarray, dict[str, tuple[float, float]]] | None
+
+
+def action_set(robot: MjcfRobot, spec: Any) -> ActionSet:
+    """The :class:`ActionSet` of ``task.actions``: ``{actuators: [a, b], commands: [[..], [..]]}``
+    or ``{values: {a: [..], b: [..]}}`` (every combination of the per-actuator values), with
+    optionally ``continuous``: actuator names (each ranging over the model's control range) or
+    ``{name: [low, high]}``. Without ``continuous``, the discrete set's actuators are the
+    continuous form too, each over the model's control range where it has one, else over its
+    discrete values' span."""
+    spec = _mapping(spec, "task.actions", ACTIONS_SHAPE)
+    kinds = set(spec) - {"continuous"}
+    require(kinds in ({"values"}, {"actuators", "commands"}, set()) and (kinds or "continuous" in spec),
+            f"task.actions must be {ACTIONS_SHAPE}", sorted(spec))
+    names, rows = [], []
     if "values" in spec:
-        require(set(spec) == {"values"}, "task.actions takes values or actuators and commands",
-                sorted(spec))
         values = _mapping(spec["values"], "task.actions.values",
                           "a mapping of actuator names to lists of commands")
         names = list(values)
         rows = [list(r) for r in itertools.product(*(list(values[n] or []) for n in names))]
-    else:
-        require(set(spec) == {"actuators", "commands"}, "task.actions takes values or "
-                "actuators and commands", sorted(spec))
+    elif kinds:
         names, rows = list(spec["actuators"] or []), [list(r) for r in (spec["commands"] or [])]
-    require(len(names) > 0, "task.actions must name at least one actuator", names)
-    require(len(rows) > 0, "task.actions must hold at least one action (an empty action set)", rows)
-    for row in rows:
-        require(len(row) == len(names) and all(finite(v) for v in row), f"task.actions: each "
-                f"action must be {len(names)} finite numbers, one per actuator {names}", row)
-    columns = [robot.actuator_column(n, "task.actions") for n in names]
-    return np.asarray(columns, dtype=np.int64), np.asarray(rows, dtype=np.float64)
+    if kinds:
+        require(len(names) > 0, "task.actions must name at least one actuator", names)
+        require(len(rows) > 0, "task.actions must hold at least one action (an empty action set)", rows)
+        for row in rows:
+            require(len(row) == len(names) and all(finite(v) for v in row), f"task.actions: each "
+                    f"action must be {len(names)} finite numbers, one per actuator {names}", row)
+    ranges = _continuous(robot, spec.get("continuous"), names, rows)
+    every = list(dict.fromkeys([*names, *(ranges or {})]))
+    columns = np.asarray([robot.actuator_column(n, "task.actions") for n in every], dtype=np.int64)
+    commands = np.zeros((len(rows), len(every)))
+    if rows:
+        commands[:, :len(names)] = np.asarray(rows, dtype=np.float64)
+    continuous = None if ranges is None else (np.asarray([every.index(n) for n in ranges], dtype=np.int64), ranges)
+    return ActionSet(columns, commands, continuous)
+
+
+def _continuous(robot: MjcfRobot, spec: Any, names: list[str], rows: list[list[float]]
+                ) -> dict[str, tuple[float, float]] | None:
+    """``{actuator: (low, high)}`` of the continuous form (None: none can be made)."""
+    where = "task.actions.continuous"
+    if spec is None:  # the discrete set's actuators: the model's range, else the values' span
+        found = {}
+        for i, name in enumerate(names):
+            model = robot.control_range(name, "task.actions")
+            span = (min(r[i] for r in rows), max(r[i] for r in rows))
+            found[name] = model or span
+        return found if all(low < high for low, high in found.values()) else None
+    if isinstance(spec, Mapping):
+        found = {}
+        for name, pair in spec.items():
+            robot.actuator_column(str(name), where)
+            require(isinstance(pair, (list, tuple)) and len(pair) == 2 and all(finite(v) for v in pair)
+                    and pair[0] < pair[1], f"{where}.{name} must be [low, high], two finite numbers with "
+                    "low < high", pair)
+            found[str(name)] = (float(pair[0]), float(pair[1]))
+    else:
+        require(isinstance(spec, (list, tuple)) and all(isinstance(n, str) for n in spec),
+                f"{where} must list actuator names or map them to [low, high]", spec)
+        found = {}
+        for name in spec:
+            model = robot.control_range(name, where)
+            require(model is not None, f"{where}: actuator {name!r} has no control range in the model; "
+                    f"give one: continuous: {{{name}: [low, high]}}", name)
+            found[name] = model
+    require(len(found) > 0, f"{where} must name at least one actuator", spec)
+    return found
 
 
 # -- termination and measures ---------------------------------------------------------

@@ -82,7 +82,7 @@ def same_as_alone(cfg, n: int, steps: int, cfgs=None) -> None:
         stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
                  for x, i in ((together, b), (single, 0))]
         assert stats[0] == stats[1], seed
-        if together.kind == "dqn":
+        if together.kind in ("dqn", "sac"):
             assert together.steps[b] > 0
 
 
@@ -116,6 +116,13 @@ DQN_CASES = {
     # a fixed input factor before the first layer (conf/tuned/cube_dqn.yaml's kind)
     "dqn with obs_scale": ("dqn", 2, ["learner.batch_size=32", "learner.updates=3", "learner.learning_starts=100",
                                       "+learner.obs_scale={cart_pos: 0.5, pole_vel: 3.0}"]),
+    # SAC on the cart-pole's continuous form: actor, twin critics and their targets, the
+    # temperature, each with its own Adam; random actions until learning_starts
+    "sac, 1 copy": ("sac", 1, ["learner.hidden=[16,16]", "learner.batch_size=16", "learner.learning_starts=40"]),
+    "sac, 2 copies, fixed alpha, clip": ("sac", 2, ["learner.hidden=[8]", "learner.batch_size=8",
+                                                    "learner.learning_starts=30", "learner.updates=2",
+                                                    "learner.fixed_alpha=true", "learner.grad_clip=1.0",
+                                                    "learner.loss=smooth_l1"]),
 }
 
 
@@ -164,6 +171,11 @@ TRIAL_CASES = {
                                    [["learner.batch_size=8", "learner.buffer_size=100"],
                                     ["learner.batch_size=24", "learner.buffer_size=300"],
                                     ["learner.batch_size=8", "learner.buffer_size=300"]]),
+    "sac": ("sac", 2, ["learner.hidden=[16]", "learner.learning_starts=30"],
+            [["learner.batch_size=16"], ["learner.lr=0.001", "learner.gamma=0.9", "learner.tau=0.05",
+                                         "learner.alpha_init=0.2", "learner.batch_size=8"],
+             ["learner.updates=0.5", "learner.target_entropy=-0.5", "learner.reward_scale=0.1",
+              "learner.alpha_lr=0.01", "learner.buffer_size=300", "learner.batch_size=16"]]),
     # hard target copies every 20, 7 and 13 updates beside Polyak: all have a target network
     "mbalunovic": ("mbalunovic", 2, ["learner.batch_size=8"],
                    [["learner.target_update=20"], ["learner.target_update=7", "learner.gamma=0.9"],
@@ -206,6 +218,7 @@ RENEW_CASES = {
     "dqn, own sizes": (*TRIAL_CASES["dqn prioritized, own sizes"][:4],
                        ["learner.batch_size=16", "learner.buffer_size=200", "learner.lr=0.002"]),
     "mbalunovic": (*TRIAL_CASES["mbalunovic"][:4], ["learner.target_update=5", "learner.gamma=0.8"]),
+    "sac": (*TRIAL_CASES["sac"][:4], ["learner.batch_size=4", "learner.alpha_init=3.0"]),
 }
 
 
@@ -247,7 +260,7 @@ def test_a_renewed_member_learns_bit_for_bit_as_a_fresh_one(case):
     stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
              for x, i in ((together, 1), (alone, 0))]
     assert stats[0] == stats[1]
-    if together.kind == "dqn":
+    if together.kind in ("dqn", "sac"):
         assert together.steps[1] > 0  # it learned after its renewal
     for b in (0, 2):
         single, _ = trained(cfg if cfgs is None else cfgs[b], (SEEDS[b],), n, before + after)

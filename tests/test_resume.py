@@ -18,6 +18,9 @@ ROOT = Path(__file__).resolve().parents[1]
 QLEARN = ["learner=qlearn", "num_envs=1", "max_episodes=160", "checkpoint_every=20"]
 DQN = ["learner=dqn", "num_envs=4", "max_episodes=150", "learner.learning_starts=64",
        "checkpoint_every=20"]
+# SAC on the cart-pole's continuous form: actor, twin critics, targets, temperature, buffer
+SAC = ["learner=sac", "num_envs=2", "max_episodes=100", "learner.hidden=[32,32]", "learner.learning_starts=200",
+       "learner.batch_size=32", "checkpoint_every=20"]
 
 
 def start(run_dir: Path, *overrides: str) -> subprocess.Popen:
@@ -67,14 +70,14 @@ def assert_same_end(a: Path, b: Path) -> None:
 def uninterrupted(tmp_path_factory) -> dict[str, Path]:
     """Reference runs, never stopped."""
     base = tmp_path_factory.mktemp("uninterrupted")
-    runs = {"qlearn": QLEARN, "dqn": DQN}
+    runs = {"qlearn": QLEARN, "dqn": DQN, "sac": SAC}
     for name, overrides in runs.items():  # in this process (tests/inprocess.py): only the stopped runs need their own
         done = run_train("quiet=true", "eval_episodes=0", "seed=3", f"hydra.run.dir={base / name}", *overrides)
         assert done.returncode == 0, done.stderr[-1500:]
     return {name: base / name for name in runs}
 
 
-@pytest.mark.parametrize("learner,overrides", [("qlearn", QLEARN), ("dqn", DQN)])
+@pytest.mark.parametrize("learner,overrides", [("qlearn", QLEARN), ("dqn", DQN), ("sac", SAC)])
 def test_ctrl_c_saves_and_resume_ends_like_an_uninterrupted_run(tmp_path, uninterrupted, learner, overrides):
     run_dir = tmp_path / "run"
     proc = start(run_dir, *overrides)

@@ -1,0 +1,210 @@
+"""Soft actor-critic (Haarnoja et al. 2018, with the learned temperature), written for one member.
+
+One member's algorithm (CleanRL's ``sac_continuous_action.py`` reads alike): a tanh-squashed
+Gaussian policy (TorchRL's ``MLP``, ``NormalParamExtractor`` and ``TanhNormal``; a
+``ProbabilisticActor`` in ``model.pt``), twin Q-networks with Polyak-averaged targets, and
+a temperature ``alpha`` tuned towards a target entropy. Per minibatch, the three losses of
+TorchRL's ``SACLoss`` (its version 2, no value network): the critics' TD error to
+``r + gamma * (min_i Q'_i(s', a') - alpha log pi(a'|s'))``, the actor's
+``alpha log pi(a|s) - min_i Q_i(s, a)`` and the temperature's
+``-log alpha * (log pi(a|s) + target entropy)``; then one Adam step of each.
+
+The members (seeds, trials) are one layer beneath (:class:`learners.member.ActorCriticLearner`:
+their networks, optimizers, replay buffers and streams). :func:`sac_losses` computes the
+losses for every member in one call rather than through ``SACLoss``: the same numbers
+(``tests/test_sac.py``), with each member's sampling noise drawn from its own stream.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Sequence
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import NormalParamExtractor
+from torch import nn
+from torchrl.modules import MLP
+from torchrl.modules.distributions import TanhNormal
+from torchrl.modules.distributions.utils import safetanh_noeps
+
+from learners.device import DEVICE_NOTE, check_device, resolve_device
+from learners.member import ActorCriticLearner, GroupStep, lanes
+from learners.transitions import Transitions
+from params import require
+from params.declare import check_fields, param
+
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
+_DISTANCES = {"l2": nn.functional.mse_loss, "smooth_l1": nn.functional.smooth_l1_loss}
+
+
+LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
+
+
+class GaussianHead(NormalParamExtractor):
+    """TorchRL's ``NormalParamExtractor`` (the last layer's outputs as ``loc`` and a biased
+    softplus ``scale``), its softplus computed by :func:`~learners.member.lanes`."""
+
+    def forward(self, tensor: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        loc, scale = tensor.chunk(2, -1)
+        return loc, lanes(self.scale_mapping, scale).clamp_min(self.scale_lb)
+
+
+def squashed(loc: torch.Tensor, scale: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(action, log_prob)`` of TorchRL's ``TanhNormal(loc, scale)`` at the pre-tanh value
+    ``loc + noise * scale``: its ``rsample_and_log_prob`` with the noise given rather than
+    drawn, step by step (the Gaussian's log density less the tanh's log Jacobian, TorchRL's
+    safe tanh), its transcendental functions by :func:`~learners.member.lanes`."""
+    preimage = loc + noise * scale
+    action = lanes(safetanh_noeps, preimage)
+    density = -((preimage - loc) ** 2) / (2 * scale**2) - lanes(torch.log, scale) - LOG_SQRT_2PI
+    jacobian = 2.0 * (math.log(2.0) - preimage - lanes(nn.functional.softplus, -2.0 * preimage))
+    return action, density.sum(-1) - jacobian.sum(-1)
+
+
+def sac_losses(actor: Callable, q1: GroupStep, q2: GroupStep, log_alpha: torch.Tensor, batch: Transitions,
+               noise: torch.Tensor, gamma: float | torch.Tensor, target_entropy: float | torch.Tensor,
+               distance: str = "l2") -> dict[str, torch.Tensor]:
+    """SAC's losses on ``batch`` (``[k, B, ...]``, a member's rows each): ``loss_qvalue``,
+    ``loss_actor`` and ``loss_alpha`` per transition ``[k, B, 1]``, with ``q`` (the first
+    critic's values), ``target``, ``log_prob`` and ``alpha``. ``noise`` ``[k, 2, B, dims]``:
+    each member's standard normal draws for the next actions, then the current ones.
+    Terminated transitions do not bootstrap; truncated ones do."""
+    alpha = lanes(torch.exp, log_alpha.detach()).unsqueeze(-1)  # [k, 1, 1]
+    with torch.no_grad():
+        next_action, next_log_prob = squashed(*actor(batch.next_observation), noise[:, 0])
+        after = torch.cat((batch.next_observation, next_action), -1)
+        soft = torch.minimum(q1.target(after), q2.target(after)) - alpha * next_log_prob.unsqueeze(-1)
+        target = batch.reward + gamma * soft * ~batch.terminated
+    taken = torch.cat((batch.observation, batch.action), -1)
+    q = q1(taken)
+    distance = _DISTANCES[distance]
+    loss_qvalue = distance(q, target, reduction="none") + distance(q2(taken), target, reduction="none")
+    action, log_prob = squashed(*actor(batch.observation), noise[:, 1])
+    chosen = torch.cat((batch.observation, action), -1)
+    log_prob = log_prob.unsqueeze(-1)
+    loss_actor = alpha * log_prob - torch.minimum(q1.frozen(chosen), q2.frozen(chosen))
+    loss_alpha = -log_alpha.unsqueeze(-1) * (log_prob.detach() + target_entropy)
+    return {"loss_qvalue": loss_qvalue, "loss_actor": loss_actor, "loss_alpha": loss_alpha, "q": q,
+            "target": target, "log_prob": log_prob.detach(), "alpha": alpha.expand_as(q)}
+
+
+@dataclass(eq=False)
+class SAC(ActorCriticLearner):
+    """Soft actor-critic (see the module docstring); its members: :class:`ActorCriticLearner`."""
+
+    hidden: list[int] = param([256, 256], "widths of the actor's and each critic's hidden layers")
+    activation: str = param("relu", "hidden layers' activation", choices=tuple(ACTIVATIONS))
+    lr: float = param(3e-4, "Adam's learning rate of the actor and the critics", gt=0)
+    alpha_lr: float = param(3e-4, "Adam's learning rate of the temperature (log alpha)", gt=0)
+    alpha_init: float = param(1.0, "the temperature alpha at the start (the entropy's weight)", gt=0)
+    fixed_alpha: bool = param(False, "keep alpha at alpha_init (no tuning towards target_entropy)")
+    target_entropy: float | None = param(None, "entropy the temperature is tuned towards, nats",
+                                         note="null = minus the number of actions")
+    gamma: float = param(0.99, "discount of the next state's value", ge=0, le=1)
+    tau: float = param(0.005, "Polyak averaging rate of the target critics", gt=0, le=1)
+    loss: str = param("l2", "critics' TD error loss", choices=tuple(_DISTANCES))
+    buffer_size: int = param(100_000, "replay buffer capacity, transitions", ge=1, le=10**7)
+    batch_size: int = param(256, "transitions per minibatch", ge=1, le=65_536)
+    updates: float = param(1.0, "minibatches per collected transition", gt=0)
+    learning_starts: int = param(1000, "transitions in the buffer before the first update; until then "
+                                       "the member acts uniformly at random", ge=1)
+    grad_clip: float = param(0.0, "gradient norm clip of each network", ge=0, note="0 = no clipping")
+    reward_scale: float = param(1.0, "factor on every reward the learner stores", gt=0)
+    device: str = param("cpu", "where the networks, updates and replay buffer live",
+                        note=DEVICE_NOTE, check=check_device)
+
+    kind = "sac"
+    out_keys = ("action",)
+    critic = "q1"
+    MEMBER_WISE = ("lr", "alpha_lr", "alpha_init", "target_entropy", "gamma", "tau", "learning_starts",
+                   "grad_clip", "reward_scale", "buffer_size", "batch_size", "updates")
+    SIZING = ("buffer_size",)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "learner")
+        require(1 <= len(self.hidden) <= 16 and all(1 <= h <= 65_536 for h in self.hidden),
+                "learner.hidden must list 1 to 16 layer widths in [1, 65536]", self.hidden)
+        require(self.batch_size <= self.buffer_size, "learner.batch_size must be in [1, buffer_size]",
+                (self.batch_size, self.buffer_size))
+        require(self.learning_starts <= self.buffer_size,
+                f"learner.learning_starts must be <= learner.buffer_size ({self.buffer_size}), "
+                "else it never trains", self.learning_starts)
+        require(self.target_entropy is None or math.isfinite(self.target_entropy),
+                "learner.target_entropy must be a finite number or null", self.target_entropy)
+        self.device = str(resolve_device(self.device))
+        self.hidden = [int(h) for h in self.hidden]
+        self.members = 0
+
+    # -- one member's networks -----------------------------------------------
+    def arch(self) -> dict:
+        """The networks a saved state must match."""
+        return {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
+                "activation": self.activation}
+
+    def networks(self, task) -> dict[str, tuple[nn.Sequential | None, bool]]:
+        """The actor (observation -> loc, scale of each action's Gaussian before tanh), two
+        critics ((observation, action) -> Q) with target copies, and log alpha."""
+        def mlp(inputs: int, outputs: int) -> nn.Sequential:
+            return MLP(in_features=inputs, out_features=outputs, num_cells=self.hidden,
+                       activation_class=ACTIVATIONS[self.activation])
+
+        actor = nn.Sequential(*mlp(self.n_obs, 2 * self.n_actions), GaussianHead())
+        return {"actor": (actor, False), "q1": (mlp(self.n_obs + self.n_actions, 1), True),
+                "q2": (mlp(self.n_obs + self.n_actions, 1), True), "alpha": (None, False)}
+
+    def initial(self, name: str, own: SAC) -> torch.Tensor:
+        """log alpha at the start (``alpha``, the one plain group)."""
+        return torch.tensor([math.log(own.alpha_init)])
+
+    def policy(self, template: nn.Sequential) -> nn.Module:
+        """The actor as ``model.pt`` holds it: TorchRL's ``ProbabilisticActor`` of a ``TanhNormal``."""
+        from tensordict.nn import TensorDictModule
+        from torchrl.modules import ProbabilisticActor
+
+        module = TensorDictModule(template, in_keys=["observation"], out_keys=["loc", "scale"])
+        return ProbabilisticActor(module, in_keys=["loc", "scale"], distribution_class=TanhNormal)
+
+    # -- one member's acting and losses ----------------------------------------
+    def draw_act(self, generator: torch.Generator, n: int, uniform: bool) -> torch.Tensor:
+        """One step's draws for ``n`` copies: standard normal noise, or uniform actions in
+        [-1, 1] while the member still acts at random."""
+        if uniform:
+            return torch.rand(n, self.n_actions, generator=generator) * 2 - 1
+        return torch.empty(n, self.n_actions).normal_(generator=generator)
+
+    def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None) -> torch.Tensor:
+        """The squashed Gaussian's draw at ``noise``, or its deterministic action ``tanh(loc)``."""
+        loc, scale = actor(observation)
+        return lanes(safetanh_noeps, loc) if noise is None else squashed(loc, scale, noise)[0]
+
+    def draw_update(self, generator: torch.Generator, batch_size: int) -> torch.Tensor:
+        """One update's draws: standard normal noise for the next actions, then the current ones."""
+        return torch.empty(2, batch_size, self.n_actions).normal_(generator=generator)
+
+    def losses(self, nets: Mapping[str, GroupStep], batch: Transitions, noise: torch.Tensor,
+               gamma: float | torch.Tensor, own: Sequence[SAC]) -> tuple[torch.Tensor, tuple, tuple]:
+        """Each member's summed SAC losses, the groups they step, and the statistics' numbers."""
+        entropy = [-float(self.n_actions) if v.target_entropy is None else float(v.target_entropy) for v in own]
+        target_entropy = entropy[0] if len(set(entropy)) == 1 else torch.tensor(entropy).view(-1, 1, 1)
+        terms = sac_losses(nets["actor"], nets["q1"], nets["q2"], nets["alpha"].value, batch, noise, gamma,
+                           target_entropy, self.loss)
+        loss = (terms["loss_qvalue"] + terms["loss_actor"]).mean((1, 2))
+        stepped = ("actor", "q1", "q2")
+        if not self.fixed_alpha:
+            loss = loss + terms["loss_alpha"].mean((1, 2))
+            stepped += ("alpha",)
+        extras = {"loss_actor": terms["loss_actor"].detach(), "entropy": -terms["log_prob"], "alpha": terms["alpha"]}
+        return loss, stepped, (terms["q"], terms["target"], extras)
+
+    def transitions_of(self, tensordict: TensorDictBase, own: SAC | None = None) -> Transitions:
+        """The transitions of ``tensordict``, rewards scaled by ``reward_scale`` (``own``'s)."""
+        own = self if own is None else own
+        batch = Transitions.of(tensordict)
+        if own.reward_scale != 1.0:
+            batch = batch._replace(reward=batch.reward * float(own.reward_scale))
+        return batch
+
+
+__all__ = ["SAC", "sac_losses", "squashed"]
