@@ -34,7 +34,7 @@ from torch import nn
 from torchrl.modules import MLP, DistributionalQValueActor, NoisyLinear, QValueActor
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
-from learners.member import ObsScale, ReplayLearner
+from learners.member import ObsScale, ReplayLearner, check_replay_settings
 from learners.transitions import Transitions, unpack
 from params import require
 from params.declare import REQUIRED, check_fields, param
@@ -174,24 +174,17 @@ class DQN(ReplayLearner):
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
-        require(1 <= len(self.hidden) <= 16 and all(1 <= h <= 65_536 for h in self.hidden),
-                "learner.hidden must list 1 to 16 layer widths in [1, 65536]", self.hidden)
+        check_replay_settings(self)
         require(not (self.target_update and self.tau),
                 "learner.target_update and learner.tau exclude each other",
                 (self.target_update, self.tau))
         require(not self.double_dqn or self.target_update or self.tau,
                 "learner.double_dqn needs a target network (target_update or tau)", self.double_dqn)
         require(self.v_min < self.v_max, f"learner.v_max must be above learner.v_min ({self.v_min})", self.v_max)
-        require(self.batch_size <= self.buffer_size, "learner.batch_size must be in [1, buffer_size]",
-                (self.batch_size, self.buffer_size))
-        require(self.learning_starts <= self.buffer_size,
-                f"learner.learning_starts must be <= learner.buffer_size ({self.buffer_size}), "
-                "else it never trains", self.learning_starts)
         require(all(hasattr(self.epsilon, k) for k in ("value", "step", "episode_end")),
                 "learner.epsilon must be a schedule node (_target_: learners.schedules."
                 "LinearEpsilon, MultiplicativeEpsilon or LogEpisodeEpsilon)", self.epsilon)
         self.device = str(resolve_device(self.device))  # auto -> cuda or cpu
-        self.hidden = [int(h) for h in self.hidden]
         self.loss_function = LOSSES[self.loss]
         self.members = 0
 

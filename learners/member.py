@@ -36,7 +36,7 @@ import dataclasses
 import math
 import time
 import warnings
-from typing import Any, Callable, Hashable, Mapping, Sequence
+from typing import Any, Callable, Hashable, Mapping, NamedTuple, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -547,6 +547,7 @@ class UpdateStats:
         self.norms: list[torch.Tensor] = []
         self.extras: dict[str, list[torch.Tensor]] = {}  # an algorithm's own numbers, per transition
         self.extra_sums: dict[str, float] = {}
+        self.extra_counts: dict[str, int] = {}  # numbers of each (an extra some updates lack)
         self.loss_sum = self.q_sum = self.td_sum = self.norm_sum = 0.0
         self.count = self.values = self.n_norms = 0
         self.since, self.t0 = updates, time.perf_counter()
@@ -581,7 +582,9 @@ class UpdateStats:
             self.norms.clear()
         for name, values in self.extras.items():
             if values:
-                self.extra_sums[name] = self.extra_sums.get(name, 0.0) + float(torch.cat(values).sum())
+                joined = torch.cat(values)
+                self.extra_sums[name] = self.extra_sums.get(name, 0.0) + float(joined.sum())
+                self.extra_counts[name] = self.extra_counts.get(name, 0) + joined.numel()
                 values.clear()
 
     def read(self, updates: int, reset: bool = True) -> dict[str, float]:
@@ -594,7 +597,7 @@ class UpdateStats:
         if self.n_norms:
             self.latest["grad_norm"] = self.norm_sum / self.n_norms
         if self.count:
-            self.latest.update({name: total / self.values for name, total in self.extra_sums.items()})
+            self.latest.update({name: total / self.extra_counts[name] for name, total in self.extra_sums.items()})
         rate = (updates - self.since) / max(time.perf_counter() - self.t0, 1e-9)
         stats = {**self.latest, "updates": float(updates), "updates_per_s": rate}
         if reset:
@@ -1039,6 +1042,19 @@ class ReplayLearner(ReplayMembers):
             self.target[b] = self.params[b]
 
 
+def check_replay_settings(learner: Any) -> None:
+    """One line unless a replay learner's ``hidden``, ``batch_size``, ``buffer_size`` and
+    ``learning_starts`` fit together (its own ranges are its declared parameters')."""
+    require(1 <= len(learner.hidden) <= 16 and all(1 <= h <= 65_536 for h in learner.hidden),
+            "learner.hidden must list 1 to 16 layer widths in [1, 65536]", learner.hidden)
+    require(learner.batch_size <= learner.buffer_size, "learner.batch_size must be in [1, buffer_size]",
+            (learner.batch_size, learner.buffer_size))
+    require(learner.learning_starts <= learner.buffer_size,
+            f"learner.learning_starts must be <= learner.buffer_size ({learner.buffer_size}), "
+            "else it never trains", learner.learning_starts)
+    learner.hidden = [int(h) for h in learner.hidden]
+
+
 class MemberGroup:
     """One network of every member with its Adam, and its target network where asked: the
     parameters ``[members, P]`` as :class:`MemberNets` lays out one member's ``template`` (or,
@@ -1138,6 +1154,22 @@ class GroupStep:
         return norms
 
 
+class Losses(NamedTuple):
+    """An actor-critic's update of some members (:meth:`ActorCriticLearner.losses`): each
+    member's summed loss ``[k]`` (autograd reaching each group it trains), the groups it steps,
+    the groups whose targets then follow by Polyak averaging, and for the statistics the
+    critics' loss ``[k]`` (``train/loss``), the first critic's values ``q`` and their
+    ``target``, and the algorithm's own numbers per transition."""
+
+    loss: torch.Tensor
+    stepped: tuple[str, ...]
+    followed: tuple[str, ...]
+    critic_loss: torch.Tensor
+    q: torch.Tensor
+    target: torch.Tensor
+    extras: dict[str, torch.Tensor]
+
+
 class ActorCriticLearner(ReplayMembers):
     """The members of a replay-buffer actor-critic on continuous actions (SAC, TD3): several
     networks, each a :class:`MemberGroup` with its own Adam, and the replay bookkeeping of
@@ -1151,9 +1183,9 @@ class ActorCriticLearner(ReplayMembers):
       ``initial(name, own)``: a plain group's starting numbers; ``policy(template)``: the
       actor as ``model.pt`` holds it; ``arch()`` and ``kind``;
     - ``draw_update(generator, batch_size)``: one member's random numbers for one update;
-    - ``losses(nets, batch, noise, gamma, own)``: ``(loss, stepped, record)``: each member's
-      loss (``[k]``, autograd reaching each group through ``nets``), the groups its update
-      steps and ``(q, target, extras)`` for the statistics;
+    - ``losses(nets, batch, noise, gamma, own, kind)``: the members' :class:`Losses` (autograd
+      reaching each group through ``nets``), and ``update_kind(b)`` where updates differ in
+      what they step (TD3's delayed actor);
     - ``act_with(actor, observation, noise)``: actions from the actor network, ``noise``
       None for the greedy action; ``draw_act(generator, n)``: one member's step noise;
     - ``transitions_of(td, own)``: the transitions a member with settings ``own`` stores.
@@ -1255,10 +1287,23 @@ class ActorCriticLearner(ReplayMembers):
         return self.buffers[b].stored() < self.settings[b].learning_starts
 
     # -- learning ------------------------------------------------------------
+    def update_kind(self, b: int) -> Hashable:
+        """Which networks member ``b``'s next update steps (members of one kind update together;
+        TD3's delayed actor): by default every update is alike."""
+        return None
+
     def _update(self, due: list[int], stored: Mapping[int, int], minibatch: torch.Tensor) -> None:
         """One update of each member of ``due`` (all of one minibatch size): its minibatch and
         its update's random numbers from its own stream, the algorithm's losses, gradients by
-        autograd, and each stepped group's clipped Adam step and Polyak averaging."""
+        autograd, and each stepped group's clipped Adam step and Polyak averaging; the members
+        whose updates are of one kind (:meth:`update_kind`) together."""
+        kinds: dict[Hashable, list[int]] = {}
+        for b in due:
+            kinds.setdefault(self.update_kind(b), []).append(b)
+        for kind, some in kinds.items():
+            self._update_some(some, kind, stored, minibatch)
+
+    def _update_some(self, due: list[int], kind: Hashable, stored: Mapping[int, int], minibatch: torch.Tensor) -> None:
         k = len(due)
         self._sample(due, stored, minibatch)
         batch = unpack(minibatch[:k], continuous=self.n_actions)
@@ -1267,17 +1312,26 @@ class ActorCriticLearner(ReplayMembers):
         nets = {name: group.open(rows) for name, group in self.groups.items()}
         gamma = self.own("gamma", due, torch.float32, self.device)
         gamma = gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma
-        loss, stepped, (q, target, extras) = self.losses(nets, batch, noise, gamma, [self.settings[b] for b in due])
-        loss.sum().backward()
+        found = self.losses(nets, batch, noise, gamma, [self.settings[b] for b in due], kind)
+        found.loss.sum().backward()
         clip = self.own("grad_clip", due, torch.float32, self.device)
         tau = self.own("tau", due, torch.float32, self.device)
         norms = {name: nets[name].step(due, [self.lr_of(b, name) for b in due], clip,
-                                       tau if self.groups[name].target is not None else 0.0) for name in stepped}
+                                       tau if name in found.followed else 0.0) for name in found.stepped}
         critic = norms.get(self.critic)
         for j, b in enumerate(due):
-            self.trackers[b].add(loss[j].detach(), q[j].detach(), target[j],
+            self.trackers[b].add(found.critic_loss[j].detach(), found.q[j].detach(), found.target[j],
                                  critic[j] if critic is not None and self.settings[b].grad_clip > 0 else None,
-                                 {name: value[j].detach() for name, value in extras.items()})
+                                 {name: value[j].detach() for name, value in found.extras.items()})
+
+    def transitions_of(self, tensordict: TensorDictBase, own: Any | None = None) -> Transitions:
+        """The transitions of ``tensordict``, rewards scaled by ``reward_scale`` (``own``'s: a
+        member's settings; default the learner's)."""
+        own = self if own is None else own
+        batch = Transitions.of(tensordict)
+        if own.reward_scale != 1.0:
+            batch = batch._replace(reward=batch.reward * float(own.reward_scale))
+        return batch
 
     def stats(self, b: int) -> dict[str, float]:
         return {"alpha": self.lr_of(b, "actor"), "gamma": self.settings[b].gamma}
@@ -1333,5 +1387,5 @@ class ActorCriticLearner(ReplayMembers):
             group.load(b, ckpt["groups"][name], optimizer=False)
 
 
-__all__ = ["ActorCriticLearner", "GroupStep", "MemberGroup", "ReplayMembers", "FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
+__all__ = ["ActorCriticLearner", "GroupStep", "Losses", "MemberGroup", "ReplayMembers", "FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
            "MemberNets", "MemberTables", "UpdateStats", "adam_step", "clip_norms", "draws"]

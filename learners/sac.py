@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 import torch
-from tensordict import TensorDictBase
 from tensordict.nn import NormalParamExtractor
 from torch import nn
 from torchrl.modules import MLP
@@ -30,7 +29,7 @@ from torchrl.modules.distributions import TanhNormal
 from torchrl.modules.distributions.utils import safetanh_noeps
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
-from learners.member import ActorCriticLearner, GroupStep, lanes
+from learners.member import ActorCriticLearner, GroupStep, Losses, check_replay_settings, lanes
 from learners.transitions import Transitions
 from params import require
 from params.declare import check_fields, param
@@ -124,17 +123,10 @@ class SAC(ActorCriticLearner):
 
     def __post_init__(self) -> None:
         check_fields(self, "learner")
-        require(1 <= len(self.hidden) <= 16 and all(1 <= h <= 65_536 for h in self.hidden),
-                "learner.hidden must list 1 to 16 layer widths in [1, 65536]", self.hidden)
-        require(self.batch_size <= self.buffer_size, "learner.batch_size must be in [1, buffer_size]",
-                (self.batch_size, self.buffer_size))
-        require(self.learning_starts <= self.buffer_size,
-                f"learner.learning_starts must be <= learner.buffer_size ({self.buffer_size}), "
-                "else it never trains", self.learning_starts)
+        check_replay_settings(self)
         require(self.target_entropy is None or math.isfinite(self.target_entropy),
                 "learner.target_entropy must be a finite number or null", self.target_entropy)
         self.device = str(resolve_device(self.device))
-        self.hidden = [int(h) for h in self.hidden]
         self.members = 0
 
     # -- one member's networks -----------------------------------------------
@@ -184,8 +176,9 @@ class SAC(ActorCriticLearner):
         return torch.empty(2, batch_size, self.n_actions).normal_(generator=generator)
 
     def losses(self, nets: Mapping[str, GroupStep], batch: Transitions, noise: torch.Tensor,
-               gamma: float | torch.Tensor, own: Sequence[SAC]) -> tuple[torch.Tensor, tuple, tuple]:
-        """Each member's summed SAC losses, the groups they step, and the statistics' numbers."""
+               gamma: float | torch.Tensor, own: Sequence[SAC], kind: None = None) -> Losses:
+        """Each member's summed SAC losses: every update steps all its networks (the
+        temperature unless ``fixed_alpha``), the target critics follow."""
         entropy = [-float(self.n_actions) if v.target_entropy is None else float(v.target_entropy) for v in own]
         target_entropy = entropy[0] if len(set(entropy)) == 1 else torch.tensor(entropy).view(-1, 1, 1)
         terms = sac_losses(nets["actor"], nets["q1"], nets["q2"], nets["alpha"].value, batch, noise, gamma,
@@ -196,15 +189,8 @@ class SAC(ActorCriticLearner):
             loss = loss + terms["loss_alpha"].mean((1, 2))
             stepped += ("alpha",)
         extras = {"loss_actor": terms["loss_actor"].detach(), "entropy": -terms["log_prob"], "alpha": terms["alpha"]}
-        return loss, stepped, (terms["q"], terms["target"], extras)
-
-    def transitions_of(self, tensordict: TensorDictBase, own: SAC | None = None) -> Transitions:
-        """The transitions of ``tensordict``, rewards scaled by ``reward_scale`` (``own``'s)."""
-        own = self if own is None else own
-        batch = Transitions.of(tensordict)
-        if own.reward_scale != 1.0:
-            batch = batch._replace(reward=batch.reward * float(own.reward_scale))
-        return batch
+        return Losses(loss, stepped, ("q1", "q2"), terms["loss_qvalue"].detach().mean((1, 2)), terms["q"],
+                      terms["target"], extras)
 
 
 __all__ = ["SAC", "sac_losses", "squashed"]

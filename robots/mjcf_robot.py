@@ -170,11 +170,25 @@ class MjcfRobot(Robot):
             raise missing_name("actuator", str(name), order, where)
         return order.index(str(name))
 
+    def joint_ranges(self) -> dict[str, tuple[float, float]]:
+        """The position range of each limited hinge and slide joint, by name (unlimited ones
+        are left out), as the compiled model has it."""
+        model = self._compiled()
+        found = {}
+        for name in self.hinges_and_slides():
+            index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, self.element("joint", name, "").full_identifier)
+            if index >= 0 and model.jnt_limited[index]:
+                found[name] = (float(model.jnt_range[index, 0]), float(model.jnt_range[index, 1]))
+        return found
+
+    def _compiled(self) -> mujoco.MjModel:
+        return mujoco.MjModel.from_xml_string(self.mjcf_model.to_xml_string(), assets=self.mjcf_model.get_assets())
+
     def control_range(self, name: str, where: str) -> tuple[float, float] | None:
         """The ``[low, high]`` command range the model gives actuator ``name`` (after its
         defaults classes and a control mode's change; None: the model leaves it unlimited)."""
         column = self.actuator_column(name, where)
-        model = mujoco.MjModel.from_xml_string(self.mjcf_model.to_xml_string(), assets=self.mjcf_model.get_assets())
+        model = self._compiled()
         if not model.actuator_ctrllimited[column]:
             return None
         low, high = (float(v) for v in model.actuator_ctrlrange[column])

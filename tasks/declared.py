@@ -12,8 +12,9 @@
 - ``rewards``: the reward is a weighted sum of named terms (``alive``, ``action_cost``, a term, a term's
   distance to a target);
 - ``termination``: ``[low, high]`` per term; outside, the episode terminates;
-- ``reset``: start positions of joints (the model's ``qpos0`` for the others) and a
-  uniform noise on every hinge and slide joint's position and velocity;
+- ``reset``: the start state (:mod:`tasks.start`): each joint's position and velocity, a
+  number or a uniform range (the model's ``qpos0`` for the others), a pair of slides over a
+  disc, and a uniform noise on the other hinges' and slides' positions and velocities;
 - ``measures``: what an episode achieved (a term's max, min, last, sum or mean), for ``win``;
 - ``running_step``, ``physics_timestep`` (null: the model's), ``max_episode_steps``,
   ``tabular_state`` and ``win`` as every task has them.
@@ -28,14 +29,14 @@ from typing import ClassVar
 
 import numpy as np
 
-from params import finite, require
+from params import require
 from params.declare import REQUIRED, check_fields, param
 from robots.mjcf_robot import MjcfRobot
 from robots.physics import BatchedPhysics
 from tasks import terms as T
+from tasks.start import StartState
 from tasks.base import ActionRange, Bounds, PerCopy, Success, Task, common, substeps_for
 
-_RESET_KEYS = ("joints", "position_noise", "velocity_noise")
 
 
 @dataclass(eq=False)
@@ -57,8 +58,9 @@ class DeclaredTask(Task):
                                      "termination and measures")
     termination: dict | None = param(None, "term name: [low, high]; outside, the episode "
                                            "terminates (null: only the time limit ends it)")
-    reset: dict | None = param(None, "joints: {name: position}, position_noise, velocity_noise "
-                                     "(uniform, on every hinge and slide)")
+    reset: dict | None = param(None, "the start state: joints: {name: position or {position, velocity, "
+                                     "within_limits}}, disc: {joints: [a, b], radius, center}, position_noise, "
+                                     "velocity_noise (tasks/start.py)")
     measures: dict | None = param(None, "episode measures for win, name: {term, reduce: max, "
                                         "min, last, sum or mean, unit, description, above}")
     cameras: dict | None = param(None, "cameras to add to the world, name: {pos: [x, y, z], xyaxes: "
@@ -92,7 +94,7 @@ class DeclaredTask(Task):
                          for k, v in self.rewards.items()]
         self._bounds = T.bounds(self.termination, self._terms)
         self._measures = T.measures(self.measures, self._terms, self.running_step)
-        self._reset = self._reset_plan()
+        self._start = StartState(self.robot, self.reset)
         self._setup_success()
         self.per_copy = PerCopy(command=(len(self._columns),), steps=(),
                                 **{f"m_{m}": () for m in self._measures},
@@ -107,28 +109,6 @@ class DeclaredTask(Task):
         self.tabular_bounds = Bounds.from_config(
             self.tabular_state or {n: [-1.0, 1.0] for n in self.observation_names},
             self.observation_names)
-
-    def _reset_plan(self) -> dict:
-        """The joints the reset places (name -> (reader, position)) and every hinge and slide
-        (for the noise), from ``task.reset``."""
-        spec = dict(self.reset or {})
-        unknown = sorted(set(spec) - set(_RESET_KEYS))
-        require(not unknown, f"task.reset takes {', '.join(_RESET_KEYS)}", unknown)
-        joints = spec.get("joints") or {}
-        require(isinstance(joints, dict) and all(finite(v) for v in joints.values()),
-                "task.reset.joints must map joint names to positions", joints)
-        noise = {k: spec.get(k, 0.0) for k in _RESET_KEYS[1:]}
-        for key, value in noise.items():
-            require(finite(value) and value >= 0, f"task.reset.{key} must be a number >= 0",
-                    value)
-        every = [self.robot.reader("joint_pos", n, "task.reset")
-                 for n in self.robot.hinges_and_slides()]
-        placed = {r.name: float(joints.get(r.name, np.nan)) for r in every}
-        for name in joints:
-            if name not in placed:
-                self.robot.element("joint", name, "task.reset.joints")  # one line if missing
-                require(False, f"task.reset.joints.{name} must be a hinge or slide joint", name)
-        return {"every": every, "placed": placed, **noise}
 
     # -- the contract --------------------------------------------------------------
     def build_arena(self):
@@ -147,13 +127,7 @@ class DeclaredTask(Task):
     def initialize_episode(self, physics: BatchedPhysics, mask: np.ndarray,
                            rng: np.random.Generator) -> None:
         """Joints at the declared start (else where the model puts them), plus uniform noise."""
-        plan, n = self._reset, int(mask.sum())
-        for joint in plan["every"]:
-            start = plan["placed"][joint.name]
-            base = joint.read(physics)[mask, 0] if np.isnan(start) else start
-            pos = base + rng.uniform(-plan["position_noise"], plan["position_noise"], n)
-            vel = rng.uniform(-plan["velocity_noise"], plan["velocity_noise"], n)
-            self.robot.set_joint(physics, joint, mask, pos, vel)
+        self._start.start(self.robot, physics, mask, rng)
         self.per_copy.command[mask] = 0.0
         self.per_copy.steps[mask] = 0
         for name, m in self._measures.items():

@@ -82,7 +82,7 @@ def same_as_alone(cfg, n: int, steps: int, cfgs=None) -> None:
         stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
                  for x, i in ((together, b), (single, 0))]
         assert stats[0] == stats[1], seed
-        if together.kind in ("dqn", "sac"):
+        if together.kind in ("dqn", "sac", "td3"):
             assert together.steps[b] > 0
 
 
@@ -123,6 +123,10 @@ DQN_CASES = {
                                                     "learner.learning_starts=30", "learner.updates=2",
                                                     "learner.fixed_alpha=true", "learner.grad_clip=1.0",
                                                     "learner.loss=smooth_l1"]),
+    # TD3: a delayed actor (members whose updates step it, and those whose do not, apart),
+    # target actor and critics, smoothing noise from each member's stream
+    "td3, 2 copies": ("td3", 2, ["learner.hidden=[16]", "learner.batch_size=8", "learner.learning_starts=30",
+                                 "learner.policy_delay=3", "learner.activation=tanh"]),
 }
 
 
@@ -219,6 +223,9 @@ RENEW_CASES = {
                        ["learner.batch_size=16", "learner.buffer_size=200", "learner.lr=0.002"]),
     "mbalunovic": (*TRIAL_CASES["mbalunovic"][:4], ["learner.target_update=5", "learner.gamma=0.8"]),
     "sac": (*TRIAL_CASES["sac"][:4], ["learner.batch_size=4", "learner.alpha_init=3.0"]),
+    # a renewed member's delayed actor starts its count afresh: a round of its own kind
+    "td3": ("td3", 1, ["learner.hidden=[8]", "learner.batch_size=8", "learner.learning_starts=20",
+                       "learner.policy_delay=2"], None, None),
 }
 
 
@@ -260,7 +267,7 @@ def test_a_renewed_member_learns_bit_for_bit_as_a_fresh_one(case):
     stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
              for x, i in ((together, 1), (alone, 0))]
     assert stats[0] == stats[1]
-    if together.kind in ("dqn", "sac"):
+    if together.kind in ("dqn", "sac", "td3"):
         assert together.steps[1] > 0  # it learned after its renewal
     for b in (0, 2):
         single, _ = trained(cfg if cfgs is None else cfgs[b], (SEEDS[b],), n, before + after)

@@ -73,7 +73,7 @@ def test_its_losses_are_torchrl_sacloss():
     noise = learner.draw_update(torch.Generator().manual_seed(7), B).unsqueeze(0)
     nets = {name: group.open(None) for name, group in learner.groups.items()}
     stacked = Transitions(*(None if x is None else x.unsqueeze(0) for x in batch))
-    total, stepped, (q, target, extras) = learner.losses(nets, stacked, noise, 0.99, [learner])
+    total, stepped, *_ = learner.losses(nets, stacked, noise, 0.99, [learner])
     from learners.sac import sac_losses
 
     mine = sac_losses(nets["actor"], nets["q1"], nets["q2"], nets["alpha"].value, stacked, noise, 0.99, -1.0)
