@@ -200,6 +200,21 @@ class ObsScale(nn.Module):
 _FUNCTIONS = {nn.Tanh: lambda x: lanes(torch.tanh, x), nn.ReLU: torch.relu}
 
 
+def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """Each member's linear layer, ``x @ weight^T + bias`` (``[k, n, in]``, ``[k, out, in]``,
+    ``[k, 1, out]``), one batched product. A layer of one output (a critic's last) or one input
+    is computed padded to two with zeros: a product whose result is one column wide takes
+    another kernel when ``k`` is 1 than when it is more (matrix-vector rather than batched
+    matrix products), and differs from it in the last bit."""
+    if weight.shape[1] == 1:
+        wide = torch.cat((weight, torch.zeros_like(weight)), 1)
+        return torch.baddbmm(torch.cat((bias, torch.zeros_like(bias)), 2), x, wide.transpose(1, 2))[..., :1]
+    if weight.shape[2] == 1:
+        x = torch.cat((x, torch.zeros_like(x)), 2)
+        weight = torch.cat((weight, torch.zeros_like(weight)), 2)
+    return torch.baddbmm(bias, x, weight.transpose(1, 2))
+
+
 class MemberNets:
     """The networks of every member, all their parameters one ``[members, P]`` tensor laid out
     as ``torch.nn.utils.parameters_to_vector`` lays out one member's ``template`` (its linear
@@ -290,7 +305,7 @@ class MemberNets:
                 x = layer(x)
                 continue
             weight, bias = next(layers)
-            x = torch.baddbmm(bias, x, weight.transpose(1, 2))
+            x = affine(x, weight, bias)
         return x
 
     def with_noise(self, layers: list, noise: list | None) -> list:
@@ -1387,5 +1402,250 @@ class ActorCriticLearner(ReplayMembers):
             group.load(b, ckpt["groups"][name], optimizer=False)
 
 
-__all__ = ["ActorCriticLearner", "GroupStep", "Losses", "MemberGroup", "ReplayMembers", "FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
+class RolloutLearner(MemberLearner):
+    """The members of an on-policy actor-critic (PPO): an ``actor`` and a ``critic``
+    :class:`MemberGroup` each, and each member's rollout of ``rollout_steps`` env steps of its
+    copies. When a member's rollout is full it learns from it: the critic's values, the
+    advantages by TorchRL's ``generalized_advantage_estimate`` (each member's ``gamma`` and
+    ``gae_lambda``), then ``epochs`` passes over the rollout in ``minibatches`` minibatches
+    drawn by a permutation from its own stream; the members whose rollouts fill at one step
+    learn together.
+
+    The algorithm (a subclass, a dataclass of its settings) gives ``networks(task)``,
+    ``policy(template)``, ``arch()`` and ``kind`` as :class:`ActorCriticLearner`'s do, and:
+
+    - ``draw_act(generator, n)``: one member's step noise; ``act_with(actor, observation,
+      noise)``: ``(action, preimage, log_prob)``, noise None for the greedy action;
+    - ``losses(actor, critic, minibatch, own)``: the members' :class:`Losses` of a minibatch
+      (a dict of ``observation``, ``preimage``, ``log_prob``, ``advantage``, ``returns``, each
+      ``[k, S, ...]``).
+    """
+
+    ACTIONS = "continuous"
+    critic = "critic"
+    out_keys = ("action", "action_preimage", "action_log_prob")
+
+    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None,
+              variants: Sequence[Any] | None = None) -> None:
+        """The actor and critic of one member per generator (drawn from its stream in that
+        order) and its empty rollout (sized at its first step, when its copies are known)."""
+        from tasks.base import check_action_form
+
+        check_action_form(task, "continuous", self.kind)
+        self._members(generators, variants)
+        self.n_obs, self.n_actions = len(task.observation_names), task.action_range.dims
+        with torch.random.fork_rng(devices=[]):
+            plan = self.networks(task)
+        self.templates = {name: template for name, (template, _) in plan.items()}
+        starts = [{name: MemberNets(t).initial(g) for name, t in self.templates.items()} for g in self.generators]
+        self.groups = {name: MemberGroup(t, [start[name] for start in starts], self.device)
+                       for name, t in self.templates.items()}
+        self.policy_module = self.policy(self.templates["actor"])
+        self.rollouts: dict[str, torch.Tensor] = {}
+        self.filled = [0] * self.members  # each member's steps in its rollout
+        self.trackers = [UpdateStats() for _ in range(self.members)]
+
+    @torch.no_grad()
+    def renew(self, b: int, generator: torch.Generator, variant: Any | None = None) -> None:
+        """Member ``b`` made anew from ``generator`` and ``variant``; the others as they are."""
+        own = self.variant(variant)
+        self.generators[b], self.settings[b] = generator, own
+        for name, template in self.templates.items():
+            self.groups[name].renew(b, MemberNets(template).initial(generator).to(self.device))
+        self.filled[b] = 0
+        self.trackers[b] = UpdateStats()
+
+    @property
+    def steps(self) -> list[int]:
+        """Each member's updates (minibatches learned from)."""
+        return self.groups["critic"].adam.steps
+
+    def lr_of(self, b: int, group: str = "actor") -> float:
+        return float(self.settings[b].lr)
+
+    # -- acting --------------------------------------------------------------
+    def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
+                    generators: Sequence[torch.Generator | None]) -> TensorDictBase:
+        """The actions of ``members`` (None: all) on their blocks of ``td``, ``generators[j]``
+        drawing block ``j``'s noise (None: no draw, the greedy action); greedy: the actor's
+        deterministic action. Writes the action, its pre-tanh value and its log-probability."""
+        members = list(range(self.members)) if members is None else list(members)
+        k = len(members)
+        observation = td.get("observation").reshape(k, -1, self.n_obs).to(self.device)
+        n = observation.shape[1]
+        noise = None
+        if not greedy:
+            noise = torch.zeros(k, n, self.n_actions)
+            for j, g in enumerate(generators):
+                if g is not None:
+                    noise[j] = self.draw_act(g, n)
+        params = self.groups["actor"].params if k == self.members else self.groups["actor"].params[members]
+        with torch.no_grad():
+            action, preimage, log_prob = self.act_with(lambda x: self.groups["actor"].net.q(params, x), observation,
+                                                        None if noise is None else noise.to(self.device))
+        shape = (*td.batch_size, self.n_actions)
+        return with_entries(td, action=action.reshape(shape).cpu(), action_preimage=preimage.reshape(shape).cpu(),
+                            action_log_prob=log_prob.reshape(td.batch_size).cpu())
+
+    # -- learning ------------------------------------------------------------
+    def _rollout(self, copies: int) -> None:
+        """Every member's rollout storage for ``copies`` copies a member."""
+        if self.rollouts:
+            return
+        size = (self.members, max(own.rollout_steps for own in self.settings), copies)
+        self.rollouts = {"observation": torch.zeros(*size, self.n_obs), "next_observation": torch.zeros(*size, self.n_obs),
+                         "preimage": torch.zeros(*size, self.n_actions), "log_prob": torch.zeros(size),
+                         "reward": torch.zeros(size), "terminated": torch.zeros(size, dtype=torch.bool),
+                         "done": torch.zeros(size, dtype=torch.bool)}
+
+    def observe(self, td: TensorDictBase, live: Sequence[int] | None = None) -> None:
+        """Each live member writes its block's step into its rollout; the members whose
+        rollouts are full then learn from them, together."""
+        n = td.numel() // self.members
+        self._rollout(n)
+        flat, nxt = td.reshape(self.members, n), td.get("next").reshape(self.members, n)
+        step = {"observation": flat.get("observation"), "next_observation": nxt.get("observation"),
+                "preimage": flat.get("action_preimage"), "log_prob": flat.get("action_log_prob"),
+                "reward": nxt.get("reward").reshape(self.members, n),
+                "terminated": nxt.get("terminated").reshape(self.members, n),
+                "done": nxt.get("done").reshape(self.members, n)}
+        full = []
+        for b in everyone(self, live):
+            own = self.settings[b]
+            for name, value in step.items():
+                value = value[b] * float(own.reward_scale) if name == "reward" else value[b]
+                self.rollouts[name][b, self.filled[b]] = value.reshape(self.rollouts[name][b, 0].shape)
+            self.filled[b] += 1
+            if self.filled[b] == own.rollout_steps:
+                full.append(b)
+        by_size: dict[tuple, list[int]] = {}
+        for b in full:
+            own = self.settings[b]
+            by_size.setdefault((own.rollout_steps, own.epochs, own.minibatches), []).append(b)
+        for (steps, epochs, minibatches), due in by_size.items():
+            self._learn(due, steps, epochs, minibatches)
+            for b in due:
+                self.filled[b] = 0
+
+    @torch.no_grad()
+    def _advantages(self, due: list[int], steps: int) -> dict[str, torch.Tensor]:
+        """The due members' rollouts flattened ``[k, steps * copies, ...]``, with their
+        advantages and value targets (GAE over each copy's steps)."""
+        from torchrl.objectives.value.functional import generalized_advantage_estimate
+
+        index = torch.tensor(due)
+        part = {name: value.index_select(0, index)[:, :steps] for name, value in self.rollouts.items()}
+        k, copies = len(due), part["reward"].shape[2]
+        params = self.groups["critic"].params.index_select(0, index.to(self.device))
+        value = self.groups["critic"].net.q(params, part["observation"].reshape(k, -1, self.n_obs).to(self.device))
+        after = self.groups["critic"].net.q(params, part["next_observation"].reshape(k, -1, self.n_obs).to(self.device))
+
+        def per_copy(x: torch.Tensor) -> torch.Tensor:  # [k, steps, copies] -> [k, copies, steps, 1]
+            return x.reshape(k, steps, copies).transpose(1, 2).unsqueeze(-1)
+
+        gamma = self.own("gamma", due, torch.float32, self.device)
+        lmbda = self.own("gae_lambda", due, torch.float32, self.device)
+        gamma, lmbda = (x.view(k, 1, 1, 1) if isinstance(x, torch.Tensor) else x for x in (gamma, lmbda))
+        advantage, returns = generalized_advantage_estimate(
+            gamma, lmbda, per_copy(value), per_copy(after), per_copy(part["reward"].to(self.device)),
+            per_copy(part["done"].to(self.device)), per_copy(part["terminated"].to(self.device)))
+
+        def back(x: torch.Tensor) -> torch.Tensor:  # [k, copies, steps, 1] -> [k, steps * copies]
+            return x.squeeze(-1).transpose(1, 2).reshape(k, -1)
+
+        return {"observation": part["observation"].reshape(k, -1, self.n_obs).to(self.device),
+                "preimage": part["preimage"].reshape(k, -1, self.n_actions).to(self.device),
+                "log_prob": part["log_prob"].reshape(k, -1).to(self.device),
+                "advantage": back(advantage), "returns": back(returns)}
+
+    def _learn(self, due: list[int], steps: int, epochs: int, minibatches: int) -> None:
+        """``epochs`` passes of the due members over their rollouts, ``minibatches`` a pass."""
+        data = self._advantages(due, steps)
+        k, total = len(due), data["returns"].shape[1]
+        size = total // minibatches
+        rows = None if k == self.members else torch.tensor(due, device=self.device)
+        members = torch.arange(k).unsqueeze(1)
+        for _ in range(epochs):
+            order = torch.stack([torch.randperm(total, generator=self.generators[b]) for b in due])
+            for m in range(minibatches):
+                pick = order[:, m * size:(m + 1) * size].to(self.device)
+                minibatch = {name: value[members, pick] for name, value in data.items()}
+                nets = {name: group.open(rows) for name, group in self.groups.items()}
+                found = self.losses(nets["actor"], nets["critic"], minibatch, [self.settings[b] for b in due])
+                found.loss.sum().backward()
+                clip = self.own("grad_clip", due, torch.float32, self.device)
+                norm = clip_together([nets[name].grads for name in found.stepped], clip)
+                for name in found.stepped:
+                    nets[name].step(due, [self.lr_of(b) for b in due])
+                for j, b in enumerate(due):
+                    self.trackers[b].add(found.critic_loss[j].detach(), found.q[j].detach(), found.target[j],
+                                         norm[j] if self.settings[b].grad_clip > 0 else None,
+                                         {name: value[j].detach() for name, value in found.extras.items()})
+
+    def stats(self, b: int) -> dict[str, float]:
+        return {"alpha": self.lr_of(b), "gamma": self.settings[b].gamma}
+
+    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
+        """``train/*`` of member ``b``: ``loss`` (the critic's), ``q_mean`` (its values),
+        ``td_error`` (to the value targets) and the algorithm's own means (``loss_objective``,
+        ``entropy``, ``clip_fraction``) over the minibatches since the last reset; ``lr``,
+        ``updates`` (minibatches) and ``updates_per_s``."""
+        return {**self.trackers[b].read(self.steps[b], reset), "lr": self.lr_of(b)}
+
+    def begin(self) -> None:
+        for b, tracker in enumerate(self.trackers):
+            tracker.restart(self.steps[b])
+
+    # -- persistence ---------------------------------------------------------
+    def _check_arch(self, arch: dict, where: str) -> None:
+        if arch != self.arch():
+            raise StateMismatch(f"checkpoint {where} does not fit this run: it has networks {arch}, "
+                                f"this run builds {self.arch()}")
+
+    def training_state(self, b: int) -> dict:
+        """Everything member ``b``'s next update depends on: its networks and Adam, its
+        rollout so far and its random stream (for resuming)."""
+        rollout = {name: value[b].clone() for name, value in self.rollouts.items()}
+        return {"format": 1, "arch": self.arch(), "groups": {n: g.state(b) for n, g in self.groups.items()},
+                "filled": self.filled[b], "rollout": rollout, "generator": self.generators[b].get_state()}
+
+    @torch.no_grad()
+    def load_training_state(self, b: int, state: Mapping) -> None:
+        own = {k: v for k, v in self.training_state(b).items() if k not in ("generator", "rollout")}
+        check_state(state, own, "the training checkpoint")
+        self._check_arch(state["arch"], "the training checkpoint")
+        check_state(state, own, "the training checkpoint", deep=("groups",))
+        for name, group in self.groups.items():
+            group.load(b, state["groups"][name])
+        if state["rollout"]:
+            self._rollout(state["rollout"]["reward"].shape[1])
+            for name, value in state["rollout"].items():
+                self.rollouts[name][b] = value
+        self.filled[b] = int(state["filled"])
+        self.generators[b].set_state(state["generator"])
+
+    model_state = ActorCriticLearner.model_state
+    load_model_state = ActorCriticLearner.load_model_state
+
+
+def clip_together(grads: Sequence[torch.Tensor], clip: float | torch.Tensor) -> torch.Tensor:
+    """Each member's gradients of several networks (``[k, P_i]`` each) scaled together to a
+    norm of at most ``clip`` (``torch.nn.utils.clip_grad_norm_`` over all of them), in place;
+    the norms before."""
+    # each network's norm, then theirs together elementwise (a reduction across the stacked
+    # norms would take another kernel for one member than for several)
+    norms = sum(torch.linalg.vector_norm(g, dim=1) ** 2 for g in grads).sqrt()
+    if isinstance(clip, torch.Tensor):
+        clip = clip.squeeze(1)
+        factor = torch.where(clip > 0, (clip / (norms + 1e-6)).clamp_(max=1.0), 1.0)
+    elif clip > 0:
+        factor = (clip / (norms + 1e-6)).clamp_(max=1.0)
+    else:
+        return norms
+    for g in grads:
+        g.mul_(factor.unsqueeze(1))
+    return norms
+
+
+__all__ = ["RolloutLearner", "clip_together", "ActorCriticLearner", "GroupStep", "Losses", "MemberGroup", "ReplayMembers", "FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
            "MemberNets", "MemberTables", "UpdateStats", "adam_step", "clip_norms", "draws"]

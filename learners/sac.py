@@ -50,6 +50,16 @@ class GaussianHead(NormalParamExtractor):
         return loc, lanes(self.scale_mapping, scale).clamp_min(self.scale_lb)
 
 
+def tanh_normal_actor(template: nn.Sequential) -> nn.Module:
+    """A network ending in :class:`GaussianHead` as TorchRL's ``ProbabilisticActor`` of a
+    ``TanhNormal`` (what ``model.pt`` holds of SAC's and PPO's policies)."""
+    from tensordict.nn import TensorDictModule
+    from torchrl.modules import ProbabilisticActor
+
+    module = TensorDictModule(template, in_keys=["observation"], out_keys=["loc", "scale"])
+    return ProbabilisticActor(module, in_keys=["loc", "scale"], distribution_class=TanhNormal)
+
+
 def squashed(loc: torch.Tensor, scale: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(action, log_prob)`` of TorchRL's ``TanhNormal(loc, scale)`` at the pre-tanh value
     ``loc + noise * scale``: its ``rsample_and_log_prob`` with the noise given rather than
@@ -151,12 +161,8 @@ class SAC(ActorCriticLearner):
         return torch.tensor([math.log(own.alpha_init)])
 
     def policy(self, template: nn.Sequential) -> nn.Module:
-        """The actor as ``model.pt`` holds it: TorchRL's ``ProbabilisticActor`` of a ``TanhNormal``."""
-        from tensordict.nn import TensorDictModule
-        from torchrl.modules import ProbabilisticActor
-
-        module = TensorDictModule(template, in_keys=["observation"], out_keys=["loc", "scale"])
-        return ProbabilisticActor(module, in_keys=["loc", "scale"], distribution_class=TanhNormal)
+        """The actor as ``model.pt`` holds it (:func:`tanh_normal_actor`)."""
+        return tanh_normal_actor(template)
 
     # -- one member's acting and losses ----------------------------------------
     def draw_act(self, generator: torch.Generator, n: int, uniform: bool) -> torch.Tensor:
@@ -193,4 +199,4 @@ class SAC(ActorCriticLearner):
                       terms["target"], extras)
 
 
-__all__ = ["SAC", "sac_losses", "squashed"]
+__all__ = ["SAC", "GaussianHead", "sac_losses", "squashed", "tanh_normal_actor"]

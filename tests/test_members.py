@@ -82,7 +82,7 @@ def same_as_alone(cfg, n: int, steps: int, cfgs=None) -> None:
         stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
                  for x, i in ((together, b), (single, 0))]
         assert stats[0] == stats[1], seed
-        if together.kind in ("dqn", "sac", "td3"):
+        if together.kind in ("dqn", "sac", "td3", "ppo"):
             assert together.steps[b] > 0
 
 
@@ -127,6 +127,10 @@ DQN_CASES = {
     # target actor and critics, smoothing noise from each member's stream
     "td3, 2 copies": ("td3", 2, ["learner.hidden=[16]", "learner.batch_size=8", "learner.learning_starts=30",
                                  "learner.policy_delay=3", "learner.activation=tanh"]),
+    # PPO: rollouts of 16 steps (several a run), GAE, 3 epochs of 4 minibatches from each
+    # member's permutations, the actor's and critic's gradients clipped together
+    "ppo, 2 copies": ("ppo", 2, ["learner.hidden=[16]", "learner.rollout_steps=16", "learner.epochs=3",
+                                 "learner.minibatches=4"]),
 }
 
 
@@ -223,6 +227,7 @@ RENEW_CASES = {
                        ["learner.batch_size=16", "learner.buffer_size=200", "learner.lr=0.002"]),
     "mbalunovic": (*TRIAL_CASES["mbalunovic"][:4], ["learner.target_update=5", "learner.gamma=0.8"]),
     "sac": (*TRIAL_CASES["sac"][:4], ["learner.batch_size=4", "learner.alpha_init=3.0"]),
+    "ppo": ("ppo", 1, ["learner.hidden=[8]", "learner.rollout_steps=12", "learner.minibatches=3"], None, None),
     # a renewed member's delayed actor starts its count afresh: a round of its own kind
     "td3": ("td3", 1, ["learner.hidden=[8]", "learner.batch_size=8", "learner.learning_starts=20",
                        "learner.policy_delay=2"], None, None),
@@ -267,7 +272,7 @@ def test_a_renewed_member_learns_bit_for_bit_as_a_fresh_one(case):
     stats = [{k: v for k, v in x.train_stats(i, reset=False).items() if k != "updates_per_s"}
              for x, i in ((together, 1), (alone, 0))]
     assert stats[0] == stats[1]
-    if together.kind in ("dqn", "sac", "td3"):
+    if together.kind in ("dqn", "sac", "td3", "ppo"):
         assert together.steps[1] > 0  # it learned after its renewal
     for b in (0, 2):
         single, _ = trained(cfg if cfgs is None else cfgs[b], (SEEDS[b],), n, before + after)
