@@ -304,3 +304,24 @@ def test_a_model_with_a_mesh_folder_and_no_option_loads(tmp_path):
     assert robot.timestep == 0.002 and robot.names("actuator") == ["m"]
     model = compile_model(robot.mjcf_model)
     assert model.nmesh == 1 and model.nu == 1
+
+
+def test_the_arm_reaches_24_cm_and_its_target_stays_where_placed():
+    """The two-link arm: the fingertip at full stretch is 24 cm from the shoulder (two 12 cm
+    links), folded it is at the shoulder; a motor's full command turns its link; the target,
+    placed over a 20 cm disc at rest, does not move while the arm swings (no contacts, no
+    gravity along its slides)."""
+    env = env_of("arm", "learner=sac", num_envs=64)
+    td = env.reset()
+    target = env.physics.qpos[:, 2:4].copy()
+    assert np.hypot(*target.T).max() <= 0.2 and not env.physics.qvel[:, 2:].any()
+    for _ in range(25):
+        td = env.step(td.set("action", torch.ones(64, 2)))["next"]
+    assert np.array_equal(env.physics.qpos[:, 2:4], target)
+    assert (env.physics.qvel[:, :2] > 0.5).all()  # both links turned the way commanded
+    env.physics.qpos[:, :2] = 0.0  # stretched along x
+    env.physics.forward(np.ones(64, dtype=bool))
+    reach = env.task._terms["distance"]
+    tip_to_target = reach.value(env.physics)[:, 0]
+    assert np.allclose(tip_to_target, np.hypot(target[:, 0] - 0.24, target[:, 1]), atol=1e-6)
+    env.close()

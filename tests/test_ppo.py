@@ -74,3 +74,20 @@ def test_it_learns_from_each_full_rollout_over_epochs_of_minibatches():
         td = nxt
     assert updates[8] == 0 and updates[9] == 6 and updates[18] == 6 and updates[19] == 12 and learner.filled[0] == 5
     env.close()
+
+
+def test_ppo_learns_the_cartpoles_continuous_form(tmp_path):
+    """Through train.py (its conf/learner file, untuned): the final greedy policy balances at
+    least five times as long as the untrained one's first evaluation (seed 0: 8.6 steps, then
+    1000 after about 30k env steps)."""
+    import csv
+
+    from inprocess import run_train
+
+    run = tmp_path / "run"
+    done = run_train("learner=ppo", "max_episodes=0", "max_env_steps=30000", "eval_every=100", "quiet=true",
+                     "stop_when_solved=false", f"hydra.run.dir={run}")
+    assert done.returncode == 0, done.stderr[-1500:]
+    rows = list(csv.DictReader((run / "evals.csv").open()))
+    first, last = float(rows[0]["length"]), float(rows[-1]["length"])
+    assert last >= 5 * first and last >= 250, (first, last)
