@@ -231,6 +231,18 @@ CASES = [
     (["learner=dqn", "learner.priority_beta=-0.1"], "learner.priority_beta", "-0.1"),
     (["learner=dqn", "learner.priority_eps=0"], "learner.priority_eps", "0"),
     (["learner=dqn", "learner.priority_beta_updates=0"], "learner.priority_beta_updates", "0"),
+    # continuous-action learners
+    (["learner=sac", "learner.lr=-1"], "learner.lr", "-1"),
+    (["learner=sac", "learner.tau=0"], "learner.tau", "0"),
+    (["learner=sac", "learner.target_entropy=nan"], "learner.target_entropy", "nan"),
+    (["learner=sac", "learner.learning_starts=200000"], "learner.learning_starts", "200000"),
+    (["learner=td3", "learner.policy_delay=0"], "learner.policy_delay", "0"),
+    (["learner=td3", "learner.exploration_noise=-0.1"], "learner.exploration_noise", "-0.1"),
+    (["learner=ppo", "learner.clip_epsilon=1.5"], "learner.clip_epsilon", "1.5"),
+    (["learner=ppo", "learner.minibatches=4096"], "learner.minibatches", "4096"),
+    (["learner=ppo", "learner.gae_lambda=2"], "learner.gae_lambda", "2"),
+    (["learner=sac", "~task.actions", "+task.actions={values: {torque: [1.0]}}", "robot=pendulum",
+      "+task.actions.continuous={torque: [1, -1]}"], "task.actions.continuous.torque", "[1, -1]"),
 ]
 
 
