@@ -1185,45 +1185,33 @@ class Losses(NamedTuple):
     extras: dict[str, torch.Tensor]
 
 
-class ActorCriticLearner(ReplayMembers):
-    """The members of a replay-buffer actor-critic on continuous actions (SAC, TD3): several
-    networks, each a :class:`MemberGroup` with its own Adam, and the replay bookkeeping of
-    :class:`ReplayMembers`.
+class PolicyMembers(MemberLearner):
+    """Every member's networks of a learner on continuous actions (SAC, TD3, PPO), each a
+    :class:`MemberGroup` with its own Adam (and target, where the algorithm has one), and
+    acting: each member's noise from its own stream, then the actor on every block at once.
 
-    The algorithm (a subclass, a dataclass of its settings) gives:
-
-    - ``networks(task)``: ``{name: (template, target)}``, one member's networks on the CPU
-      (``actor`` among them, and the group ``critic`` names, which every update steps)
-      (``nn.Sequential`` of :class:`MemberNets`'s layers; None for plain numbers), and
-      ``initial(name, own)``: a plain group's starting numbers; ``policy(template)``: the
-      actor as ``model.pt`` holds it; ``arch()`` and ``kind``;
-    - ``draw_update(generator, batch_size)``: one member's random numbers for one update;
-    - ``losses(nets, batch, noise, gamma, own, kind)``: the members' :class:`Losses` (autograd
-      reaching each group through ``nets``), and ``update_kind(b)`` where updates differ in
-      what they step (TD3's delayed actor);
-    - ``act_with(actor, observation, noise)``: actions from the actor network, ``noise``
-      None for the greedy action; ``draw_act(generator, n)``: one member's step noise;
-    - ``transitions_of(td, own)``: the transitions a member with settings ``own`` stores.
-
-    Settings read here, besides :class:`ReplayMembers`'s: ``lr`` (and ``<group>_lr`` where the
-    algorithm has one, as ``alpha_lr``), ``tau``, ``grad_clip``, ``learning_starts`` (until
-    its buffer holds that many, a member acts uniformly at random).
+    The algorithm (a subclass, a dataclass of its settings) gives ``networks(task)``:
+    ``{name: (template, target)}``, one member's networks on the CPU (``actor`` among them,
+    and the group ``critic`` names, which every update steps; a template ``nn.Sequential`` of
+    :class:`MemberNets`'s layers, or None for plain numbers whose start ``initial(name, own)``
+    gives); ``policy(template)``: the actor as ``model.pt`` holds it; ``arch()`` and ``kind``;
+    ``draw_act(generator, n)``: one member's standard normal step noise; and
+    ``act_with(actor, observation, noise)``: the entries acting writes (``action``, and what
+    else the algorithm keeps), ``noise`` None for the greedy action.
     """
 
     ACTIONS = "continuous"
-    n_step, prioritized, train_every = 1, False, "step"
     critic = "critic"  # the group every update steps: its steps count the updates, its norms are shown
 
-    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None,
-              variants: Sequence[Any] | None = None) -> None:
+    def _build_groups(self, task, generators: torch.Generator | Sequence[torch.Generator] | None,
+                      variants: Sequence[Any] | None) -> None:
         """Every network of one member per generator, drawn from its stream in the order of
-        ``networks`` (as ``nn.Linear`` draws from torch's global stream), then its replay buffer."""
+        ``networks`` (as ``nn.Linear`` draws from torch's global stream)."""
         from tasks.base import check_action_form
 
         check_action_form(task, "continuous", self.kind)
         self._members(generators, variants)
         self.n_obs, self.n_actions = len(task.observation_names), task.action_range.dims
-        self.action_width = self.n_actions
         with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
             plan = self.networks(task)
         self.templates = {name: template for name, (template, _) in plan.items()}
@@ -1231,71 +1219,143 @@ class ActorCriticLearner(ReplayMembers):
         self.groups = {name: MemberGroup(template, [start[name] for start in starts], self.device, target)
                        for name, (template, target) in plan.items()}
         self.policy_module = self.policy(self.templates["actor"])
-        self.credit = [0.0] * self.members
-        self.owed = [0] * self.members
         self.trackers = [UpdateStats() for _ in range(self.members)]
-        self.buffers = [self._buffer(v) for v in self.settings]
-        self._minibatch = self._minibatches()
-        self.nsteps: list = []
 
     def _initial(self, generator: torch.Generator, own: Any) -> dict[str, torch.Tensor]:
         """One member's starting parameters of every group, drawn from ``generator`` in order."""
-        found = {}
-        for name, template in self.templates.items():
-            if template is None:
-                found[name] = self.initial(name, own)
-            else:
-                found[name] = MemberNets(template).initial(generator)
-        return found
+        return {name: self.initial(name, own) if template is None else MemberNets(template).initial(generator)
+                for name, template in self.templates.items()}
 
     @torch.no_grad()
-    def renew(self, b: int, generator: torch.Generator, variant: Any | None = None) -> None:
-        """Member ``b`` made anew from ``generator`` and ``variant`` (None: this learner's
-        settings), as :meth:`build` makes a member; the others are left as they are."""
+    def _renew_groups(self, b: int, generator: torch.Generator, variant: Any | None) -> Any:
+        """Member ``b``'s networks made anew from ``generator`` with ``variant``'s settings (None:
+        this learner's), as :meth:`_build_groups` makes them; its settings."""
         own = self.variant(variant)
         self.generators[b], self.settings[b] = generator, own
         for name, start in self._initial(generator, own).items():
             self.groups[name].renew(b, start.to(self.device))
-        self.credit[b], self.owed[b] = 0.0, 0
         self.trackers[b] = UpdateStats()
-        self.buffers[b] = self._buffer(own)
-        self._minibatch = self._minibatches()
+        return own
 
     @property
     def steps(self) -> list[int]:
         """Each member's updates (its ``critic`` group's Adam steps: every update steps it)."""
         return self.groups[self.critic].adam.steps
 
-    def lr_of(self, b: int, group: str) -> float:
+    def lr_of(self, b: int, group: str = "actor") -> float:
         """Member ``b``'s learning rate of ``group``: its ``<group>_lr`` setting, else ``lr``."""
         own = self.settings[b]
         return float(getattr(own, f"{group}_lr", own.lr))
 
-    # -- acting --------------------------------------------------------------
+    def _warming(self, b: int) -> bool:
+        """Whether member ``b`` still acts uniformly at random (none does, unless the layer says)."""
+        return False
+
     def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
                     generators: Sequence[torch.Generator | None]) -> TensorDictBase:
         """The actions of ``members`` (None: all) on their blocks of ``td``, ``generators[j]``
-        drawing block ``j``'s noise; a member whose buffer holds fewer than ``learning_starts``
-        transitions acts uniformly at random; greedy: the actor's deterministic action."""
+        drawing block ``j``'s noise (None: none); greedy: the actor's deterministic action. A
+        member still warming up (:meth:`_warming`) acts uniformly at random. Returns a new
+        tensordict of ``td``'s entries and the algorithm's (``action``, ...)."""
         members = list(range(self.members)) if members is None else list(members)
         k = len(members)
         observation = td.get("observation").reshape(k, -1, self.n_obs).to(self.device)
         n = observation.shape[1]
-        noise = None
+        noise, warm = None, []
         if not greedy:
             noise = torch.zeros(k, n, self.n_actions)
             for j, (b, g) in enumerate(zip(members, generators)):
-                if g is not None:
-                    noise[j] = self.draw_act(g, n, self._warming(b))
-        params = self.groups["actor"].params[members] if k != self.members else self.groups["actor"].params
+                if g is not None and self._warming(b):
+                    noise[j] = torch.rand(n, self.n_actions, generator=g) * 2 - 1
+                    warm.append(j)
+                elif g is not None:
+                    noise[j] = self.draw_act(g, n)
+        params = self.groups["actor"].params if k == self.members else self.groups["actor"].params[members]
         with torch.no_grad():
-            action = self.act_with(lambda x: self.groups["actor"].net.q(params, x), observation,
-                                   None if noise is None else noise.to(self.device))
-            if noise is not None:
-                warming = [j for j, b in enumerate(members) if self._warming(b) and generators[j] is not None]
-                if warming:
-                    action[warming] = noise[warming].to(action.device)
-        return with_entries(td, action=action.reshape(*td.batch_size, self.n_actions).cpu())
+            found = self.act_with(lambda x: self.groups["actor"].net.q(params, x), observation,
+                                  None if noise is None else noise.to(self.device))
+        if warm:
+            found["action"][warm] = noise[warm].to(found["action"].device)
+        return with_entries(td, **{name: value.reshape(*td.batch_size, *value.shape[2:]).cpu()
+                                   for name, value in found.items()})
+
+    def stats(self, b: int) -> dict[str, float]:
+        return {"alpha": self.lr_of(b), "gamma": self.settings[b].gamma}
+
+    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
+        """``train/*`` of member ``b``: ``loss`` (the critics'), ``q_mean`` (their values),
+        ``td_error`` (to their targets) and the algorithm's own means (``loss_actor``,
+        ``entropy``, ...) over the updates since the last reset; ``lr``, ``updates`` and
+        ``updates_per_s``."""
+        return {**self.trackers[b].read(self.steps[b], reset), "lr": self.lr_of(b)}
+
+    def begin(self) -> None:
+        for b, tracker in enumerate(self.trackers):
+            tracker.restart(self.steps[b])
+
+    def _check_arch(self, arch: dict, where: str) -> None:
+        if arch != self.arch():
+            raise StateMismatch(f"checkpoint {where} does not fit this run: it has networks {arch}, "
+                                f"this run builds {self.arch()}")
+
+    def _load_groups(self, b: int, state: Mapping, where: str, key: str, optimizer: bool) -> None:
+        """Member ``b``'s groups from ``state[key]``, checked against this learner's own first."""
+        own = self.training_state(b) if optimizer else self.model_state(b)
+        own = {k: v for k, v in own.items() if k not in ("generator", "rollout")}
+        check_state(state, own, where)
+        self._check_arch(state["arch"], where)
+        check_state(state, own, where, deep=(key,))
+        for name, group in self.groups.items():
+            group.load(b, state[key][name], optimizer=optimizer)
+
+    def model_state(self, b: int) -> dict:
+        """Member ``b``'s trained networks (``model.pt``): the policy as TorchRL's actor
+        (``actor``: loads into :meth:`policy`'s module), and every group's parameters."""
+        self.groups["actor"].net.load(self.groups["actor"].params[b])
+        return {"kind": self.kind, "arch": self.arch(),
+                "actor": {k: v.clone() for k, v in self.policy_module.state_dict().items()},
+                "groups": {n: {"net": g.state(b)["net"]} for n, g in self.groups.items()},
+                "optimizer_steps": self.steps[b]}
+
+    @torch.no_grad()
+    def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
+        """Loads saved networks into member ``b`` (its optimizers start afresh)."""
+        self._load_groups(b, ckpt, where, "groups", optimizer=False)
+
+
+class ActorCriticLearner(PolicyMembers, ReplayMembers):
+    """The members of a replay-buffer actor-critic on continuous actions (SAC, TD3): the
+    networks of :class:`PolicyMembers` and the replay bookkeeping of :class:`ReplayMembers`.
+
+    The algorithm gives, besides what :class:`PolicyMembers` asks: ``draw_update(generator,
+    batch_size)``: one member's random numbers for one update; ``losses(nets, batch, noise,
+    gamma, own, kind)``: the members' :class:`Losses` (autograd reaching each group through
+    ``nets``), and ``update_kind(b)`` where updates differ in what they step (TD3's delayed
+    actor). Settings read here, besides :class:`ReplayMembers`'s: ``lr`` (and ``<group>_lr``
+    where the algorithm has one, as ``alpha_lr``), ``tau``, ``grad_clip``, ``reward_scale``,
+    ``learning_starts`` (until its buffer holds that many, a member acts uniformly at random).
+    """
+
+    n_step, prioritized, train_every = 1, False, "step"
+
+    def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None,
+              variants: Sequence[Any] | None = None) -> None:
+        """Every member's networks (:meth:`_build_groups`), then its replay buffer."""
+        self._build_groups(task, generators, variants)
+        self.action_width = self.n_actions
+        self.credit = [0.0] * self.members
+        self.owed = [0] * self.members
+        self.buffers = [self._buffer(v) for v in self.settings]
+        self._minibatch = self._minibatches()
+        self.nsteps: list = []
+
+    def renew(self, b: int, generator: torch.Generator, variant: Any | None = None) -> None:
+        """Member ``b`` made anew from ``generator`` and ``variant`` (None: this learner's
+        settings), as :meth:`build` makes a member; the others are left as they are."""
+        own = self._renew_groups(b, generator, variant)
+        self.credit[b], self.owed[b] = 0.0, 0
+        self.buffers[b] = self._buffer(own)
+        self._minibatch = self._minibatches()
 
     def _warming(self, b: int) -> bool:
         """Whether member ``b`` still acts at random (its buffer below ``learning_starts``)."""
@@ -1348,21 +1408,7 @@ class ActorCriticLearner(ReplayMembers):
             batch = batch._replace(reward=batch.reward * float(own.reward_scale))
         return batch
 
-    def stats(self, b: int) -> dict[str, float]:
-        return {"alpha": self.lr_of(b, "actor"), "gamma": self.settings[b].gamma}
-
-    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
-        """``train/*`` of member ``b``: ``loss`` (the critics'), ``q_mean``, ``td_error`` and the
-        algorithm's own means (as ``loss_actor``, ``entropy``, ``alpha``), over the updates
-        since the last reset; ``lr``, ``updates`` and ``updates_per_s``."""
-        return {**self.trackers[b].read(self.steps[b], reset), "lr": self.lr_of(b, "actor")}
-
     # -- persistence ---------------------------------------------------------
-    def _check_arch(self, arch: dict, where: str) -> None:
-        if arch != self.arch():
-            raise StateMismatch(f"checkpoint {where} does not fit this run: it has networks {arch}, "
-                                f"this run builds {self.arch()}")
-
     def training_state(self, b: int) -> dict:
         """Everything member ``b``'s next update depends on: every group, its replay buffer,
         update credit and random stream (for resuming)."""
@@ -1372,120 +1418,41 @@ class ActorCriticLearner(ReplayMembers):
 
     @torch.no_grad()
     def load_training_state(self, b: int, state: Mapping) -> None:
-        own = {k: v for k, v in self.training_state(b).items() if k != "generator"}
-        check_state(state, own, "the training checkpoint")
-        self._check_arch(state["arch"], "the training checkpoint")
-        check_state(state, own, "the training checkpoint", deep=("groups",))
-        for name, group in self.groups.items():
-            group.load(b, state["groups"][name])
+        self._load_groups(b, state, "the training checkpoint", "groups", optimizer=True)
         self.credit[b] = float(state["credit"])
         self.buffers[b].load_state_dict(state["buffer"])
         self.generators[b].set_state(state["generator"])
 
-    def model_state(self, b: int) -> dict:
-        """Member ``b``'s trained networks (``model.pt``): the policy as TorchRL's actor
-        (``actor``: loads into :meth:`policy`'s module), and every group's parameters."""
-        self.groups["actor"].net.load(self.groups["actor"].params[b])
-        return {"kind": self.kind, "arch": self.arch(),
-                "actor": {k: v.clone() for k, v in self.policy_module.state_dict().items()},
-                "groups": {n: {"net": g.state(b)["net"]} for n, g in self.groups.items()},
-                "optimizer_steps": self.steps[b]}
 
-    @torch.no_grad()
-    def load_model_state(self, b: int, ckpt: Mapping, where: str) -> None:
-        """Loads saved networks into member ``b`` (its optimizers start afresh)."""
-        own = self.model_state(b)
-        check_state(ckpt, own, where)
-        self._check_arch(ckpt["arch"], where)
-        check_state(ckpt, own, where, deep=("groups",))
-        for name, group in self.groups.items():
-            group.load(b, ckpt["groups"][name], optimizer=False)
-
-
-class RolloutLearner(MemberLearner):
-    """The members of an on-policy actor-critic (PPO): an ``actor`` and a ``critic``
-    :class:`MemberGroup` each, and each member's rollout of ``rollout_steps`` env steps of its
+class RolloutLearner(PolicyMembers):
+    """The members of an on-policy actor-critic (PPO): the ``actor`` and ``critic`` of
+    :class:`PolicyMembers`, and each member's rollout of ``rollout_steps`` env steps of its
     copies. When a member's rollout is full it learns from it: the critic's values, the
     advantages by TorchRL's ``generalized_advantage_estimate`` (each member's ``gamma`` and
     ``gae_lambda``), then ``epochs`` passes over the rollout in ``minibatches`` minibatches
     drawn by a permutation from its own stream; the members whose rollouts fill at one step
     learn together.
 
-    The algorithm (a subclass, a dataclass of its settings) gives ``networks(task)``,
-    ``policy(template)``, ``arch()`` and ``kind`` as :class:`ActorCriticLearner`'s do, and:
-
-    - ``draw_act(generator, n)``: one member's step noise; ``act_with(actor, observation,
-      noise)``: ``(action, preimage, log_prob)``, noise None for the greedy action;
-    - ``losses(actor, critic, minibatch, own)``: the members' :class:`Losses` of a minibatch
-      (a dict of ``observation``, ``preimage``, ``log_prob``, ``advantage``, ``returns``, each
-      ``[k, S, ...]``).
+    The algorithm gives, besides what :class:`PolicyMembers` asks (its ``act_with`` writing
+    ``action_preimage`` and ``action_log_prob`` too): ``losses(actor, critic, minibatch,
+    own)``: the members' :class:`Losses` of a minibatch (a dict of ``observation``,
+    ``preimage``, ``log_prob``, ``advantage``, ``returns``, each ``[k, S, ...]``).
     """
 
-    ACTIONS = "continuous"
-    critic = "critic"
     out_keys = ("action", "action_preimage", "action_log_prob")
 
     def build(self, task, generators: torch.Generator | Sequence[torch.Generator] | None = None,
               variants: Sequence[Any] | None = None) -> None:
-        """The actor and critic of one member per generator (drawn from its stream in that
-        order) and its empty rollout (sized at its first step, when its copies are known)."""
-        from tasks.base import check_action_form
-
-        check_action_form(task, "continuous", self.kind)
-        self._members(generators, variants)
-        self.n_obs, self.n_actions = len(task.observation_names), task.action_range.dims
-        with torch.random.fork_rng(devices=[]):
-            plan = self.networks(task)
-        self.templates = {name: template for name, (template, _) in plan.items()}
-        starts = [{name: MemberNets(t).initial(g) for name, t in self.templates.items()} for g in self.generators]
-        self.groups = {name: MemberGroup(t, [start[name] for start in starts], self.device)
-                       for name, t in self.templates.items()}
-        self.policy_module = self.policy(self.templates["actor"])
+        """Every member's networks (:meth:`_build_groups`) and its empty rollout (sized at its
+        first step, when its copies are known)."""
+        self._build_groups(task, generators, variants)
         self.rollouts: dict[str, torch.Tensor] = {}
         self.filled = [0] * self.members  # each member's steps in its rollout
-        self.trackers = [UpdateStats() for _ in range(self.members)]
 
-    @torch.no_grad()
     def renew(self, b: int, generator: torch.Generator, variant: Any | None = None) -> None:
         """Member ``b`` made anew from ``generator`` and ``variant``; the others as they are."""
-        own = self.variant(variant)
-        self.generators[b], self.settings[b] = generator, own
-        for name, template in self.templates.items():
-            self.groups[name].renew(b, MemberNets(template).initial(generator).to(self.device))
+        self._renew_groups(b, generator, variant)
         self.filled[b] = 0
-        self.trackers[b] = UpdateStats()
-
-    @property
-    def steps(self) -> list[int]:
-        """Each member's updates (minibatches learned from)."""
-        return self.groups["critic"].adam.steps
-
-    def lr_of(self, b: int, group: str = "actor") -> float:
-        return float(self.settings[b].lr)
-
-    # -- acting --------------------------------------------------------------
-    def act_members(self, td: TensorDictBase, members: Sequence[int] | None, greedy: bool,
-                    generators: Sequence[torch.Generator | None]) -> TensorDictBase:
-        """The actions of ``members`` (None: all) on their blocks of ``td``, ``generators[j]``
-        drawing block ``j``'s noise (None: no draw, the greedy action); greedy: the actor's
-        deterministic action. Writes the action, its pre-tanh value and its log-probability."""
-        members = list(range(self.members)) if members is None else list(members)
-        k = len(members)
-        observation = td.get("observation").reshape(k, -1, self.n_obs).to(self.device)
-        n = observation.shape[1]
-        noise = None
-        if not greedy:
-            noise = torch.zeros(k, n, self.n_actions)
-            for j, g in enumerate(generators):
-                if g is not None:
-                    noise[j] = self.draw_act(g, n)
-        params = self.groups["actor"].params if k == self.members else self.groups["actor"].params[members]
-        with torch.no_grad():
-            action, preimage, log_prob = self.act_with(lambda x: self.groups["actor"].net.q(params, x), observation,
-                                                        None if noise is None else noise.to(self.device))
-        shape = (*td.batch_size, self.n_actions)
-        return with_entries(td, action=action.reshape(shape).cpu(), action_preimage=preimage.reshape(shape).cpu(),
-                            action_log_prob=log_prob.reshape(td.batch_size).cpu())
 
     # -- learning ------------------------------------------------------------
     def _rollout(self, copies: int) -> None:
@@ -1582,26 +1549,7 @@ class RolloutLearner(MemberLearner):
                                          norm[j] if self.settings[b].grad_clip > 0 else None,
                                          {name: value[j].detach() for name, value in found.extras.items()})
 
-    def stats(self, b: int) -> dict[str, float]:
-        return {"alpha": self.lr_of(b), "gamma": self.settings[b].gamma}
-
-    def train_stats(self, b: int, reset: bool = True) -> dict[str, float]:
-        """``train/*`` of member ``b``: ``loss`` (the critic's), ``q_mean`` (its values),
-        ``td_error`` (to the value targets) and the algorithm's own means (``loss_objective``,
-        ``entropy``, ``clip_fraction``) over the minibatches since the last reset; ``lr``,
-        ``updates`` (minibatches) and ``updates_per_s``."""
-        return {**self.trackers[b].read(self.steps[b], reset), "lr": self.lr_of(b)}
-
-    def begin(self) -> None:
-        for b, tracker in enumerate(self.trackers):
-            tracker.restart(self.steps[b])
-
     # -- persistence ---------------------------------------------------------
-    def _check_arch(self, arch: dict, where: str) -> None:
-        if arch != self.arch():
-            raise StateMismatch(f"checkpoint {where} does not fit this run: it has networks {arch}, "
-                                f"this run builds {self.arch()}")
-
     def training_state(self, b: int) -> dict:
         """Everything member ``b``'s next update depends on: its networks and Adam, its
         rollout so far and its random stream (for resuming)."""
@@ -1611,12 +1559,7 @@ class RolloutLearner(MemberLearner):
 
     @torch.no_grad()
     def load_training_state(self, b: int, state: Mapping) -> None:
-        own = {k: v for k, v in self.training_state(b).items() if k not in ("generator", "rollout")}
-        check_state(state, own, "the training checkpoint")
-        self._check_arch(state["arch"], "the training checkpoint")
-        check_state(state, own, "the training checkpoint", deep=("groups",))
-        for name, group in self.groups.items():
-            group.load(b, state["groups"][name])
+        self._load_groups(b, state, "the training checkpoint", "groups", optimizer=True)
         if state["rollout"]:
             self._rollout(state["rollout"]["reward"].shape[1])
             for name, value in state["rollout"].items():
@@ -1624,8 +1567,6 @@ class RolloutLearner(MemberLearner):
         self.filled[b] = int(state["filled"])
         self.generators[b].set_state(state["generator"])
 
-    model_state = ActorCriticLearner.model_state
-    load_model_state = ActorCriticLearner.load_model_state
 
 
 def clip_together(grads: Sequence[torch.Tensor], clip: float | torch.Tensor) -> torch.Tensor:
@@ -1647,5 +1588,5 @@ def clip_together(grads: Sequence[torch.Tensor], clip: float | torch.Tensor) -> 
     return norms
 
 
-__all__ = ["RolloutLearner", "clip_together", "ActorCriticLearner", "GroupStep", "Losses", "MemberGroup", "ReplayMembers", "FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
+__all__ = ["PolicyMembers", "RolloutLearner", "clip_together", "ActorCriticLearner", "GroupStep", "Losses", "MemberGroup", "ReplayMembers", "FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
            "MemberNets", "MemberTables", "UpdateStats", "adam_step", "clip_norms", "draws"]

@@ -10,7 +10,7 @@ minibatch), ``critic_coef`` times the value's squared error to its GAE target, l
 ``entropy_coef`` times the Gaussian's entropy; one Adam step of both networks, their
 gradients clipped together.
 
-The members (seeds, trials) are one layer beneath (:class:`learners.member.RolloutLearner`:
+The seeds and trials of a batch are one layer beneath (:class:`learners.member.RolloutLearner`:
 networks, Adam, rollouts, streams); :func:`ppo_losses` computes the losses of every member
 in one call, with ClipPPOLoss's numbers (``tests/test_ppo.py``). Old log-probabilities are
 those of the pre-tanh values the policy drew (kept in the rollout), so a saturated action's
@@ -19,27 +19,18 @@ ratio is exact rather than recovered through ``atanh``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
 import torch
 from torch import nn
-from torchrl.modules import MLP
 from torchrl.modules.distributions.utils import safetanh_noeps
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
 from learners.member import GroupStep, Losses, RolloutLearner, lanes
-from learners.sac import ACTIVATIONS, LOG_SQRT_2PI, GaussianHead, squashed, tanh_normal_actor
+from learners.continuous import ACTIVATIONS, ReplaySettings, LOG_SQRT_2PI, GaussianHead, log_prob_of, mlp, squashed, tanh_normal_actor
 from params import require
 from params.declare import check_fields, param
-
-
-def log_prob_of(loc: torch.Tensor, scale: torch.Tensor, preimage: torch.Tensor) -> torch.Tensor:
-    """The tanh-squashed Gaussian's log-probability of the action ``tanh(preimage)``."""
-    density = -((preimage - loc) ** 2) / (2 * scale**2) - lanes(torch.log, scale) - LOG_SQRT_2PI
-    jacobian = 2.0 * (math.log(2.0) - preimage - lanes(nn.functional.softplus, -2.0 * preimage))
-    return density.sum(-1) - jacobian.sum(-1)
 
 
 def ppo_losses(actor: Callable, critic: Callable, minibatch: Mapping[str, torch.Tensor], clip_epsilon: float,
@@ -65,7 +56,7 @@ def ppo_losses(actor: Callable, critic: Callable, minibatch: Mapping[str, torch.
 
 @dataclass(eq=False)
 class PPO(RolloutLearner):
-    """PPO (see the module docstring); its members: :class:`RolloutLearner`."""
+    """PPO (see the module docstring), over :class:`RolloutLearner`."""
 
     hidden: list[int] = param([64, 64], "widths of the actor's and the critic's hidden layers")
     activation: str = param("tanh", "hidden layers' activation", choices=tuple(ACTIVATIONS))
@@ -99,22 +90,14 @@ class PPO(RolloutLearner):
                 f"learner.rollout_steps ({self.rollout_steps})", self.minibatches)
         self.hidden = [int(h) for h in self.hidden]
         self.device = str(resolve_device(self.device))
-        self.members = 0
 
-    def arch(self) -> dict:
-        """The networks a saved state must match."""
-        return {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
-                "activation": self.activation}
+    arch = ReplaySettings.arch
 
     def networks(self, task) -> dict[str, tuple[nn.Sequential, bool]]:
         """The actor (observation -> loc, scale of each action's Gaussian before tanh) and the
         critic (observation -> V)."""
-        def mlp(outputs: int) -> nn.Sequential:
-            return MLP(in_features=self.n_obs, out_features=outputs, num_cells=self.hidden,
-                       activation_class=ACTIVATIONS[self.activation])
-
-        return {"actor": (nn.Sequential(*mlp(2 * self.n_actions), GaussianHead()), False),
-                "critic": (mlp(1), False)}
+        actor = nn.Sequential(*mlp(self.n_obs, 2 * self.n_actions, self.hidden, self.activation), GaussianHead())
+        return {"actor": (actor, False), "critic": (mlp(self.n_obs, 1, self.hidden, self.activation), False)}
 
     def policy(self, template: nn.Sequential) -> nn.Module:
         """The actor as ``model.pt`` holds it (:func:`learners.sac.tanh_normal_actor`)."""
@@ -124,16 +107,15 @@ class PPO(RolloutLearner):
         """One step's standard normal noise for ``n`` copies."""
         return torch.empty(n, self.n_actions).normal_(generator=generator)
 
-    def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None
-                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``(action, preimage, log_prob)``: the squashed Gaussian's draw at ``noise``, or (None)
-        its deterministic action ``tanh(loc)``."""
+    def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None) -> dict:
+        """The squashed Gaussian's draw at ``noise`` (or, None, its deterministic action
+        ``tanh(loc)``), with its pre-tanh value and log-probability, which the rollout keeps."""
         loc, scale = actor(observation)
         if noise is None:
-            return lanes(safetanh_noeps, loc), loc, log_prob_of(loc, scale, loc)
-        preimage = loc + noise * scale
+            return {"action": lanes(safetanh_noeps, loc), "action_preimage": loc,
+                    "action_log_prob": log_prob_of(loc, scale, loc)}
         action, log_prob = squashed(loc, scale, noise)
-        return action, preimage, log_prob
+        return {"action": action, "action_preimage": loc + noise * scale, "action_log_prob": log_prob}
 
     def losses(self, actor: GroupStep, critic: GroupStep, minibatch: Mapping[str, torch.Tensor],
                own: Sequence[PPO]) -> Losses:
@@ -147,4 +129,4 @@ class PPO(RolloutLearner):
                       terms["target"], extras)
 
 
-__all__ = ["PPO", "log_prob_of", "ppo_losses"]
+__all__ = ["PPO", "ppo_losses"]

@@ -9,7 +9,7 @@ TorchRL's ``SACLoss`` (its version 2, no value network): the critics' TD error t
 ``alpha log pi(a|s) - min_i Q_i(s, a)`` and the temperature's
 ``-log alpha * (log pi(a|s) + target entropy)``; then one Adam step of each.
 
-The members (seeds, trials) are one layer beneath (:class:`learners.member.ActorCriticLearner`:
+The seeds and trials of a batch are one layer beneath (:class:`learners.member.ActorCriticLearner`:
 their networks, optimizers, replay buffers and streams). :func:`sac_losses` computes the
 losses for every member in one call rather than through ``SACLoss``: the same numbers
 (``tests/test_sac.py``), with each member's sampling noise drawn from its own stream.
@@ -19,58 +19,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import torch
-from tensordict.nn import NormalParamExtractor
 from torch import nn
-from torchrl.modules import MLP
-from torchrl.modules.distributions import TanhNormal
 from torchrl.modules.distributions.utils import safetanh_noeps
 
-from learners.device import DEVICE_NOTE, check_device, resolve_device
+from learners.continuous import DISTANCES, GaussianHead, ReplaySettings, mlp, squashed, tanh_normal_actor
+from learners.device import resolve_device
 from learners.member import ActorCriticLearner, GroupStep, Losses, check_replay_settings, lanes
 from learners.transitions import Transitions
 from params import require
 from params.declare import check_fields, param
-
-ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
-_DISTANCES = {"l2": nn.functional.mse_loss, "smooth_l1": nn.functional.smooth_l1_loss}
-
-
-LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
-
-
-class GaussianHead(NormalParamExtractor):
-    """TorchRL's ``NormalParamExtractor`` (the last layer's outputs as ``loc`` and a biased
-    softplus ``scale``), its softplus computed by :func:`~learners.member.lanes`."""
-
-    def forward(self, tensor: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        loc, scale = tensor.chunk(2, -1)
-        return loc, lanes(self.scale_mapping, scale).clamp_min(self.scale_lb)
-
-
-def tanh_normal_actor(template: nn.Sequential) -> nn.Module:
-    """A network ending in :class:`GaussianHead` as TorchRL's ``ProbabilisticActor`` of a
-    ``TanhNormal`` (what ``model.pt`` holds of SAC's and PPO's policies)."""
-    from tensordict.nn import TensorDictModule
-    from torchrl.modules import ProbabilisticActor
-
-    module = TensorDictModule(template, in_keys=["observation"], out_keys=["loc", "scale"])
-    return ProbabilisticActor(module, in_keys=["loc", "scale"], distribution_class=TanhNormal)
-
-
-def squashed(loc: torch.Tensor, scale: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(action, log_prob)`` of TorchRL's ``TanhNormal(loc, scale)`` at the pre-tanh value
-    ``loc + noise * scale``: its ``rsample_and_log_prob`` with the noise given rather than
-    drawn, step by step (the Gaussian's log density less the tanh's log Jacobian, TorchRL's
-    safe tanh), its transcendental functions by :func:`~learners.member.lanes`."""
-    preimage = loc + noise * scale
-    action = lanes(safetanh_noeps, preimage)
-    density = -((preimage - loc) ** 2) / (2 * scale**2) - lanes(torch.log, scale) - LOG_SQRT_2PI
-    jacobian = 2.0 * (math.log(2.0) - preimage - lanes(nn.functional.softplus, -2.0 * preimage))
-    return action, density.sum(-1) - jacobian.sum(-1)
-
 
 def sac_losses(actor: Callable, q1: GroupStep, q2: GroupStep, log_alpha: torch.Tensor, batch: Transitions,
                noise: torch.Tensor, gamma: float | torch.Tensor, target_entropy: float | torch.Tensor,
@@ -88,7 +48,7 @@ def sac_losses(actor: Callable, q1: GroupStep, q2: GroupStep, log_alpha: torch.T
         target = batch.reward + gamma * soft * ~batch.terminated
     taken = torch.cat((batch.observation, batch.action), -1)
     q = q1(taken)
-    distance = _DISTANCES[distance]
+    distance = DISTANCES[distance]
     loss_qvalue = distance(q, target, reduction="none") + distance(q2(taken), target, reduction="none")
     action, log_prob = squashed(*actor(batch.observation), noise[:, 1])
     chosen = torch.cat((batch.observation, action), -1)
@@ -100,29 +60,15 @@ def sac_losses(actor: Callable, q1: GroupStep, q2: GroupStep, log_alpha: torch.T
 
 
 @dataclass(eq=False)
-class SAC(ActorCriticLearner):
-    """Soft actor-critic (see the module docstring); its members: :class:`ActorCriticLearner`."""
+class SAC(ReplaySettings, ActorCriticLearner):
+    """Soft actor-critic (see the module docstring), over :class:`ActorCriticLearner`."""
 
-    hidden: list[int] = param([256, 256], "widths of the actor's and each critic's hidden layers")
-    activation: str = param("relu", "hidden layers' activation", choices=tuple(ACTIVATIONS))
-    lr: float = param(3e-4, "Adam's learning rate of the actor and the critics", gt=0)
     alpha_lr: float = param(3e-4, "Adam's learning rate of the temperature (log alpha)", gt=0)
     alpha_init: float = param(1.0, "the temperature alpha at the start (the entropy's weight)", gt=0)
     fixed_alpha: bool = param(False, "keep alpha at alpha_init (no tuning towards target_entropy)")
     target_entropy: float | None = param(None, "entropy the temperature is tuned towards, nats",
                                          note="null = minus the number of actions")
-    gamma: float = param(0.99, "discount of the next state's value", ge=0, le=1)
     tau: float = param(0.005, "Polyak averaging rate of the target critics", gt=0, le=1)
-    loss: str = param("l2", "critics' TD error loss", choices=tuple(_DISTANCES))
-    buffer_size: int = param(100_000, "replay buffer capacity, transitions", ge=1, le=10**7)
-    batch_size: int = param(256, "transitions per minibatch", ge=1, le=65_536)
-    updates: float = param(1.0, "minibatches per collected transition", gt=0)
-    learning_starts: int = param(1000, "transitions in the buffer before the first update; until then "
-                                       "the member acts uniformly at random", ge=1)
-    grad_clip: float = param(0.0, "gradient norm clip of each network", ge=0, note="0 = no clipping")
-    reward_scale: float = param(1.0, "factor on every reward the learner stores", gt=0)
-    device: str = param("cpu", "where the networks, updates and replay buffer live",
-                        note=DEVICE_NOTE, check=check_device)
 
     kind = "sac"
     out_keys = ("action",)
@@ -137,24 +83,16 @@ class SAC(ActorCriticLearner):
         require(self.target_entropy is None or math.isfinite(self.target_entropy),
                 "learner.target_entropy must be a finite number or null", self.target_entropy)
         self.device = str(resolve_device(self.device))
-        self.members = 0
 
     # -- one member's networks -----------------------------------------------
-    def arch(self) -> dict:
-        """The networks a saved state must match."""
-        return {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
-                "activation": self.activation}
 
     def networks(self, task) -> dict[str, tuple[nn.Sequential | None, bool]]:
         """The actor (observation -> loc, scale of each action's Gaussian before tanh), two
         critics ((observation, action) -> Q) with target copies, and log alpha."""
-        def mlp(inputs: int, outputs: int) -> nn.Sequential:
-            return MLP(in_features=inputs, out_features=outputs, num_cells=self.hidden,
-                       activation_class=ACTIVATIONS[self.activation])
-
-        actor = nn.Sequential(*mlp(self.n_obs, 2 * self.n_actions), GaussianHead())
-        return {"actor": (actor, False), "q1": (mlp(self.n_obs + self.n_actions, 1), True),
-                "q2": (mlp(self.n_obs + self.n_actions, 1), True), "alpha": (None, False)}
+        actor = nn.Sequential(*mlp(self.n_obs, 2 * self.n_actions, self.hidden, self.activation), GaussianHead())
+        critic = self.n_obs + self.n_actions
+        return {"actor": (actor, False), "q1": (mlp(critic, 1, self.hidden, self.activation), True),
+                "q2": (mlp(critic, 1, self.hidden, self.activation), True), "alpha": (None, False)}
 
     def initial(self, name: str, own: SAC) -> torch.Tensor:
         """log alpha at the start (``alpha``, the one plain group)."""
@@ -165,17 +103,14 @@ class SAC(ActorCriticLearner):
         return tanh_normal_actor(template)
 
     # -- one member's acting and losses ----------------------------------------
-    def draw_act(self, generator: torch.Generator, n: int, uniform: bool) -> torch.Tensor:
-        """One step's draws for ``n`` copies: standard normal noise, or uniform actions in
-        [-1, 1] while the member still acts at random."""
-        if uniform:
-            return torch.rand(n, self.n_actions, generator=generator) * 2 - 1
+    def draw_act(self, generator: torch.Generator, n: int) -> torch.Tensor:
+        """One step's standard normal noise for ``n`` copies."""
         return torch.empty(n, self.n_actions).normal_(generator=generator)
 
-    def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None) -> torch.Tensor:
+    def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None) -> dict:
         """The squashed Gaussian's draw at ``noise``, or its deterministic action ``tanh(loc)``."""
         loc, scale = actor(observation)
-        return lanes(safetanh_noeps, loc) if noise is None else squashed(loc, scale, noise)[0]
+        return {"action": lanes(safetanh_noeps, loc) if noise is None else squashed(loc, scale, noise)[0]}
 
     def draw_update(self, generator: torch.Generator, batch_size: int) -> torch.Tensor:
         """One update's draws: standard normal noise for the next actions, then the current ones."""
@@ -199,4 +134,4 @@ class SAC(ActorCriticLearner):
                       terms["target"], extras)
 
 
-__all__ = ["SAC", "GaussianHead", "sac_losses", "squashed", "tanh_normal_actor"]
+__all__ = ["SAC", "sac_losses"]

@@ -8,7 +8,7 @@ of TorchRL's ``TD3Loss``: the critics' TD error to ``r + gamma * min_i Q'_i(s', 
 ``policy_delay`` updates, the actor's ``-Q_1(s, pi(s))``, after which the targets follow by
 Polyak averaging.
 
-The members (seeds, trials) are one layer beneath (:class:`learners.member.ActorCriticLearner`);
+The seeds and trials of a batch are one layer beneath (:class:`learners.member.ActorCriticLearner`);
 :func:`td3_losses` computes the losses of every member in one call, with TD3Loss's numbers
 (``tests/test_td3.py``).
 """
@@ -20,11 +20,10 @@ from typing import Callable, Hashable, Mapping, Sequence
 
 import torch
 from torch import nn
-from torchrl.modules import MLP
 
-from learners.device import DEVICE_NOTE, check_device, resolve_device
+from learners.continuous import DISTANCES, ReplaySettings, mlp
+from learners.device import resolve_device
 from learners.member import ActorCriticLearner, GroupStep, Losses, check_replay_settings
-from learners.sac import ACTIVATIONS, _DISTANCES
 from learners.transitions import Transitions
 from params.declare import check_fields, param
 
@@ -47,35 +46,21 @@ def td3_losses(actor: GroupStep, q1: GroupStep, q2: GroupStep, batch: Transition
         target = batch.reward + gamma * torch.minimum(q1.target(after), q2.target(after)) * ~batch.terminated
     taken = torch.cat((batch.observation, batch.action), -1)
     q = q1(taken)
-    distance = _DISTANCES[distance]
+    distance = DISTANCES[distance]
     found["loss_qvalue"] = distance(q, target, reduction="none") + distance(q2(taken), target, reduction="none")
     return found | {"q": q, "target": target}
 
 
 @dataclass(eq=False)
-class TD3(ActorCriticLearner):
-    """Twin delayed DDPG (see the module docstring); its members: :class:`ActorCriticLearner`."""
+class TD3(ReplaySettings, ActorCriticLearner):
+    """Twin delayed DDPG (see the module docstring), over :class:`ActorCriticLearner`."""
 
-    hidden: list[int] = param([256, 256], "widths of the actor's and each critic's hidden layers")
-    activation: str = param("relu", "hidden layers' activation", choices=tuple(ACTIVATIONS))
-    lr: float = param(3e-4, "Adam's learning rate of the actor and the critics", gt=0)
-    gamma: float = param(0.99, "discount of the next state's value", ge=0, le=1)
     tau: float = param(0.005, "Polyak averaging rate of the target actor and critics", gt=0, le=1)
     exploration_noise: float = param(0.1, "standard deviation of the Gaussian noise on each exploring action "
                                           "(actions in [-1, 1])", ge=0)
     policy_noise: float = param(0.2, "standard deviation of the target policy's smoothing noise", ge=0)
     noise_clip: float = param(0.5, "the smoothing noise clipped to +-this", ge=0)
     policy_delay: int = param(2, "critic updates per actor update (and per target update)", ge=1)
-    loss: str = param("l2", "critics' TD error loss", choices=tuple(_DISTANCES))
-    buffer_size: int = param(100_000, "replay buffer capacity, transitions", ge=1, le=10**7)
-    batch_size: int = param(256, "transitions per minibatch", ge=1, le=65_536)
-    updates: float = param(1.0, "minibatches per collected transition", gt=0)
-    learning_starts: int = param(1000, "transitions in the buffer before the first update; until then "
-                                       "the member acts uniformly at random", ge=1)
-    grad_clip: float = param(0.0, "gradient norm clip of each network", ge=0, note="0 = no clipping")
-    reward_scale: float = param(1.0, "factor on every reward the learner stores", gt=0)
-    device: str = param("cpu", "where the networks, updates and replay buffer live",
-                        note=DEVICE_NOTE, check=check_device)
 
     kind = "td3"
     out_keys = ("action",)
@@ -88,24 +73,16 @@ class TD3(ActorCriticLearner):
         check_fields(self, "learner")
         check_replay_settings(self)
         self.device = str(resolve_device(self.device))
-        self.members = 0
 
     # -- one member's networks -----------------------------------------------
-    def arch(self) -> dict:
-        """The networks a saved state must match."""
-        return {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
-                "activation": self.activation}
 
     def networks(self, task) -> dict[str, tuple[nn.Sequential, bool]]:
         """The actor (observation -> tanh of its outputs, one per action) and two critics
         ((observation, action) -> Q), each with a target copy."""
-        def mlp(inputs: int, outputs: int) -> nn.Sequential:
-            return MLP(in_features=inputs, out_features=outputs, num_cells=self.hidden,
-                       activation_class=ACTIVATIONS[self.activation])
-
-        actor = nn.Sequential(*mlp(self.n_obs, self.n_actions), nn.Tanh())
-        return {"actor": (actor, True), "q1": (mlp(self.n_obs + self.n_actions, 1), True),
-                "q2": (mlp(self.n_obs + self.n_actions, 1), True)}
+        actor = nn.Sequential(*mlp(self.n_obs, self.n_actions, self.hidden, self.activation), nn.Tanh())
+        critic = self.n_obs + self.n_actions
+        return {"actor": (actor, True), "q1": (mlp(critic, 1, self.hidden, self.activation), True),
+                "q2": (mlp(critic, 1, self.hidden, self.activation), True)}
 
     def policy(self, template: nn.Sequential) -> nn.Module:
         """The actor as ``model.pt`` holds it: TorchRL's deterministic ``Actor``."""
@@ -114,17 +91,14 @@ class TD3(ActorCriticLearner):
         return Actor(template, in_keys=["observation"])
 
     # -- one member's acting and losses ----------------------------------------
-    def draw_act(self, generator: torch.Generator, n: int, uniform: bool) -> torch.Tensor:
-        """One step's draws for ``n`` copies: standard normal exploration noise, or uniform
-        actions in [-1, 1] while the member still acts at random."""
-        if uniform:
-            return torch.rand(n, self.n_actions, generator=generator) * 2 - 1
+    def draw_act(self, generator: torch.Generator, n: int) -> torch.Tensor:
+        """One step's standard normal exploration noise for ``n`` copies."""
         return torch.empty(n, self.n_actions).normal_(generator=generator)
 
-    def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None) -> torch.Tensor:
+    def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None) -> dict:
         """The policy's action, plus ``exploration_noise`` times ``noise`` (clipped to [-1, 1])."""
         action = actor(observation)
-        return action if noise is None else (action + self.exploration_noise * noise).clamp(-1.0, 1.0)
+        return {"action": action if noise is None else (action + self.exploration_noise * noise).clamp(-1.0, 1.0)}
 
     def draw_update(self, generator: torch.Generator, batch_size: int) -> torch.Tensor:
         """One update's draws: standard normal noise for the target policy's smoothing."""

@@ -5,24 +5,18 @@ for bit as alone: tests/test_members.py.)"""
 from __future__ import annotations
 
 import torch
-from hydra.utils import instantiate
 from tensordict import TensorDict
 from torchrl.modules import ValueOperator
 from torchrl.objectives import ClipPPOLoss
 
+import test_sac
 from learners.ppo import PPO, ppo_losses
-from tasks.catalog import compose
-from tasks.factory import build_env
 
 S = 64  # a minibatch
 
 
 def built(robot: str = "pendulum", overrides=()) -> tuple[PPO, object]:
-    cfg = compose(robot, learner="ppo", overrides=["learner.hidden=[32,32]", *overrides])
-    env = build_env(cfg, 1, 0)
-    learner = instantiate(cfg.learner, _convert_="all")
-    learner.build(env.task, [torch.Generator().manual_seed(5)])
-    return learner, env
+    return test_sac.built(robot, overrides, "ppo")
 
 
 def test_its_losses_are_torchrl_clipppoloss():
@@ -33,8 +27,8 @@ def test_its_losses_are_torchrl_clipppoloss():
     observation = torch.randn(S, learner.n_obs, generator=g)
     with torch.no_grad():  # the policy's draws, slightly off the current policy (old log-probs)
         nets = {name: group.open(None) for name, group in learner.groups.items()}
-        action, preimage, log_prob = learner.act_with(nets["actor"], observation.unsqueeze(0),
-                                                      learner.draw_act(g, S).unsqueeze(0))
+        drawn = learner.act_with(nets["actor"], observation.unsqueeze(0), learner.draw_act(g, S).unsqueeze(0))
+        action, preimage, log_prob = drawn["action"], drawn["action_preimage"], drawn["action_log_prob"]
     old = log_prob[0] + 0.1 * torch.randn(S, generator=g)
     advantage, returns = torch.randn(S, generator=g), torch.randn(S, generator=g)
 

@@ -22,8 +22,9 @@ from tasks.factory import build_env
 B = 64  # a minibatch
 
 
-def built(robot: str = "pendulum", overrides=()) -> tuple[SAC, object]:
-    cfg = compose(robot, learner="sac", overrides=["learner.hidden=[32,32]", *overrides])
+def built(robot: str = "pendulum", overrides=(), learner: str = "sac") -> tuple[SAC, object]:
+    """A ``learner`` (32-32 networks) of one member on ``robot``'s task, and its env of one copy."""
+    cfg = compose(robot, learner=learner, overrides=["learner.hidden=[32,32]", *overrides])
     env = build_env(cfg, 1, 0)
     learner = instantiate(cfg.learner, _convert_="all")
     learner.build(env.task, [torch.Generator().manual_seed(5)])

@@ -5,25 +5,19 @@ alone: tests/test_members.py.)"""
 from __future__ import annotations
 
 import torch
-from hydra.utils import instantiate
 from tensordict import TensorDict
 from torchrl.data import Bounded
 from torchrl.modules import ValueOperator
 from torchrl.objectives import TD3Loss
 
+import test_sac
+from test_sac import B, minibatch
 from learners.td3 import TD3, td3_losses
 from learners.transitions import Transitions
-from tasks.catalog import compose
-from tasks.factory import build_env
-from test_sac import B, minibatch
 
 
 def built(robot: str = "pendulum", overrides=()) -> tuple[TD3, object]:
-    cfg = compose(robot, learner="td3", overrides=["learner.hidden=[32,32]", *overrides])
-    env = build_env(cfg, 1, 0)
-    learner = instantiate(cfg.learner, _convert_="all")
-    learner.build(env.task, [torch.Generator().manual_seed(5)])
-    return learner, env
+    return test_sac.built(robot, overrides, "td3")
 
 
 def test_its_losses_are_torchrl_td3loss():
