@@ -146,10 +146,35 @@ def eval_config(cfg: DictConfig, overrides: list[str]) -> DictConfig:
     return evaluated
 
 
+AGENT = "agent:"  # checkpoint=agent:<name>: a trained agent shipped with the package (conf/agents/)
+
+
+def shipped_agent(arg: str) -> str:
+    """``checkpoint=agent:<name>`` as the folder of that agent shipped in ``conf/agents/`` (a
+    trimmed run folder: its config.yaml, run.json and model.pt); any other argument as it is.
+
+    Raises:
+        ConfigError: if no shipped agent has that name (the message lists them).
+    """
+    key, _, value = arg.partition("=")
+    if key != "checkpoint" or not value.startswith(AGENT):
+        return arg
+    from tasks.catalog import conf_dir
+
+    shipped = conf_dir() / "agents"
+    name = value[len(AGENT):]
+    known = sorted(p.name for p in shipped.iterdir() if (p / "model.pt").is_file()) if shipped.is_dir() else []
+    if name not in known:
+        raise ConfigError(f"checkpoint={value}: no agent of that name is shipped; the shipped ones: "
+                          f"{', '.join(AGENT + k for k in known) or 'none'}")
+    return f"checkpoint={shipped / name}"
+
+
 def with_run_choices(args: list[str]) -> list[str]:
     """``mode=eval checkpoint=<run folder>``: the run's robot, task and learner (run.json's)
     put on the command line, so its other overrides compose as for that run; a different
-    choice given with it is refused."""
+    choice given with it is refused. ``checkpoint=agent:<name>``: a shipped agent's folder."""
+    args = [shipped_agent(a) for a in args]
     given = dict(a.split("=", 1) for a in args if "=" in a and not a.startswith(("+", "~", "-")))
     folder = run_folder_of(given.get("checkpoint")) if given.get("mode") == "eval" else None
     if folder is None:
