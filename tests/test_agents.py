@@ -22,7 +22,7 @@ def test_an_agent_ships_for_each_seed_task_with_qlearn_and_dqn():
 @pytest.mark.parametrize("name", AGENTS)
 def test_a_shipped_agent_evaluates_and_passes_its_tasks_rule(name, tmp_path):
     run = tmp_path / "eval"
-    done = run_train("mode=eval", f"checkpoint=agent:{name}", "eval_episodes=5", f"hydra.run.dir={run}",
+    done = run_train("mode=eval", f"checkpoint=agent:{name}", "eval_episodes=20", f"hydra.run.dir={run}",
                      "quiet=true")
     assert done.returncode == 0, done.stderr[-1500:]
     verdict = done.stdout.strip().splitlines()[-1]
