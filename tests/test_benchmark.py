@@ -95,8 +95,8 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
 
 @pytest.mark.parametrize("argv, says", [
     (["--tasks", "moon"], "unknown task 'moon'; the benchmark's tasks: cartpole, cube, cube_minus_y, maze, wall"),
-    (["--learners", "sarsa"], "unknown learner 'sarsa'; learners: dqn, mbalunovic, n1try, qlearn, rainbow, "
-                              "ruippeixotog, dqn_nstep"),
+    (["--learners", "sarsa"], "unknown learner 'sarsa'; learners: dqn, mbalunovic, n1try, ppo, qlearn, rainbow, "
+                              "ruippeixotog, sac, td3, dqn_nstep"),
     (["--seeds", "0"], "--seeds must be at least 1, got 0"),
     (["--budget", "-3"], "--budget must be a positive number of env steps, got -3"),
     (["--settings", "best"], "unknown setting 'best'; settings: published, tuned"),
