@@ -108,6 +108,24 @@ def test_make_and_check_env(make, name):
 
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_the_continuous_form_is_a_box_that_check_env_passes(make, name):
+    """``actions="continuous"``: a ``Box(-1, 1)`` of the task's continuous actions (SB3's SAC and
+    PPO take it); an action of the wrong size or not finite is one clear error."""
+    env = make(name, actions="continuous")
+    dims = env.unwrapped.task.action_range.dims
+    assert env.action_space == gym.spaces.Box(-1.0, 1.0, (dims,), dtype=np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped)
+    env.reset(seed=0)
+    obs, reward, *_ = env.step(np.full(dims, 0.5, dtype=np.float32))
+    assert np.isfinite(obs).all() and np.isfinite(reward)
+    for bad in (np.zeros(dims + 1), [float("nan")] * dims):
+        with pytest.raises(ValueError, match=rf"action must be {dims} finite number\(s\) in \[-1, 1\]"):
+            env.step(bad)
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_seeded_reset_reproduces_trajectories(make, name):
     env = make(name)
 
