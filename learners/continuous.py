@@ -88,11 +88,6 @@ class ReplaySettings:
     device: str = param("cpu", "where the networks, updates and replay buffer live",
                         note=DEVICE_NOTE, check=check_device)
 
-    def arch(self) -> dict:
-        """The networks a saved state must match."""
-        return {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
-                "activation": self.activation}
-
 
 __all__ = ["ACTIVATIONS", "DISTANCES", "GaussianHead", "ReplaySettings", "log_prob_of", "mlp", "squashed",
            "tanh_normal_actor"]

@@ -430,13 +430,23 @@ def clip_norms(grads: torch.Tensor, clip: float | torch.Tensor) -> torch.Tensor:
     """Each row of ``grads`` (``[k, P]``) scaled to a norm of at most ``clip`` (a number, or
     ``[k, 1]`` per member; 0: no clip), in place; the norms before."""
     norms = torch.linalg.vector_norm(grads, dim=1)
+    scale_to(grads, norms, clip)
+    return norms
+
+
+def scale_to(grads: torch.Tensor | Sequence[torch.Tensor], norms: torch.Tensor, clip: float | torch.Tensor) -> None:
+    """Each member's rows of ``grads`` (one ``[k, P]`` tensor, or several scaled together),
+    whose norms are ``norms`` (``[k]``), scaled in place to a norm of at most ``clip`` (a
+    number, or ``[k, 1]`` per member; 0: no clip)."""
     if isinstance(clip, torch.Tensor):  # members' own clips; 0 (none) scales by 1
         clip = clip.squeeze(1)
         factor = torch.where(clip > 0, (clip / (norms + 1e-6)).clamp_(max=1.0), 1.0)
-        grads.mul_(factor.unsqueeze(1))
     elif clip > 0:
-        grads.mul_((clip / (norms + 1e-6)).clamp_(max=1.0).unsqueeze(1))
-    return norms
+        factor = (clip / (norms + 1e-6)).clamp_(max=1.0)
+    else:
+        return
+    for g in [grads] if isinstance(grads, torch.Tensor) else grads:
+        g.mul_(factor.unsqueeze(1))
 
 
 class RowReplayBuffer(ReplayBuffer):
@@ -1194,7 +1204,8 @@ class PolicyMembers(MemberLearner):
     ``{name: (template, target)}``, one member's networks on the CPU (``actor`` among them,
     and the group ``critic`` names, which every update steps; a template ``nn.Sequential`` of
     :class:`MemberNets`'s layers, or None for plain numbers whose start ``initial(name, own)``
-    gives); ``policy(template)``: the actor as ``model.pt`` holds it; ``arch()`` and ``kind``;
+    gives); ``policy(template)``: the actor as ``model.pt`` holds it; ``kind``; its settings
+    ``hidden`` and ``activation`` (what a saved state must match, with the shapes: :meth:`arch`);
     ``draw_act(generator, n)``: one member's standard normal step noise; and
     ``act_with(actor, observation, noise)``: the entries acting writes (``action``, and what
     else the algorithm keeps), ``noise`` None for the greedy action.
@@ -1292,6 +1303,11 @@ class PolicyMembers(MemberLearner):
     def begin(self) -> None:
         for b, tracker in enumerate(self.trackers):
             tracker.restart(self.steps[b])
+
+    def arch(self) -> dict:
+        """The networks a saved state must match (the algorithm's ``hidden`` and ``activation``)."""
+        return {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
+                "activation": self.activation}
 
     def _check_arch(self, arch: dict, where: str) -> None:
         if arch != self.arch():
@@ -1532,6 +1548,7 @@ class RolloutLearner(PolicyMembers):
         size = total // minibatches
         rows = None if k == self.members else torch.tensor(due, device=self.device)
         members = torch.arange(k).unsqueeze(1)
+        clip = self.own("grad_clip", due, torch.float32, self.device)
         for _ in range(epochs):
             order = torch.stack([torch.randperm(total, generator=self.generators[b]) for b in due])
             for m in range(minibatches):
@@ -1540,7 +1557,6 @@ class RolloutLearner(PolicyMembers):
                 nets = {name: group.open(rows) for name, group in self.groups.items()}
                 found = self.losses(nets["actor"], nets["critic"], minibatch, [self.settings[b] for b in due])
                 found.loss.sum().backward()
-                clip = self.own("grad_clip", due, torch.float32, self.device)
                 norm = clip_together([nets[name].grads for name in found.stepped], clip)
                 for name in found.stepped:
                     nets[name].step(due, [self.lr_of(b) for b in due])
@@ -1576,17 +1592,9 @@ def clip_together(grads: Sequence[torch.Tensor], clip: float | torch.Tensor) -> 
     # each network's norm, then theirs together elementwise (a reduction across the stacked
     # norms would take another kernel for one member than for several)
     norms = sum(torch.linalg.vector_norm(g, dim=1) ** 2 for g in grads).sqrt()
-    if isinstance(clip, torch.Tensor):
-        clip = clip.squeeze(1)
-        factor = torch.where(clip > 0, (clip / (norms + 1e-6)).clamp_(max=1.0), 1.0)
-    elif clip > 0:
-        factor = (clip / (norms + 1e-6)).clamp_(max=1.0)
-    else:
-        return norms
-    for g in grads:
-        g.mul_(factor.unsqueeze(1))
+    scale_to(grads, norms, clip)
     return norms
 
 
 __all__ = ["PolicyMembers", "RolloutLearner", "clip_together", "ActorCriticLearner", "GroupStep", "Losses", "MemberGroup", "ReplayMembers", "FORMAT", "MemberLearner", "ObsScale", "ReplayLearner", "RowReplayBuffer", "MemberAdam",
-           "MemberNets", "MemberTables", "UpdateStats", "adam_step", "clip_norms", "draws"]
+           "MemberNets", "MemberTables", "UpdateStats", "adam_step", "clip_norms", "draws", "scale_to"]

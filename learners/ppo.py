@@ -28,7 +28,7 @@ from torchrl.modules.distributions.utils import safetanh_noeps
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
 from learners.member import GroupStep, Losses, RolloutLearner, lanes
-from learners.continuous import ACTIVATIONS, ReplaySettings, LOG_SQRT_2PI, GaussianHead, log_prob_of, mlp, squashed, tanh_normal_actor
+from learners.continuous import ACTIVATIONS, LOG_SQRT_2PI, GaussianHead, log_prob_of, mlp, squashed, tanh_normal_actor
 from params import require
 from params.declare import check_fields, param
 
@@ -90,8 +90,6 @@ class PPO(RolloutLearner):
                 f"learner.rollout_steps ({self.rollout_steps})", self.minibatches)
         self.hidden = [int(h) for h in self.hidden]
         self.device = str(resolve_device(self.device))
-
-    arch = ReplaySettings.arch
 
     def networks(self, task) -> dict[str, tuple[nn.Sequential, bool]]:
         """The actor (observation -> loc, scale of each action's Gaussian before tanh) and the

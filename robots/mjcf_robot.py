@@ -184,15 +184,14 @@ class MjcfRobot(Robot):
     def _compiled(self) -> mujoco.MjModel:
         return mujoco.MjModel.from_xml_string(self.mjcf_model.to_xml_string(), assets=self.mjcf_model.get_assets())
 
-    def control_range(self, name: str, where: str) -> tuple[float, float] | None:
-        """The ``[low, high]`` command range the model gives actuator ``name`` (after its
-        defaults classes and a control mode's change; None: the model leaves it unlimited)."""
-        column = self.actuator_column(name, where)
+    def control_ranges(self) -> dict[str, tuple[float, float]]:
+        """The ``[low, high]`` command range of each actuator the model limits, by its name in
+        :meth:`actuators` (after its defaults classes and a control mode's change; actuators the
+        model leaves unlimited are left out), from one compilation of the model."""
         model = self._compiled()
-        if not model.actuator_ctrllimited[column]:
-            return None
-        low, high = (float(v) for v in model.actuator_ctrlrange[column])
-        return (low, high) if low < high else None
+        return {name: (float(model.actuator_ctrlrange[i, 0]), float(model.actuator_ctrlrange[i, 1]))
+                for i, name in enumerate(self.actuators())
+                if model.actuator_ctrllimited[i] and model.actuator_ctrlrange[i, 0] < model.actuator_ctrlrange[i, 1]}
 
     # -- control modes -------------------------------------------------------------
     def _set_control(self, name: str, spec) -> None:

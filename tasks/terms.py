@@ -299,12 +299,12 @@ def _continuous(robot: MjcfRobot, spec: Any, names: list[str], rows: list[list[f
                 ) -> dict[str, tuple[float, float]] | None:
     """``{actuator: (low, high)}`` of the continuous form (None: none can be made)."""
     where = "task.actions.continuous"
+    ranges = robot.control_ranges()
     if spec is None:  # the discrete set's actuators: the model's range, else the values' span
         found = {}
         for i, name in enumerate(names):
-            model = robot.control_range(name, "task.actions")
             span = (min(r[i] for r in rows), max(r[i] for r in rows))
-            found[name] = model or span
+            found[name] = ranges.get(name, span)
         return found if all(low < high for low, high in found.values()) else None
     if isinstance(spec, Mapping):
         found = {}
@@ -319,10 +319,10 @@ def _continuous(robot: MjcfRobot, spec: Any, names: list[str], rows: list[list[f
                 f"{where} must list actuator names or map them to [low, high]", spec)
         found = {}
         for name in spec:
-            model = robot.control_range(name, where)
-            require(model is not None, f"{where}: actuator {name!r} has no control range in the model; "
+            robot.actuator_column(name, where)  # one line for a name the model lacks
+            require(name in ranges, f"{where}: actuator {name!r} has no control range in the model; "
                     f"give one: continuous: {{{name}: [low, high]}}", name)
-            found[name] = model
+            found[name] = ranges[name]
     require(len(found) > 0, f"{where} must name at least one actuator", spec)
     return found
 
