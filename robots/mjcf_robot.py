@@ -13,6 +13,10 @@ servo to the commanded joint position, stiffness ``gain``) or ``velocity`` (a
 servo to the commanded joint velocity, damping ``gain``); actuators it leaves out
 stay as the model says.
 
+``joints`` changes a joint's passive properties (``hinge: {damping: 0.03}``): damping (N m s/rad
+or N s/m), frictionloss (N m or N), armature (kg m^2 or kg) and stiffness (N m/rad or N/m), as
+dm_control's tasks change their models (finger spin lowers the spinner's damping).
+
 A task reads the robot through :class:`Reader` objects it asks for by source and
 name (``reader("joint_pos", "shoulder")``, ``reader("site_pos", "tip")``); the
 robot resolves them in the compiled model when it is bound. Joint positions and
@@ -31,7 +35,7 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from params import ConfigError, require
+from params import ConfigError, finite, require
 from params.declare import REQUIRED, check_fields, param
 from robots.folders import MODEL_FOLDERS
 from robots.base import Robot
@@ -39,6 +43,7 @@ from robots.binding import JointHandle, actuator_id, sensor_slice
 from robots.physics import BatchedPhysics
 
 CONTROL_MODES = ("motor", "position", "velocity")
+JOINT_PROPERTIES = ("damping", "frictionloss", "armature", "stiffness")
 #: A body or site quantity -> (MuJoCo frame sensor, entries).
 FRAME_SENSORS = {"pos": ("framepos", 3), "quat": ("framequat", 4), "vel": ("framelinvel", 3),
                  "angvel": ("frameangvel", 3), "zaxis": ("framezaxis", 3)}
@@ -115,6 +120,8 @@ class MjcfRobot(Robot):
     model: str = param(REQUIRED, "the MJCF file (a relative path: from the config folder)")
     control: dict | None = param(None, "actuator name: {mode: motor, position or velocity, gain: "
                                        "number} (null: every actuator as the model says)")
+    joints: dict | None = param(None, "joint name: {damping, frictionloss, armature, stiffness: "
+                                      "number >= 0} set on the model (null: as the model says)")
     _readers: list = field(default_factory=list, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -123,6 +130,8 @@ class MjcfRobot(Robot):
         self.timestep = float(self.mjcf_model.option.timestep or 0.002)  # MuJoCo's default
         for name, spec in (self.control or {}).items():
             self._set_control(name, spec)
+        for name, spec in (self.joints or {}).items():
+            self._set_joint(name, spec)
         self._actuator_ids: np.ndarray | None = None
 
     # -- names ---------------------------------------------------------------------
@@ -213,6 +222,17 @@ class MjcfRobot(Robot):
         gains = {"motor": {"gear": [gain]}, "position": {"kp": gain}, "velocity": {"kv": gain}}
         self.mjcf_model.actuator.add(spec["mode"], name=name, joint=joint,
                                      **gains[spec["mode"]], **keep)
+
+    def _set_joint(self, name: str, spec) -> None:
+        """Sets joint ``name``'s passive properties to ``spec``'s values."""
+        where = f"robot.joints.{name}"
+        joint = self.element("joint", name, where)
+        require(isinstance(spec, dict) and spec and set(spec) <= set(JOINT_PROPERTIES),
+                f"{where} must be {{{', '.join(JOINT_PROPERTIES)}: number}}", spec)
+        for key, value in spec.items():
+            require(finite(value) and value >= 0,
+                    f"{where}.{key} must be a finite number >= 0", value)
+            setattr(joint, key, float(value))
 
     # -- readers and commands ------------------------------------------------------
     def frame_reader(self, quantity: str, name: str, where: str) -> Reader:
