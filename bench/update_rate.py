@@ -168,7 +168,7 @@ def dqn_learner(stored: int = 20_000, learner: str = "dqn", overrides: tuple[str
         rows[:, 2 * n + 3] = torch.randint(1, learner.n_step + 1, (stored,), generator=gen).float()
     for chunk in rows.split(16):
         buffer.put(chunk)  # as a run stores them (prioritized replay gives each its priority)
-    buffer.flush()
+    buffer.book()
     return learner
 
 

@@ -1,6 +1,7 @@
 """The docs stay true: every ``train.py`` command in README.md and docs/ composes and builds
 (robot, task, learner) as written, so a renamed key or value fails here, not the reader; the
-quick start's own command trains end to end in tests/test_success.py.
+quick start's own command trains end to end in tests/test_success.py, and CI's last step
+(tests/documented.py) runs every documented command on a small budget.
 
 A command is taken from an indented code block (continued lines joined; its trailing
 comment dropped). A sweep (``-m``) is checked at the first value of each swept key; keys of
@@ -17,29 +18,22 @@ from pathlib import Path
 
 import pytest
 
+from tests import documented
 from tests.test_validation import build, compose_cfg
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
-COMMAND = re.compile(r"^ {4,}(?:\.venv/bin/)?python(?:3\.11)? (?:-m )?train(?:\.py)? (.*)$")
+COMMAND = re.compile(r"^(?:\.venv/bin/)?python(?:3\.11)? (?:-m )?train(?:\.py)? (.*)$")
 SKIP = ("<", "~/", "resume=", "checkpoint=", "--config-dir")
 
 
 def commands() -> list[tuple[str, str]]:
-    """``(where, arguments)`` of every documented train.py command."""
+    """``(where, arguments)`` of every documented train.py command (tests/documented.py finds
+    them; a ``$`` command, shown with the refusal it gets, is left out)."""
     found = []
-    for page in PAGES:
-        lines = page.read_text().splitlines()
-        i = 0
-        while i < len(lines):
-            line = lines[i]
-            while line.rstrip().endswith("\\") and i + 1 < len(lines):
-                i += 1
-                line = line.rstrip()[:-1] + " " + lines[i].strip()
-            match = COMMAND.match(line.split(" # ")[0].split("  #")[0].rstrip())
-            if match and not line.lstrip().startswith("$"):
-                found.append((f"{page.relative_to(ROOT)}:{i + 1}", match.group(1)))
-            i += 1
+    for step in documented.steps():
+        match = COMMAND.match(step.command) if not step.file and step.expect is None else None
+        if match:
+            found.append((step.where, match.group(1)))
     return found
 
 
@@ -92,3 +86,25 @@ def test_the_torchrl_tools_snippet_runs():
                           env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.count("torch.Size([8, 100]) episodes ended:") == 2, proc.stdout
+
+
+def test_every_documented_command_is_run_by_ci_or_says_why_not():
+    """Each step tests/documented.py finds either runs (its placeholders are ones the runner
+    fills, a benchmark gets small arguments) or is skipped with a reason; the tutorial's files
+    are written before the commands that need them."""
+    steps = documented.steps()
+    reader = documented.Reader.__new__(documented.Reader)
+    reader.runs, reader.sweep = [ROOT / "outputs" / "d" / "t_cartpole_dqn_1"], ROOT / "multirun" / "x"
+    for step in steps:
+        if step.file:
+            assert step.command.strip(), f"{step.where}: no page shows {step.file}"
+            continue
+        if any(mark in step.command for mark in documented.SKIP):
+            continue
+        command = documented.budgeted(reader.placed(step.command))
+        assert "<" not in command.replace("<<", ""), f"{step.where}: a placeholder the runner cannot fill: {command}"
+        assert not ("bench/" in command or "bench." in command) or any(
+            mark in step.command for mark in documented.SMALL), f"{step.where}: a benchmark with no small arguments"
+    wrote = [i for i, s in enumerate(steps) if s.file == "~/my_robots/robot/my_acrobot.yaml"]
+    uses = [i for i, s in enumerate(steps) if "robot=my_acrobot" in s.command and not s.file]
+    assert wrote and uses and wrote[0] < uses[0]
