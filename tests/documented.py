@@ -6,7 +6,8 @@ too, so ``~/my_robots`` is the reader's own), runs the quick start's setup there
 command in page order (README first, then docs/ by name), each through bash with that
 venv's ``bin`` first on PATH, and stops at the first that fails: its page and line, the
 command and the end of its output. A block that shows a file the reader writes
-(``~/my_robots/robot/my_acrobot.yaml``) is written; ``<run>``, ``<run folder>`` and the
+(``~/my_robots/robot/my_acrobot.yaml``) is written, a block of Python that starts with its
+imports is run as a script; ``<run>``, ``<run folder>`` and the
 sweep placeholders become the folders the earlier commands made (``<cartpole run>``:
 the latest of that robot); a ``$`` command is one
 whose documented output (the lines under it) must appear; a ``resume=`` command continues a
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -74,6 +76,7 @@ class Step:
     command: str
     expect: list[str] | None = None  # a $ command's documented output (a line may end "...")
     file: str | None = None          # a file block: its path (command is its text)
+    python: bool = False             # a Python snippet (command: python -c '<its code>')
 
 
 def blocks(page: Path) -> list[tuple[int, list[str], str]]:
@@ -110,6 +113,10 @@ def steps(pages: list[Path] = PAGES) -> list[Step]:
             if len(target) == 1 and not body[0].startswith(STARTS):
                 files[target[0]] = "\n".join(body) + "\n"
                 found.append(Step(f"{name}:{line}", files[target[0]], file=target[0]))
+                continue
+            if body[0].startswith(("import ", "from ")):  # a Python snippet: run as a script
+                code = "\n".join(body) + "\n"
+                found.append(Step(f"{name}:{line}", f"python -c {shlex.quote(code)}", python=True))
                 continue
             j = 0
             while j < len(body):
@@ -235,6 +242,10 @@ class Reader:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(step.command)
             return True, "", f"wrote {path}"
+        if step.python:
+            proc = subprocess.run(["bash", "-c", step.command], cwd=self.work, env=self.env(), text=True,
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=900)
+            return proc.returncode == 0, proc.stdout, step.command
         if "resume=" in step.command:
             self.stopped(sweep="sweep" in step.command)
         command = self.placed(step.command)

@@ -332,10 +332,10 @@ def test_the_arm_reaches_24_cm_and_its_target_stays_where_placed():
 
 
 def test_the_finger_flicks_the_spinner_past_15_rad_s_and_it_slows_down():
-    """dm_control's finger: sweeping the finger back and forth (both motors full, 2 Hz) flicks
-    the spinner clockwise past the task's 15 rad/s within 10 s in most starts (seed 0: 6 of 8,
-    at 17-22 rad/s; the sweep's pushes also slow it, so none holds it there); left alone it slows (its
-    damping and friction loss), never passing 15 rad/s on its own."""
+    """dm_control's finger with its spin damping (robot.joints): sweeping the finger back and
+    forth (both motors full, 2 Hz) flicks the spinner clockwise past the task's 15 rad/s within
+    10 s (seed 0: all 8 starts, at 20-38 rad/s); left alone at 20 rad/s it slows by about 1
+    rad/s a step (friction loss, then damping), below 15 within 0.12 s and below 3 within 0.6 s."""
     env = env_of("finger", "learner=sac", num_envs=8)
     td = env.reset()
     fastest = np.zeros(8)
@@ -343,16 +343,17 @@ def test_the_finger_flicks_the_spinner_past_15_rad_s_and_it_slows_down():
         a = float(np.sign(np.sin(t * 0.02 * 2 * np.pi * 2.0)))
         td = env.step(td.set("action", torch.tensor([[a, -a]] * 8)))["next"]
         fastest = np.minimum(fastest, env.physics.qvel[:, 2])
-    assert (fastest < -15).sum() >= 5, fastest
+    assert (fastest < -15).sum() >= 7, fastest
     env = env_of("finger", "learner=sac", "task.reset.joints.proximal.position=1.9",
                  "task.reset.joints.distal.position=0", num_envs=2)  # the finger clear of the spinner
     td = env.reset()
     env.physics.qvel[:, 2] = -20.0
     speeds = []
-    for _ in range(5):
+    for _ in range(30):
         td = env.step(td.set("action", torch.zeros(2, 2)))["next"]
         speeds.append(-env.physics.qvel[0, 2])
-    assert 8 < speeds[0] < 12 and all(0.4 < b / a < 0.6 for a, b in zip(speeds, speeds[1:3])), speeds
+    assert 18 < speeds[0] < 20 and speeds[5] < 15 and speeds[-1] < 3, speeds
+    assert all(0 < a - b < 1.2 for a, b in zip(speeds, speeds[1:])), speeds
     env.close()
 
 
