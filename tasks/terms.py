@@ -33,7 +33,8 @@ from robots.mjcf_robot import SOURCES, MjcfRobot, Reader
 from robots.physics import BatchedPhysics
 
 AXES = {"x": 0, "y": 1, "z": 2}
-APPLY = {"sin": np.sin, "cos": np.cos, "abs": np.abs, "square": np.square}
+APPLY = {"sin": np.sin, "cos": np.cos, "abs": np.abs, "square": np.square,
+         "log1p": lambda x: np.sign(x) * np.log1p(np.abs(x))}  # dm_control's touch scaling, sign kept
 _PICKS = ("axis", "index", "apply")
 _RELATIVE = ("distance", "from", "to", "axes")  # a term between two frames
 _BOUNDED = ("quat", "zaxis")  # sources whose every entry lies in [-1, 1]

@@ -370,3 +370,19 @@ def test_a_joints_damping_set_in_yaml_slows_it_as_mujoco_says():
         env.step(td.set("action", torch.full((1,), action_of(env, 0.0, 0.0))))
         kept[damping] = float(hinge.joint.vel(physics)[0])
     assert kept[0.03] == pytest.approx(-18.9, abs=0.1) and kept[0.5] == pytest.approx(-10.2, abs=0.1)
+
+
+def test_the_spinners_touch_is_observed_as_dm_control_scales_it():
+    """apply: log1p: the finger's touch sensors (hundreds of N at a flick) reach the learner
+    as log(1 + N), a few units, as dm_control's finger observes them."""
+    seen = {}
+    for apply in ("log1p", "null"):
+        env = env_of("finger", "learner=sac", f"task.observations.touchtop.apply={apply}", num_envs=8)
+        td, rows = env.reset(), []
+        for t in range(150):
+            a = float(np.sign(np.sin(t * 0.02 * 2 * np.pi * 2.0)))
+            td = env.step(td.set("action", torch.tensor([[a, -a]] * 8)))["next"]
+            rows.append(td["observation"][:, 7].numpy().copy())
+        seen[apply] = np.concatenate(rows)
+    assert seen["null"].max() > 100 and seen["log1p"].max() < 8
+    assert np.allclose(seen["log1p"], np.log1p(seen["null"]), atol=1e-5)
