@@ -177,9 +177,9 @@ class Reader:
     def __init__(self, work: Path) -> None:
         self.work, self.home = work, work / "home"
         self.home.mkdir(exist_ok=True)
-        made = sorted(self.folders(), key=lambda p: p.stat().st_mtime)  # a kept folder's, in order
-        self.runs: list[Path] = [p for p in made if p.parent.parent.name == "outputs" and "_eval_" not in p.name]
-        self.sweep: Path | None = next((p for p in reversed(made) if p.parent.parent.name == "multirun"), None)
+        self.runs: list[Path] = []
+        self.sweep: Path | None = None
+        self.note(set())  # a kept folder's runs and sweep
 
     def env(self) -> dict:
         path = f"{self.work / '.venv' / 'bin'}:{os.environ['PATH']}"
@@ -229,7 +229,7 @@ class Reader:
 
     def note(self, before: set[Path]) -> None:
         """Takes in the folders made since ``before``: the latest sweep, the runs in order."""
-        for folder in sorted(self.folders() - before):
+        for folder in sorted(self.folders() - before, key=lambda p: p.stat().st_mtime):
             if folder.parts[-2].count("-") == 2 and folder.parent.parent.name == "multirun":
                 self.sweep = folder
             elif folder.parent.parent.name == "outputs" and "_eval_" not in folder.name:
@@ -242,14 +242,10 @@ class Reader:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_text(step.command)
             return True, "", f"wrote {path}"
-        if step.python:
-            proc = subprocess.run(["bash", "-c", step.command], cwd=self.work, env=self.env(), text=True,
-                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=900)
-            return proc.returncode == 0, proc.stdout, step.command
-        if "resume=" in step.command:
+        if "resume=" in step.command and not step.python:
             self.stopped(sweep="sweep" in step.command)
-        command = self.placed(step.command)
-        command = command if step.expect is not None else budgeted(command)
+        command = step.command if step.python else self.placed(step.command)
+        command = command if step.python or step.expect is not None else budgeted(command)
         before = self.folders()
         proc = subprocess.run(["bash", "-c", command], cwd=self.work, env=self.env(), text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=900)
