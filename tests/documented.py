@@ -182,9 +182,12 @@ class Reader:
         self.note(set())  # a kept folder's runs and sweep
 
     def env(self) -> dict:
+        """The reader's environment: the scratch venv first on PATH, its own HOME, and no
+        MUJOCO_GL (headless rendering is the project's default, as a reader finds it)."""
         path = f"{self.work / '.venv' / 'bin'}:{os.environ['PATH']}"
-        return {**os.environ, "HOME": str(self.home), "PATH": path,
-                "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+        env = {**os.environ, "HOME": str(self.home), "PATH": path}
+        env.pop("MUJOCO_GL", None)
+        return env
 
     def placed(self, command: str) -> str:
         """The placeholders filled with the folders the earlier commands made: ``outputs/<run>``,
