@@ -10,7 +10,9 @@ command and the end of its output. A block that shows a file the reader writes
 imports is run as a script; ``<run>``, ``<run folder>`` and the
 sweep placeholders become the folders the earlier commands made (``<cartpole run>``:
 the latest of that robot); a ``$`` command is one
-whose documented output (the lines under it) must appear; a ``resume=`` command continues a
+whose documented output (the lines under it) must appear; an installed user's command
+(``mujoco-rl-train``, one marked ``# installed``, the block under "a plain `pip install .`")
+runs from HOME with the project installed plainly in a venv of its own; a ``resume=`` command continues a
 run (or sweep) the runner starts and stops with Ctrl-C just before. Training gets a budget of a few
 episodes (:data:`BUDGET`); the benchmarks, their small arguments (:data:`SMALL`). What cannot
 run here is listed with why (:data:`SKIP`): a Slurm cluster, a browser, the test command
@@ -77,6 +79,7 @@ class Step:
     expect: list[str] | None = None  # a $ command's documented output (a line may end "...")
     file: str | None = None          # a file block: its path (command is its text)
     python: bool = False             # a Python snippet (command: python -c '<its code>')
+    installed: bool = False          # an installed user's command: a plain install, from HOME
 
 
 def blocks(page: Path) -> list[tuple[int, list[str], str]]:
@@ -136,7 +139,9 @@ def steps(pages: list[Path] = PAGES) -> list[Step]:
                         j += 1
                     found.append(Step(where, text[2:], expect=expect))
                 else:
-                    found.append(Step(where, strip_comment(text)))
+                    installed = (text.startswith("mujoco-rl-") or "# installed" in text
+                                 or "plain `pip install .`" in prose)
+                    found.append(Step(where, strip_comment(text), installed=installed))
     for step in found:
         if step.file and not step.command:
             step.command = files.get(step.file, "")
@@ -181,10 +186,11 @@ class Reader:
         self.sweep: Path | None = None
         self.note(set())  # a kept folder's runs and sweep
 
-    def env(self) -> dict:
-        """The reader's environment: the scratch venv first on PATH, its own HOME, and no
-        MUJOCO_GL (headless rendering is the project's default, as a reader finds it)."""
-        path = f"{self.work / '.venv' / 'bin'}:{os.environ['PATH']}"
+    def env(self, venv: Path | None = None) -> dict:
+        """The reader's environment: ``venv`` (default the checkout's) first on PATH, its own
+        HOME, and no MUJOCO_GL (headless rendering is the project's default, as a reader finds
+        it)."""
+        path = f"{(venv or self.work / '.venv') / 'bin'}:{os.environ['PATH']}"
         env = {**os.environ, "HOME": str(self.home), "PATH": path}
         env.pop("MUJOCO_GL", None)
         return env
@@ -208,11 +214,20 @@ class Reader:
                 command = command.replace(mark, str(self.sweep))
         return command
 
+    def installed(self) -> Path:
+        """A venv outside the checkout with the project installed plainly (``pip install``,
+        not editable), made at its first use: an installed user's."""
+        venv = self.home / "installed"
+        if not (venv / "bin" / "mujoco-rl-train").is_file():
+            subprocess.run(["bash", "-c", f"python3.11 -m venv {venv} && {venv}/bin/pip install -q {self.work}"],
+                           cwd=self.home, env=self.env(venv), check=True, timeout=900)
+        return venv
+
     def folders(self) -> set[Path]:
+        """Every run and sweep folder, in the checkout and in HOME (an installed user's)."""
         found = set()
-        for top, depth in (("outputs", 2), ("multirun", 2)):
-            base = self.work / top
-            found |= {p for p in base.glob("/".join(["*"] * depth)) if p.is_dir()} if base.is_dir() else set()
+        for top in (self.work / "outputs", self.work / "multirun", self.home / "outputs"):
+            found |= {p for p in top.glob("*/*") if p.is_dir()} if top.is_dir() else set()
         return found
 
     def stopped(self, sweep: bool) -> None:
@@ -250,7 +265,8 @@ class Reader:
         command = step.command if step.python else self.placed(step.command)
         command = command if step.python or step.expect is not None else budgeted(command)
         before = self.folders()
-        proc = subprocess.run(["bash", "-c", command], cwd=self.work, env=self.env(), text=True,
+        where, env = (self.home, self.env(self.installed())) if step.installed else (self.work, self.env())
+        proc = subprocess.run(["bash", "-c", command], cwd=where, env=env, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, timeout=900)
         self.note(before)
         if step.expect is not None:
@@ -286,6 +302,7 @@ def main(argv: list[str] | None = None) -> int:
             why = next((w for mark, w in SKIP.items() if mark in step.command), None)
             shown = step.command if step.expect is not None else budgeted(step.command)
             print(f"{step.where}: {'write ' + step.file if step.file else shown}"
+                  f"{'   [installed, from HOME]' if step.installed else ''}"
                   f"{'   [skipped: ' + why + ']' if why else ''}")
         return 0
     work = args.again or Path(tempfile.mkdtemp(prefix="documented-"))

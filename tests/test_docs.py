@@ -111,3 +111,5 @@ def test_every_documented_command_is_run_by_ci_or_says_why_not():
     wrote = [i for i, s in enumerate(steps) if s.file == "~/my_robots/robot/my_acrobot.yaml"]
     uses = [i for i, s in enumerate(steps) if "robot=my_acrobot" in s.command and not s.file]
     assert wrote and uses and wrote[0] < uses[0]
+    installed = [s.command.split()[0] for s in steps if s.installed]  # run with a plain install, from HOME
+    assert "mujoco-rl-train" in installed and "cp" in installed, installed
