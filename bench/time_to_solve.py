@@ -3,6 +3,7 @@ cartpole/stay_up, over 3 seeds, and what a whole process costs around it (run by
 
     python bench/time_to_solve.py [--seeds 0 1 2] [--num-envs-dqn 16] [--num-envs-qlearn 1]
     python bench/time_to_solve.py --against rainbow --seeds 1000 1001 1002 1003
+    python bench/time_to_solve.py --seeds 0 --overrides max_env_steps=400   # the wiring only
 
 Per learner, a Hydra sweep over the seeds; ``wall_s`` is the run's own clock to the
 solving episode (training, from the run's start). Then one plain process,
@@ -39,10 +40,14 @@ from sweep import ROOT, fmt, run_sweep
 from runs.summary import summarize_run  # noqa: E402  (sweep puts the root on the path)
 
 
+#: ``--overrides``: set on every train.py run (a budget for a quick check of the script).
+EXTRA: list[str] = []
+
+
 def plain_run(overrides: list[str]) -> tuple[float, Path]:
     """One plain ``train.py robot=cartpole <overrides> quiet=true``, timed from outside:
     (seconds from start to exit, its run folder)."""
-    cmd = [sys.executable, "train.py", "robot=cartpole", *overrides, "quiet=true"]
+    cmd = [sys.executable, "train.py", "robot=cartpole", *overrides, *EXTRA, "quiet=true"]
     print("running:", " ".join(cmd), flush=True)
     start = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
@@ -98,7 +103,10 @@ def main() -> None:
     parser.add_argument("--learners", nargs="+", default=["dqn", "qlearn"], choices=["dqn", "qlearn"])
     parser.add_argument("--against", choices=["rainbow"],
                         help="instead: this learner against dqn, one plain run at a time per seed")
+    parser.add_argument("--overrides", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="set on every train.py run, e.g. max_env_steps=400 (a quick check)")
     args = parser.parse_args()
+    EXTRA[:] = args.overrides
     if args.against:
         return against(args.against, "dqn", args.seeds)
     seeds = ",".join(map(str, args.seeds))
@@ -108,7 +116,7 @@ def main() -> None:
             continue
         _, runs = run_sweep(f"time_to_solve_{learner}", [
             "robot=cartpole", f"learner={learner}", f"seed={seeds}", f"num_envs={n}",
-            "eval_episodes=0"])
+            "eval_episodes=0", *EXTRA])
         results[learner] = runs
         for r in runs:
             print(f"{learner:7s} seed={r.get('seed')} num_envs={n} solved={r.get('solved')} "

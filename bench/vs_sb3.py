@@ -1,6 +1,6 @@
 """Our ``dqn`` learner vs Stable-Baselines3 DQN on cartpole/stay_up (run by hand).
 
-    python bench/vs_sb3.py [--seed 0] [--cap 150000]
+    python bench/vs_sb3.py [--seed 0] [--cap 150000] [--overrides max_env_steps=400 ...]
 
 SB3 trains with rl-baselines3-zoo's CartPole-v1 hyperparameters
 (``hyperparams/dqn.yml``) on ``MujocoRL/CartPoleStayUp-v0`` through the
@@ -98,10 +98,10 @@ def run_sb3(seed: int, cap: int, win: Success) -> dict:
     return out
 
 
-def run_ours(seed: int) -> dict:
+def run_ours(seed: int, overrides: list[str]) -> dict:
     run_dir = ROOT / "outputs" / f"vs_sb3_{time.strftime('%Y%m%d-%H%M%S')}_dqn_seed{seed}"
     cmd = [sys.executable, "train.py", "robot=cartpole", "learner=dqn", "quiet=true",
-           f"seed={seed}", "eval_episodes=0", f"hydra.run.dir={run_dir}"]
+           f"seed={seed}", "eval_episodes=0", f"hydra.run.dir={run_dir}", *overrides]
     print("running:", " ".join(cmd), flush=True)
     subprocess.run(cmd, cwd=ROOT, check=False)
     s = summarize_run(run_dir)
@@ -143,9 +143,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cap", type=int, default=150_000, help="SB3 env steps at most")
+    parser.add_argument("--overrides", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="set on our train.py run, e.g. max_env_steps=400 (a quick check)")
     args = parser.parse_args()
     win = build_task(compose("cartpole", learner="dqn")).success
-    ours = run_ours(args.seed)
+    ours = run_ours(args.seed, args.overrides)
     sb3 = run_sb3(args.seed, args.cap, win)
     report(ours, sb3, args.seed, args.cap, win)
 

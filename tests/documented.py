@@ -54,6 +54,8 @@ SMALL = {
     "bench/width.py": "--members 4 --steps 20 --repeats 1",
     "bench/answers.py": "--rounds 1",
     "bench.benchmark --tune": "--dry-run",
+    "bench/time_to_solve.py": "--seeds 0 --overrides max_episodes=3 max_env_steps=400",
+    "bench/vs_sb3.py": "--cap 500 --overrides max_episodes=3 max_env_steps=400",
     "bench/first_step_path.py": "",  # small as it is: one build and one step
 }
 #: A mark in the command -> why it is not run here.
@@ -62,9 +64,7 @@ SKIP = {
     "slurm": "needs a Slurm cluster",
     "site_check.py": "needs Playwright's Chromium (bench/site_check.py: pip install playwright)",
     "tensorboard --logdir": "a server: the suite's tests/test_loggers.py reads what it serves",
-    "time_to_solve.py": "runs each learner to its win, minutes: no small budget",
-    "before_after.py": "builds and times a second checkout, minutes: no small budget",
-    "vs_sb3.py": "trains SB3's DQN to its threshold, minutes: no small budget",
+    "before_after.py": "needs the checkout's git history (it builds an earlier commit's worktree)",
     "rl_zoo3": "needs rl_zoo3 (not a dependency); tests/test_zoo.py checks the file and the ids",
     "adapters.zoo": "needs rl_zoo3 (not a dependency); tests/test_zoo.py checks the adapter",
 }
@@ -157,7 +157,7 @@ def budgeted(command: str) -> str:
     """``command`` with :data:`BUDGET` on its training part and :data:`SMALL` on a benchmark."""
     for mark, extra in SMALL.items():
         if mark in command:
-            command = re.sub(r"\s*\[[^\]]*\]", "", command)
+            command = re.sub(r"\s+\[[^\]]*\]", "", command)
             return f"{command} {extra}".rstrip()
     head, sep, train = command.rpartition("&& ")
     words = train.split()
