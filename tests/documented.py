@@ -56,7 +56,10 @@ SMALL = {
     "bench.benchmark --tune": "--dry-run",
     "bench/time_to_solve.py": "--seeds 0 --overrides max_episodes=3 max_env_steps=400",
     "bench/vs_sb3.py": "--cap 500 --overrides max_episodes=3 max_env_steps=400",
-    "bench/first_step_path.py": "",  # small as it is: one build and one step
+    "bench/first_step_path.py": "",
+    "rl_zoo3.train": "-n 2000 --eval-freq 1000 --eval-episodes 2",  # a best model for --load-best
+    "rl_zoo3.enjoy": "-n 200",
+    "adapters.zoo record_video": "-n 50",  # small as it is: one build and one step
 }
 #: A mark in the command -> why it is not run here.
 SKIP = {
@@ -65,8 +68,6 @@ SKIP = {
     "site_check.py": "needs Playwright's Chromium (bench/site_check.py: pip install playwright)",
     "tensorboard --logdir": "a server: the suite's tests/test_loggers.py reads what it serves",
     "before_after.py": "needs the checkout's git history (it builds an earlier commit's worktree)",
-    "rl_zoo3": "needs rl_zoo3 (not a dependency); tests/test_zoo.py checks the file and the ids",
-    "adapters.zoo": "needs rl_zoo3 (not a dependency); tests/test_zoo.py checks the adapter",
 }
 
 
