@@ -2,6 +2,7 @@
 
     python bench/seed_batch.py [--seeds 10] [--learners qlearn dqn] [--num-envs tuned 1]
                                [--qlearn-steps 150000] [--dqn-steps 30000]
+    python bench/seed_batch.py --robot pendulum --learners sac --num-envs tuned --sac-steps 10000
 
 Per learner and number of copies a seed (``tuned``: the tuned file's, read from
 ``conf/tuned/cartpole_<learner>.yaml``; a number: ``num_envs=<n>``), side by side in this run: one plain process
@@ -14,12 +15,13 @@ machine the wall time also counts the other jobs' turns); the peak memory is the
 resident set of the process. The load average is printed at the start and the end. The
 physics floor (``physics_floor_s``) is the batch's copy-steps (training and greedy
 evaluations) priced at this machine's rollout cost a copy-step at the batch's widths: no
-batch can go below it here. A dqn batch also has an update floor (``update_floor_s``): its
+batch can go below it here. A dqn or sac batch also has an update floor (``update_floor_s``): its
 gradient updates (the rounds its members made, read from their ``model.pt``) done as
 plain stacked PyTorch (the same network shapes, minibatch and members: each layer a
 batched product, the TD loss, backward and one ``torch.optim.Adam`` step) with no sampling
 or bookkeeping, timed in the same run; ``target_ratio`` is the batch's time over both
-floors (issue 64's targets: dqn at most 1.3, qlearn at most 1.5 over its physics floor).
+floors (issue 64's targets: dqn at most 1.3, qlearn at most 1.5 over its physics floor;
+issue 66's: sac at most 1.3).
 
 Its measurements (with their date and machine) are on the docs' performance page
 (docs/performance.md, "Seeds in one process").
@@ -34,6 +36,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import os
 import subprocess
 import sys
@@ -50,12 +53,15 @@ WRAP = ("import resource, subprocess, sys; code = subprocess.call(sys.argv[1:], 
         "print(r.ru_maxrss, r.ru_utime + r.ru_stime, file=sys.stderr); sys.exit(code)")
 
 
+ROBOT = "cartpole"  # --robot: the robot every run trains (its default task)
+
+
 def tuned_copies(learner: str) -> int:
-    """``num_envs`` of cart-pole's tuned file for ``learner`` (conf/tuned/cartpole_<learner>.yaml)."""
+    """``num_envs`` of the robot's tuned file for ``learner`` (conf/tuned/<robot>_<learner>.yaml)."""
     sys.path.insert(0, str(ROOT))
     from tasks.catalog import compose
 
-    return int(compose(robot="cartpole", learner=learner).num_envs)
+    return int(compose(robot=ROBOT, learner=learner).num_envs)
 
 
 def timed(cmd: list[str], cwd: Path = ROOT) -> tuple[float, float, float]:
@@ -73,8 +79,8 @@ def timed(cmd: list[str], cwd: Path = ROOT) -> tuple[float, float, float]:
 
 def budget(learner: str, args) -> list[str]:
     """The same env-step budget for every seed (so no seed waits for a slower one)."""
-    steps = args.qlearn_steps if learner == "qlearn" else args.dqn_steps
-    return [f"max_env_steps={steps}", "max_episodes=0", "stop_when_solved=false"]
+    steps = {"qlearn": args.qlearn_steps, "sac": args.sac_steps}.get(learner, args.dqn_steps)
+    return [f"robot={ROBOT}", f"max_env_steps={steps}", "max_episodes=0", "stop_when_solved=false"]
 
 
 def copies(value: str) -> str:
@@ -102,7 +108,7 @@ def physics_floor(learner: str, n: str, seeds: int, folder: Path) -> float:
     """Seconds the batch under ``folder`` needs for its physics alone (:func:`floor_of` at
     ``seeds`` x the copies a seed)."""
     copies_a_seed = tuned_copies(learner) if n == "tuned" else int(n)
-    return floor_of("cartpole", folder, seeds * copies_a_seed)
+    return floor_of(ROBOT, folder, seeds * copies_a_seed)
 
 
 def floor_of(robot: str, folder: Path, copies: int) -> float:
@@ -134,31 +140,29 @@ def per_copy_step(robot: str, copies: int, seconds: float = 2.0) -> float:
 
 
 def update_floor(folder: Path, seeds: int, rounds: int = 300) -> float:
-    """Seconds the dqn batch under ``folder`` needs for its gradient updates alone: the update
+    """Seconds the batch under ``folder`` needs for its gradient updates alone: the update
     rounds its members made (the most optimizer steps of a member, from the ``model.pt``
     files), each priced at one plain stacked PyTorch update of ``seeds`` members (the
-    members' network shapes and minibatch, from a job's ``config.yaml``: each linear layer
-    one ``baddbmm``, the double-DQN Huber TD loss, ``backward`` and one ``torch.optim.Adam``
-    step; no sampling, clipping or bookkeeping), timed over ``rounds`` updates."""
+    members' network shapes and minibatch, from a job's ``config.yaml``; each linear layer
+    one ``baddbmm``, ``backward`` and ``torch.optim.Adam``; no sampling, clipping or
+    bookkeeping): dqn's double-DQN Huber TD loss, or sac's three losses (twin critics with
+    target copies, a tanh-Gaussian actor, the temperature), timed over ``rounds`` updates."""
     import torch
     from omegaconf import OmegaConf
 
     models = list(folder.rglob("model.pt"))
     if not models:
         return 0.0
-    steps = max(int(torch.load(m, weights_only=False)["optimizer_steps"]) for m in models)
+    saved = [torch.load(m, weights_only=False) for m in models]
+    steps = max(int(m["optimizer_steps"]) for m in saved)
     cfg = OmegaConf.load(models[0].parent / "config.yaml")
-    state = torch.load(models[0], weights_only=False)["actor"]
-    shapes = [tuple(v.shape) for k, v in state.items() if k.endswith("weight")]  # [out, in] per linear layer
+    shapes = [tuple(v.shape) for k, v in saved[0]["actor"].items() if k.endswith("weight")]  # [out, in] a layer
     batch, activation = int(cfg.learner.batch_size), torch.relu if cfg.learner.activation == "relu" else torch.tanh
     gen = torch.Generator().manual_seed(0)
-    layers = [(torch.randn(seeds, o, i, generator=gen).mul_(0.1).requires_grad_(),
-               torch.zeros(seeds, 1, o).requires_grad_()) for o, i in shapes]
-    target = [(w.detach().clone(), b.detach().clone()) for w, b in layers]
-    optimizer = torch.optim.Adam([p for layer in layers for p in layer], lr=1e-3)
-    obs, nxt = torch.randn(seeds, batch, shapes[0][1], generator=gen), torch.randn(seeds, batch, shapes[0][1], generator=gen)
-    action = torch.randint(0, shapes[-1][0], (seeds, batch, 1), generator=gen)
-    reward = torch.randn(seeds, batch, 1, generator=gen)
+
+    def net(sizes: list[tuple[int, int]]) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        return [(torch.randn(seeds, o, i, generator=gen).mul_(0.1).requires_grad_(),
+                 torch.zeros(seeds, 1, o).requires_grad_()) for o, i in sizes]
 
     def q(params, x):
         for j, (w, b) in enumerate(params):
@@ -166,21 +170,82 @@ def update_floor(folder: Path, seeds: int, rounds: int = 300) -> float:
             x = activation(x) if j < len(params) - 1 else x
         return x
 
-    def update() -> None:
-        value = q(layers, obs).gather(-1, action)
-        with torch.no_grad():
-            best = q(layers, nxt).argmax(-1, keepdim=True)
-            goal = reward + 0.99 * q(target, nxt).gather(-1, best)
-        torch.nn.functional.smooth_l1_loss(value, goal).backward()
+    n_obs = shapes[0][1]
+    obs, nxt = torch.randn(seeds, batch, n_obs, generator=gen), torch.randn(seeds, batch, n_obs, generator=gen)
+    reward = torch.randn(seeds, batch, 1, generator=gen)
+    if cfg.learner.get("kind", None) == "sac" or str(cfg.learner._target_).endswith(".SAC"):
+        update, leaves = sac_update(net, q, shapes, obs, nxt, reward, gen)
+    else:
+        layers = net(shapes)
+        target = [(w.detach().clone(), b.detach().clone()) for w, b in layers]
+        action = torch.randint(0, shapes[-1][0], (seeds, batch, 1), generator=gen)
+        leaves = [p for layer in layers for p in layer]
+
+        def update() -> torch.Tensor:
+            value = q(layers, obs).gather(-1, action)
+            with torch.no_grad():
+                best = q(layers, nxt).argmax(-1, keepdim=True)
+                goal = reward + 0.99 * q(target, nxt).gather(-1, best)
+            return torch.nn.functional.smooth_l1_loss(value, goal)
+    optimizer = torch.optim.Adam(leaves, lr=1e-3)
+
+    def step() -> None:
+        update().backward()
         optimizer.step()
         optimizer.zero_grad()
 
     for _ in range(20):
-        update()
+        step()
     start = time.perf_counter()
     for _ in range(rounds):
-        update()
+        step()
     return (time.perf_counter() - start) / rounds * steps
+
+
+def sac_update(net, q, shapes, obs, nxt, reward, gen):
+    """One plain stacked SAC update for :func:`update_floor`: ``(loss function, leaves)``."""
+    import torch
+
+    n_act = shapes[-1][0] // 2
+    hidden = [o for o, _ in shapes[:-1]]
+    critic = list(zip([*hidden, 1], [shapes[0][1] + n_act, *hidden]))
+    actor, q1, q2 = net(shapes), net(critic), net(critic)
+    t1, t2 = ([(w.detach().clone(), b.detach().clone()) for w, b in c] for c in (q1, q2))
+    log_alpha = torch.zeros(obs.shape[0], 1, 1, requires_grad=True)
+    action = torch.rand(*obs.shape[:2], n_act, generator=gen) * 2 - 1
+    noise = torch.randn(2, *obs.shape[:2], n_act, generator=gen)
+
+    def pi(x, eps):
+        loc, scale = q(actor, x).chunk(2, -1)
+        scale = torch.nn.functional.softplus(scale) + 1e-4
+        u = loc + scale * eps
+        a = torch.tanh(u)
+        log_prob = (-0.5 * eps ** 2 - scale.log() - 0.5 * math.log(2 * math.pi)
+                    - 2 * (math.log(2) - u - torch.nn.functional.softplus(-2 * u))).sum(-1, keepdim=True)
+        return a, log_prob
+
+    def update() -> torch.Tensor:
+        alpha = log_alpha.detach().exp()
+        with torch.no_grad():
+            a2, lp2 = pi(nxt, noise[0])
+            after = torch.cat((nxt, a2), -1)
+            goal = reward + 0.99 * (torch.minimum(q(t1, after), q(t2, after)) - alpha * lp2)
+        taken = torch.cat((obs, action), -1)
+        critic_loss = (q(q1, taken) - goal).pow(2).mean() + (q(q2, taken) - goal).pow(2).mean()
+        a, lp = pi(obs, noise[1])
+        chosen = torch.cat((obs, a), -1)
+        frozen = [[(w.detach(), b.detach()) for w, b in c] for c in (q1, q2)]
+        actor_loss = (alpha * lp - torch.minimum(q(frozen[0], chosen), q(frozen[1], chosen))).mean()
+        alpha_loss = -(log_alpha * (lp.detach() - n_act)).mean()
+        with torch.no_grad():  # the targets follow (Polyak)
+            for target, online in ((t1, q1), (t2, q2)):
+                for (tw, tb), (w, b) in zip(target, online):
+                    tw.lerp_(w, 0.005)
+                    tb.lerp_(b, 0.005)
+        return critic_loss + actor_loss + alpha_loss
+
+    leaves = [p for n in (actor, q1, q2) for layer in n for p in layer] + [log_alpha]
+    return update, leaves
 
 
 def load() -> str:
@@ -195,7 +260,11 @@ def main() -> None:
                         help="copies a seed: 'tuned' (the tuned file's) and/or numbers")
     parser.add_argument("--qlearn-steps", type=int, default=150000)
     parser.add_argument("--dqn-steps", type=int, default=30000)
+    parser.add_argument("--sac-steps", type=int, default=10000)
+    parser.add_argument("--robot", default="cartpole", help="the robot every run trains (its default task)")
     args = parser.parse_args()
+    global ROBOT
+    ROBOT = args.robot
     if args.seeds < 1:
         sys.exit("error: --seeds must be >= 1")
     out = ROOT / "multirun" / f"bench_seed_batch_{time.strftime('%Y%m%d-%H%M%S')}"
