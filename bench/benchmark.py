@@ -155,7 +155,7 @@ def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
     jobs = []
     for task in tasks:
         spec = plan["tasks"][task]
-        for learner in learners:
+        for learner in args.learners or spec.get("learners", learners):  # a task's own list, where it has one
             variant = variants.get(learner, {})
             for setting in settings:
                 extra = [*spec.get("overrides", []), *variant.get("overrides", []),
