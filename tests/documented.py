@@ -56,6 +56,7 @@ SMALL = {
     "bench.benchmark --tune": "--dry-run",
     "bench/time_to_solve.py": "--seeds 0 --overrides max_episodes=3 max_env_steps=400",
     "bench/vs_sb3.py": "--cap 500 --overrides max_episodes=3 max_env_steps=400",
+    "bench/vs_sb3_continuous.py": "--cap 2000 --eval-every 1000 --out vs_sb3_check",
     "bench/first_step_path.py": "",
     "rl_zoo3.train": "-n 2000 --eval-freq 1000 --eval-episodes 2",  # a best model for --load-best
     "rl_zoo3.enjoy": "-n 200",
