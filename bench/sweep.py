@@ -13,6 +13,22 @@ sys.path.insert(0, str(ROOT))
 from runs.summary import summarize_run  # noqa: E402
 
 
+def run_to_solve(overrides: list[str], run_dir: Path) -> dict:
+    """One ``train.py <overrides> quiet=true`` into ``run_dir``: its summary, with ``solved``
+    and, at solving (or at the end when it did not), ``episodes``, ``env_steps`` and ``wall_s``
+    (the run's own clock)."""
+    cmd = [sys.executable, "train.py", *overrides, "quiet=true", f"hydra.run.dir={run_dir}"]
+    print("running:", " ".join(cmd), flush=True)
+    subprocess.run(cmd, cwd=ROOT, check=False)
+    s = summarize_run(run_dir)
+    if s.get("status") != "ok":
+        raise SystemExit(f"our run failed; see {run_dir}")
+    solved = bool(s["solved"])
+    return {**s, "solved": solved, "episodes": s["episodes_to_solve"] if solved else s["episodes"],
+            "env_steps": s["steps_to_solve"] if solved else s["env_steps"],
+            "wall_s": s["wall_to_solve"] if solved else s["wall_s"]}
+
+
 def run_sweep(name: str, overrides: list[str]) -> tuple[Path, list[dict]]:
     """``train.py -m <overrides>`` into ``multirun/<name>_<time>``; one summary per job."""
     sweep_dir = ROOT / "multirun" / f"{name}_{time.strftime('%Y%m%d-%H%M%S')}"

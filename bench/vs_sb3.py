@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -34,7 +33,8 @@ from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 from stable_baselines3.common.monitor import Monitor  # noqa: E402
 
 from tasks.base import Success  # noqa: E402
-from runs.summary import measure_keys, summarize_run  # noqa: E402
+from runs.summary import measure_keys  # noqa: E402
+from sweep import run_to_solve  # noqa: E402
 from tasks.factory import build_task  # noqa: E402
 from tasks.catalog import compose  # noqa: E402
 
@@ -100,19 +100,9 @@ def run_sb3(seed: int, cap: int, win: Success) -> dict:
 
 def run_ours(seed: int, overrides: list[str]) -> dict:
     run_dir = ROOT / "outputs" / f"vs_sb3_{time.strftime('%Y%m%d-%H%M%S')}_dqn_seed{seed}"
-    cmd = [sys.executable, "train.py", "robot=cartpole", "learner=dqn", "quiet=true",
-           f"seed={seed}", "eval_episodes=0", f"hydra.run.dir={run_dir}", *overrides]
-    print("running:", " ".join(cmd), flush=True)
-    subprocess.run(cmd, cwd=ROOT, check=False)
-    s = summarize_run(run_dir)
-    if s.get("status") != "ok":
-        raise SystemExit(f"our run failed; see {run_dir}")
-    solved = bool(s["solved"])
-    return {"learner": "ours dqn", "solved": solved,
-            "episodes": s["episodes_to_solve"] if solved else s["episodes"],
-            "env_steps": s["steps_to_solve"] if solved else s["env_steps"],
-            "wall_s": s["wall_to_solve"] if solved else s["wall_s"],
-            "best100": float(s[measure_keys(s["measure"], s["window"]).train_best_rolling]),
+    s = run_to_solve(["robot=cartpole", "learner=dqn", f"seed={seed}", "eval_episodes=0", *overrides], run_dir)
+    return {"learner": "ours dqn", "solved": s["solved"], "episodes": s["episodes"], "env_steps": s["env_steps"],
+            "wall_s": s["wall_s"], "best100": float(s[measure_keys(s["measure"], s["window"]).train_best_rolling]),
             "run_dir": str(run_dir)}
 
 

@@ -29,7 +29,6 @@ import argparse
 import json
 import math
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -46,7 +45,7 @@ from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 import adapters.register_gym  # noqa: E402,F401  (the ids)
 from adapters.gym_env import env_id  # noqa: E402
-from runs.summary import summarize_run  # noqa: E402
+from sweep import run_to_solve  # noqa: E402
 from tasks.base import Success  # noqa: E402
 from tasks.catalog import compose, default_task  # noqa: E402
 from tasks.factory import build_task  # noqa: E402
@@ -126,18 +125,10 @@ def run_sb3(algo: str, robot: str, seed: int, cap: int, every: int, success: Suc
 
 def run_ours(algo: str, robot: str, seed: int, cap: int, every: int, out: Path, overrides: list[str]) -> dict:
     run_dir = out / "ours" / f"{algo}_{robot}_seed{seed}"
-    cmd = [sys.executable, "train.py", f"robot={robot}", f"learner={algo}", "quiet=true", f"seed={seed}",
-           f"max_env_steps={cap}", "max_episodes=0", f"eval_every_steps={every}", "eval_every=1000000",
-           f"hydra.run.dir={run_dir}", *overrides]
-    print("running:", " ".join(cmd), flush=True)
-    subprocess.run(cmd, cwd=ROOT, check=False)
-    s = summarize_run(run_dir)
-    if s.get("status") != "ok":
-        raise SystemExit(f"our run failed; see {run_dir}")
-    solved = bool(s["solved"])
-    return {"side": f"ours {algo}", "solved": solved,
-            "env_steps": s["steps_to_solve"] if solved else s["env_steps"],
-            "wall_s": s["wall_to_solve"] if solved else s["wall_s"], "run_dir": str(run_dir)}
+    s = run_to_solve([f"robot={robot}", f"learner={algo}", f"seed={seed}", f"max_env_steps={cap}", "max_episodes=0",
+                      f"eval_every_steps={every}", "eval_every=1000000", *overrides], run_dir)
+    return {"side": f"ours {algo}", "solved": s["solved"], "env_steps": s["env_steps"], "wall_s": s["wall_s"],
+            "run_dir": str(run_dir)}
 
 
 def recorded(path: Path) -> list[dict]:
