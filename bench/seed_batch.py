@@ -146,7 +146,8 @@ def update_floor(folder: Path, seeds: int, rounds: int = 300) -> float:
     members' network shapes and minibatch, from a job's ``config.yaml``; each linear layer
     one ``baddbmm``, ``backward`` and ``torch.optim.Adam``; no sampling, clipping or
     bookkeeping): dqn's double-DQN Huber TD loss, or sac's three losses (twin critics with
-    target copies, a tanh-Gaussian actor, the temperature), timed over ``rounds`` updates."""
+    target copies, a tanh-Gaussian actor, the temperature), timed over ``rounds`` updates on
+    as many threads as the runs had (their ``torch_threads``)."""
     import torch
     from omegaconf import OmegaConf
 
@@ -194,11 +195,16 @@ def update_floor(folder: Path, seeds: int, rounds: int = 300) -> float:
         optimizer.step()
         optimizer.zero_grad()
 
-    for _ in range(20):
-        step()
-    start = time.perf_counter()
-    for _ in range(rounds):
-        step()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(int(cfg.get("torch_threads", threads)))  # as many threads as the batch's updates had
+    try:
+        for _ in range(20):
+            step()
+        start = time.perf_counter()
+        for _ in range(rounds):
+            step()
+    finally:
+        torch.set_num_threads(threads)
     return (time.perf_counter() - start) / rounds * steps
 
 
