@@ -126,6 +126,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+def learners_of(plan: dict, task: str, asked: list[str] | None = None) -> list[str]:
+    """The learners of ``task``: those ``asked``, else the task's own list where the plan
+    gives it one (the continuous-control tasks), else the plan's."""
+    return list(asked or plan["tasks"][task].get("learners", plan["learners"]))
+
+
 def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
     """The jobs asked for; :class:`BadInput` for anything that cannot run."""
     from tasks import catalog
@@ -134,7 +140,7 @@ def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
     unknown = [t for t in tasks if t not in plan["tasks"]]
     if unknown:
         raise BadInput(f"unknown task {unknown[0]!r}; the benchmark's tasks: {', '.join(plan['tasks'])}")
-    learners = args.learners or plan["learners"]
+    learners = args.learners or sorted({name for task in tasks for name in learners_of(plan, task)})
     variants = plan.get("variants", {})
     known = [*catalog.names("learner"), *variants]
     bad = [name for name in learners if name not in known]
@@ -155,7 +161,7 @@ def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
     jobs = []
     for task in tasks:
         spec = plan["tasks"][task]
-        for learner in args.learners or spec.get("learners", learners):  # a task's own list, where it has one
+        for learner in learners_of(plan, task, args.learners):
             variant = variants.get(learner, {})
             for setting in settings:
                 extra = [*spec.get("overrides", []), *variant.get("overrides", []),
@@ -737,7 +743,8 @@ def main(argv: list[str] | None = None) -> None:
             studies = check_studies(args.studies)
             if args.minutes:
                 return print_grid_minutes(studies)
-            sys.exit(1 if tune(load_plan(False), args.tasks, args.learners, args.dry_run, args.jobs, studies) else 0)
+            left = tune(load_plan(False), args.tasks, args.learners, args.dry_run, args.jobs, studies)
+            sys.exit(1 if left and not args.dry_run else 0)  # a dry run lists the pairs left: not a failure
         run(args)
     except BadInput as err:
         sys.exit(f"error: {err}")

@@ -136,6 +136,8 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
     With more than one at once, each sweep's console goes to ``tuning/bench/<pair>/<time>.log``.
     ``studies``: the journals' folder (from the project's root); any other than
     ``bench/studies`` is a replay, e.g. to time the grid: its studies write no tuned file."""
+    from bench.benchmark import learners_of
+
     tuning = plan["tuning"]
     write = Path(studies) == STUDIES and bool(tuning.get("write_tuned", True))
     (ROOT / studies).mkdir(parents=True, exist_ok=True)
@@ -146,7 +148,7 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
         if spec.get("overrides"):
             print(f"{task}: a variant of {spec['robot']}/{spec['task']} (overrides {spec['overrides']}): not tuned")
             continue
-        for learner in learners or plan["learners"]:
+        for learner in learners_of(plan, task, learners):
             name = f"{task}_{learner}"
             variant = plan.get("variants", {}).get(learner)
             if variant:
