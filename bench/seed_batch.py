@@ -174,7 +174,7 @@ def update_floor(folder: Path, seeds: int, rounds: int = 300) -> float:
     n_obs = shapes[0][1]
     obs, nxt = torch.randn(seeds, batch, n_obs, generator=gen), torch.randn(seeds, batch, n_obs, generator=gen)
     reward = torch.randn(seeds, batch, 1, generator=gen)
-    if cfg.learner.get("kind", None) == "sac" or str(cfg.learner._target_).endswith(".SAC"):
+    if saved[0]["kind"] == "sac":  # the learner that wrote model.pt
         update, leaves = sac_update(net, q, shapes, obs, nxt, reward, gen)
     else:
         layers = net(shapes)
