@@ -46,6 +46,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from tqdm import tqdm
 
+from bench.tune_grid import learners_of
 from sweeps import child
 from runs.layout import is_sweep_folder
 
@@ -124,12 +125,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "folder's runs.csv) and its trials' (their spans in its journal), and their sums; run nothing")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every run (after --)")
     return parser.parse_args(argv)
-
-
-def learners_of(plan: dict, task: str, asked: list[str] | None = None) -> list[str]:
-    """The learners of ``task``: those ``asked``, else the task's own list where the plan
-    gives it one (the continuous-control tasks), else the plan's."""
-    return list(asked or plan["tasks"][task].get("learners", plan["learners"]))
 
 
 def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:

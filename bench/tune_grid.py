@@ -127,6 +127,11 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(write).lower()}",
             f"hydra.sweep.dir={sweep_dir}"]
 
+def learners_of(plan: dict, task: str, asked: list[str] | None = None) -> list[str]:
+    """The learners of ``task``: those ``asked``, else the task's own list where the plan
+    gives it one (the continuous-control tasks), else the plan's."""
+    return list(asked or plan["tasks"][task].get("learners", plan["learners"]))
+
 
 def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_run: bool = False,
          jobs: int | None = None, studies: Path = STUDIES) -> int:
@@ -136,8 +141,6 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
     With more than one at once, each sweep's console goes to ``tuning/bench/<pair>/<time>.log``.
     ``studies``: the journals' folder (from the project's root); any other than
     ``bench/studies`` is a replay, e.g. to time the grid: its studies write no tuned file."""
-    from bench.benchmark import learners_of
-
     tuning = plan["tuning"]
     write = Path(studies) == STUDIES and bool(tuning.get("write_tuned", True))
     (ROOT / studies).mkdir(parents=True, exist_ok=True)
