@@ -21,7 +21,9 @@ in the lowest layer, ``params``, so that every package may use it.)
   and the ``_torchrl_native_autoreset`` flag: the env's one-pass step overrides the method
   and falls back to it whenever one of the others says ``EnvBase``'s own path applies.
 - Hydra ``hydra._internal.core_plugins.basic_sweeper.BasicSweeper``: a sweep's job list
-  is expanded as Hydra's basic sweeper expands it.
+  is expanded as Hydra's basic sweeper expands it, and the multirun default
+  (``hydra/sweeper=seeds``) is that sweeper, its pass composing every job left to the seeds
+  launcher, which composes them itself.
 - Hydra ``ConfigLoaderImpl._apply_overrides_to_config`` and ``get_overrides_dirname``
   (``hydra._internal.config_loader_impl``): the step of Hydra's composition that sets a
   job's ``key=value`` overrides on the composed config, and the job's

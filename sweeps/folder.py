@@ -48,7 +48,7 @@ def planned_jobs(sweep_dir: Path) -> Plan:
         if str(sweeper.get("_target_")).endswith(".OptunaSweeper"):  # hydra/sweeper=optuna
             # It asks its study for one batch of trials at a time: no job is planned ahead.
             return Plan(None, {k: cfg.hydra.runtime.choices.get(k) for k in PICKS})
-        if not str(sweeper.get("_target_")).endswith(".BasicSweeper"):
+        if not str(sweeper.get("_target_")).endswith((".BasicSweeper", ".SeedBatchSweeper")):  # seeds: basic's own
             return Plan(None, note=f"{path}: sweeper {sweeper.get('_target_')} is not Hydra's basic "
                                    "sweeper: jobs that never started cannot be listed")
         params = [f"{k}={v}" for k, v in (sweeper.get("params") or {}).items()]

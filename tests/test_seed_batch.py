@@ -561,3 +561,26 @@ def test_a_sweeps_jobs_are_composed_as_hydra_composes_each(monkeypatch):
     assert [OmegaConf.to_yaml(cfg) for cfg in ours] == [OmegaConf.to_yaml(cfg) for cfg in theirs]
     assert [(cfg.learner.lr, cfg.learner.hidden, cfg.seed) for cfg in ours[:3]] == [
         (0.001, [64, 64], 0), (0.001, [64, 64], 1), (3e-3, [32], 0)]
+
+
+def test_the_multirun_sweeper_leaves_composing_the_jobs_to_the_seeds_launcher():
+    """hydra/sweeper=seeds composes no job beforehand when the seeds launcher will (it composes
+    every job before any starts); with any other launcher it checks each job as Hydra's does."""
+    from types import SimpleNamespace
+
+    from hydra._internal.core_plugins.basic_launcher import BasicLauncher
+
+    from hydra_plugins.rl_seed_launcher.seed_launcher import SeedBatchLauncher, SeedBatchSweeper
+
+    calls = []
+    sweeper = SeedBatchSweeper(max_batch_size=None, params=None)
+    sweeper.config = object()
+    sweeper.hydra_context = SimpleNamespace(config_loader=SimpleNamespace(
+        load_sweep_config=lambda master_config, sweep_overrides: calls.append(sweep_overrides)))
+    batch = [["seed=0"], ["seed=1"]]
+    sweeper.launcher = SeedBatchLauncher()
+    sweeper.validate_batch_is_legal(batch)
+    assert calls == []
+    sweeper.launcher = BasicLauncher()  # (hydra/launcher=basic; joblib and submitit alike)
+    sweeper.validate_batch_is_legal(batch)
+    assert calls == batch
