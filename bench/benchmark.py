@@ -575,6 +575,19 @@ def finished(job: Job, out: Path) -> bool:
     return job_record(job, out).get("returncode") in (0, 1)
 
 
+def trained_elsewhere(job: Job, out: Path) -> bool:
+    """Whether another process trains ``job`` in ``out`` now (one of its seeds' folders is
+    locked by a live run): said in one line, and the pair left to that process, which
+    writes its record when it ends."""
+    from runs.folder import lock_holder
+
+    sweep = out / job.folder
+    holders = {lock_holder(run) for run in sweep.iterdir() if run.is_dir()} - {None} if sweep.is_dir() else set()
+    if holders:
+        print(f"{job.folder}: trained now by another process (pid {', '.join(sorted(holders))}); left to it")
+    return bool(holders)
+
+
 def merge(old: list[Job], new: list[Job], out: Path) -> list[Job]:
     """The plan of a results folder given more jobs: the old ones in order, a new job in
     place of an old one of the same task, learner and setting unless that one finished."""
@@ -612,7 +625,7 @@ def run(args: argparse.Namespace) -> Path:
     if page is not None:  # before any pair runs: a page that cannot take the table is told now
         page_text(page, args.block)
     if not args.read:
-        todo = [job for job in runnable if not finished(job, out)]
+        todo = [job for job in runnable if not finished(job, out) and not trained_elsewhere(job, out)]
         for job in todo:
             check_budget(job)
             if args.budget is None:  # the plan's budget: the tuned files must carry it

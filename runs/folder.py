@@ -328,6 +328,22 @@ def run_lock(run_dir: Path) -> Iterator[None]:
         os.close(fd)
 
 
+def lock_holder(run_dir: Path) -> str | None:
+    """The pid of the live run holding ``run_dir``'s lock (:func:`run_lock`), or None: no
+    lock there, or its holder is gone."""
+    try:
+        fd = os.open(run_dir / ".lock", os.O_RDONLY)
+    except FileNotFoundError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)  # refused while a run holds it exclusively
+        return None
+    except BlockingIOError:
+        return os.read(fd, 32).decode(errors="replace").strip() or "?"
+    finally:
+        os.close(fd)  # and with it the shared lock this took
+
+
 def start_run(cfg: DictConfig, run_dir: Path, choices: Mapping[str, str | None],
               overrides: list[str]) -> None:
     """A new run's folder: refused if it already holds a run; then config.yaml and run.json."""

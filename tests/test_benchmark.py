@@ -175,6 +175,26 @@ def test_a_results_folder_takes_more_jobs_and_keeps_finished_ones(tmp_path):
         benchmark.merge([done], [job("qlearn", 5000)], tmp_path)
 
 
+def test_a_pair_another_process_trains_is_left_to_it(tmp_path, capsys):
+    """Two benchmarks on one ``--out``: the second leaves a pair whose seeds the first trains
+    now (a seed folder's lock held), with a line; it starts no run there and writes no record
+    for it, so the first's record and console stay its own."""
+    from runs.folder import run_lock
+
+    argv = ["--quick", "--learners", "qlearn", "--seeds", "1", "--out", str(tmp_path), "--no-readme"]
+    [job] = benchmark.plan_jobs(benchmark.parse_args(argv), benchmark.load_plan(True))
+    seed = tmp_path / job.folder / "0_cartpole_qlearn_seed1000"
+    seed.mkdir(parents=True)
+    assert not benchmark.trained_elsewhere(job, tmp_path)  # a folder nobody holds
+    with run_lock(seed):
+        benchmark.main(argv)
+        assert f"{job.folder}: trained now by another process (pid {os.getpid()}); left to it" \
+            in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / job.folder).iterdir()) == ["0_cartpole_qlearn_seed1000"]
+    assert not (tmp_path / job.folder).with_suffix(".json").exists()
+    assert not benchmark.trained_elsewhere(job, tmp_path)  # its holder gone: the next run takes it
+
+
 def test_the_tuned_setting_names_and_uses_a_task_tuned_file(tmp_path):
     """A task's tuned file (conf/tuned/<robot>_<task>_<learner>.yaml) counts as a tuned file of
     the job, applies on top of the robot's in what the job's runs compose, is named in the
