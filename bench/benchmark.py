@@ -582,9 +582,11 @@ def trained_elsewhere(job: Job, out: Path) -> bool:
     from runs.folder import lock_holder
 
     sweep = out / job.folder
-    holders = {lock_holder(run) for run in sweep.iterdir() if run.is_dir()} - {None} if sweep.is_dir() else set()
+    if not sweep.is_dir():
+        return False
+    holders = sorted({lock_holder(run) for run in sweep.iterdir() if run.is_dir()} - {None})
     if holders:
-        print(f"{job.folder}: trained now by another process (pid {', '.join(sorted(holders))}); left to it")
+        print(f"{job.folder}: trained now by another process (pid {', '.join(holders)}); left to it")
     return bool(holders)
 
 

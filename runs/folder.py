@@ -316,7 +316,7 @@ def run_lock(run_dir: Path) -> Iterator[None]:
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+        holder = _pid_in(fd)
         os.close(fd)
         raise ConfigError(f"run folder {run_dir} is in use by another run (pid {holder}); let it "
                           "finish or pick another folder") from None
@@ -326,6 +326,11 @@ def run_lock(run_dir: Path) -> Iterator[None]:
         yield
     finally:
         os.close(fd)
+
+
+def _pid_in(fd: int) -> str:
+    """The pid a run wrote into its lock file (``?`` if it has not yet)."""
+    return os.read(fd, 32).decode(errors="replace").strip() or "?"
 
 
 def lock_holder(run_dir: Path) -> str | None:
@@ -339,7 +344,7 @@ def lock_holder(run_dir: Path) -> str | None:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)  # refused while a run holds it exclusively
         return None
     except BlockingIOError:
-        return os.read(fd, 32).decode(errors="replace").strip() or "?"
+        return _pid_in(fd)
     finally:
         os.close(fd)  # and with it the shared lock this took
 
