@@ -537,7 +537,10 @@ def eval_verdict_lines(record: dict, run_dir: Path) -> list[str]:
 def _stuck_line(s: dict, unit: str) -> str:
     """The verdict's line on a stuck start (:class:`runs.run.StartWatch`)."""
     steps, made = s["stuck_steps"], s["env_steps"]
-    when = "and never left it" if steps >= made else f"for its first {steps:,} env steps ({steps / made:.0%} of {made:,})"
+    if steps < made:
+        when = f"for its first {steps:,} env steps ({steps / made:.0%} of {made:,})"
+    else:  # left at its last step (the evaluation that solved it) or never
+        when = "until the evaluation that solved it, its last" if s["solved"] else "and never left it"
     return (f"  a stuck start: it stayed at its untrained level (mean {s['description']} {_num(s['start_level'])}"
             f"{unit} over its first 20 episodes) {when}")
 

@@ -360,6 +360,16 @@ def test_a_run_that_stays_at_its_untrained_level_says_it_had_a_stuck_start(tmp_p
     assert not any("stuck start" in line for line in verdict_lines(s, tmp_path))
 
 
+def test_a_stuck_start_left_by_the_evaluation_that_solved_the_run_does_not_read_never_left():
+    """A ppo point-mass seed sat at its untrained level until the greedy evaluation that
+    solved it, at its last env step: its verdict said it 'never left it'."""
+    from runs.summary import _stuck_line
+
+    s = {"stuck_steps": 30000, "env_steps": 30000, "description": "held", "start_level": 0.0}
+    assert _stuck_line({**s, "solved": True}, "").endswith("until the evaluation that solved it, its last")
+    assert _stuck_line({**s, "solved": False}, "").endswith("and never left it")
+
+
 def test_a_greedy_policy_that_drives_is_no_stuck_start_and_the_folder_replays_the_watch(tmp_path):
     """On the wall an exploring Q-learner's training episodes stay at their start while its
     greedy policy drives: a greedy evaluation above the level ends the stuck start too. The
