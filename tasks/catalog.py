@@ -32,6 +32,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
+from params.private_api import configs_parsed_once
 from robots.folders import MODEL_FOLDERS
 
 if TYPE_CHECKING:  # building a task imports MuJoCo and torch: only the functions that build do
@@ -220,7 +221,7 @@ def _compose(overrides: list[str]) -> DictConfig:
     app = gh.hydra if gh.is_initialized() else None
     gh.clear()
     try:
-        with initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
+        with configs_parsed_once(), initialize_config_dir(config_dir=str(conf_dir()), version_base="1.3"):
             extra = [f"hydra.searchpath=[{','.join(f'file://{d}' for d in _EXTRA_DIRS)}]"]
             return hydra_compose(config_name="config", overrides=[*extra[:len(_EXTRA_DIRS) > 0],
                                                                   *overrides],

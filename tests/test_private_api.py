@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import inspect
 
+import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
@@ -65,3 +66,37 @@ def test_hydra_sets_value_overrides_and_names_the_override_dirname():
     private_api.apply_value_overrides(overrides[:2], cfg)
     assert cfg.a.b == 2 and list(cfg.a.c) == [3, 4]
     assert private_api.overrides_dirname(overrides, cfg) == "a.b=2,a.c=[3,4]"
+
+
+def test_hydras_sources_read_yaml_with_omegaconf_load_and_a_parse_is_reused_not_shared(tmp_path):
+    """``configs_parsed_once``: Hydra's file and package sources read through
+    ``OmegaConf.load(<open file>)``; within it, a text read again is a copy of its first parse
+    (never the same object), an edited file is read anew, and a file that does not parse
+    fails as it does without it."""
+    from hydra._internal.core_plugins import file_config_source, importlib_resources_config_source
+    from omegaconf import OmegaConf
+
+    from tasks.catalog import compose
+
+    for module in (file_config_source, importlib_resources_config_source):
+        assert "OmegaConf.load(f)" in inspect.getsource(module), f"{module.__name__} no longer reads with OmegaConf.load"
+    path = tmp_path / "a.yaml"
+    path.write_text("a: {b: 1}\n")
+    with private_api.configs_parsed_once():
+        with open(path) as f:
+            first = OmegaConf.load(f)
+        first.a.b = 5  # a caller's edit is its own
+        with open(path) as f:
+            assert OmegaConf.load(f) == {"a": {"b": 1}}
+        path.write_text("a: {b: 2}\n")
+        with open(path) as f:
+            assert OmegaConf.load(f) == {"a": {"b": 2}}
+        path.write_text("a: [1\n")
+        with open(path) as f, pytest.raises(Exception) as within:
+            OmegaConf.load(f)
+        assert compose("cartpole", learner="dqn") == compose("cartpole", learner="dqn")
+    with open(path) as f, pytest.raises(Exception) as plain:
+        OmegaConf.load(f)
+    assert str(within.value) == str(plain.value)
+    assert not getattr(OmegaConf.load, "parsed_once", False)  # restored on leaving
+    assert compose("cartpole", learner="dqn") == compose("cartpole", learner="dqn")
