@@ -1,6 +1,6 @@
 """Composing configs with and without each YAML text parsed once per process (run by hand).
 
-    python bench/compose.py [--rounds 3]
+    python bench/compose.py [--rounds 3] [--robots cartpole cube ...]
 
 Composes every shipped robot with every learner (``tasks.catalog.compose``, as a sweep's
 jobs, the benchmark's pairs and the suite's tables of inputs do), once as Hydra alone would
@@ -26,12 +26,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--robots", nargs="+", help="the robots composed (default: every shipped one)")
     args = parser.parse_args()
 
     from params import private_api
     from tasks.catalog import compose, names
 
-    pairs = [(robot, learner) for robot in names("robot") for learner in names("learner")]
+    pairs = [(robot, learner) for robot in args.robots or names("robot") for learner in names("learner")]
 
     def compose_all(forget: bool) -> tuple[float, list]:
         start, configs = time.process_time(), []

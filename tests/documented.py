@@ -58,6 +58,7 @@ SMALL = {
     "bench/vs_sb3.py": "--cap 500 --overrides max_episodes=3 max_env_steps=400",
     "bench/vs_sb3_continuous.py": "--cap 2000 --eval-every 1000 --out vs_sb3_check",
     "bench/first_step_path.py": "",
+    "bench/compose.py": "--rounds 1 --robots cartpole",
     "rl_zoo3.train": "-n 2000 --eval-freq 1000 --eval-episodes 2",  # a best model for --load-best
     "rl_zoo3.enjoy": "-n 200",
     "adapters.zoo record_video": "-n 50",  # small as it is: one build and one step
