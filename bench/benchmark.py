@@ -54,7 +54,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PLAN = Path(__file__).with_name("benchmark.yaml")
 BEGIN, END = "<!-- benchmark:begin -->", "<!-- benchmark:end -->"
 SETTINGS = ("published", "tuned")
-STOPPED = 128 + signal.SIGINT  # train.py's exit code when Ctrl-C stopped it (its checkpoints saved)
+#: train.py's exit codes when Ctrl-C or SIGTERM stopped it (its checkpoints saved), or the signal itself.
+STOPPED = {128 + signal.SIGINT, 128 + signal.SIGTERM, -signal.SIGINT, -signal.SIGTERM}
 SEED_COLUMNS = ("task", "robot/task", "learner", "setting", "seed", "status", "success", "verdict",
                 "measure", "threshold", "greedy", "greedy_rate", "env_steps", "wall_s", "steps_to_solve",
                 "wall_to_solve", "stuck", "stuck_steps", "error", "run_dir")
@@ -294,7 +295,7 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
     its command, exit code, start (local time) and wall seconds (from its start; ``resumed``:
     from where it went on) go to ``<learner>_<setting>.json`` beside its sweep, with its seeds' rows
     (:func:`pair_seeds`); its console is ``<learner>_<setting>.log``. The bar moves as each
-    seed writes its verdict; a pair that Ctrl-C stopped gets no record (the same command goes
+    seed writes its verdict; a pair that Ctrl-C or SIGTERM stopped gets no record (the same command goes
     on with it). ``solo`` (one pair at a time): also times the pair's first
     seed trained alone (``solo_wall_s``), to say what training the seeds in one process saved."""
     commands = [pair_command(job, out) for job in todo]
@@ -315,7 +316,7 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
         done[i] = max(done[i], finished)
 
     def ended(i: int, returncode: int) -> None:
-        if returncode in (STOPPED, -signal.SIGINT):  # Ctrl-C: no record, so the same command goes on with it
+        if returncode in STOPPED:  # Ctrl-C or SIGTERM: no record, so the same command goes on with it
             return
         job, (cmd, resumed) = todo[i], commands[i]
         wall = time.perf_counter() - begun[i]

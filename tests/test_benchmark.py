@@ -633,3 +633,30 @@ def test_every_tuned_file_of_the_plan_carries_its_pairs_budget():
                        r"turtlebot_wall_qlearn.yaml judges wall x qlearn with max_env_steps=100000 max_episodes=2000, "
                        r"the plan with 100000 env steps"):
         benchmark.check_tuned_budget(other)
+
+
+@pytest.mark.parametrize("returncode", [128 + signal.SIGINT, 128 + signal.SIGTERM, -signal.SIGTERM])
+def test_a_pair_a_signal_stopped_gets_no_record(tmp_path, monkeypatch, returncode):
+    """A pair whose seeds a Ctrl-C or a SIGTERM stopped (train.py saved their checkpoints)
+    gets no record, so the same command goes on with it: a SIGTERM's exit 143 was recorded
+    as a pair that had ended, and the page counted its unfinished seeds 0/10."""
+    from tqdm import tqdm
+
+    _, job, out = small_pair(tmp_path)
+
+    def pair_exits(code: int) -> None:
+        def call_all(cmds, cwd, jobs, logs, started, ended, poll):
+            for i, log in enumerate(logs):
+                log.parent.mkdir(parents=True, exist_ok=True)
+                log.write_text("its console\n")
+                started(i)
+                ended(i, code)
+
+        monkeypatch.setattr(child, "call_all", call_all)
+        with tqdm(total=len(job.seeds), disable=True) as bar:
+            benchmark.run_pairs([job], out, bar)
+
+    pair_exits(returncode)
+    assert benchmark.job_record(job, out) == {}
+    pair_exits(2)
+    assert benchmark.job_record(job, out)["returncode"] == 2  # a pair that failed is recorded
