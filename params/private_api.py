@@ -147,7 +147,9 @@ def configs_parsed_once() -> Iterator[None]:
         if isinstance(text, bytes):
             text = text.decode("utf-8")
         parsed = _PARSED.get(text)
-        if parsed is None:
+        if parsed is not None:
+            _PARSED.move_to_end(text)  # the least recently read goes first
+        else:
             file_.seek(start)
             parsed = _PARSED[text] = original(file_)
             if len(_PARSED) > _PARSED_MAX:
