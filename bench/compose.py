@@ -1,15 +1,16 @@
-"""Composing configs with and without each YAML text parsed once per process (run by hand).
+"""Composing configs: as Hydra alone, with each YAML text parsed once, and with each composition kept (run by hand).
 
     python bench/compose.py [--rounds 3] [--robots cartpole cube ...]
 
 Composes every shipped robot with every learner (``tasks.catalog.compose``, as a sweep's
-jobs, the benchmark's pairs and the suite's tables of inputs do), once as Hydra alone would
-(the parses forgotten before each composition: every file read and parsed at each) and once
-with ``params.private_api.configs_parsed_once``'s parses kept (each text parsed once in the
-process), alternating for ``--rounds`` rounds in this one process, and checks that both give
-the same configs. Prints the CPU seconds of each and
-their ratio; last line ``COMPOSE compositions=<n> plain_s=<v> parsed_once_s=<v> ratio=<v>``
-(the medians over the rounds).
+jobs, the benchmark's pairs and the suite's tables of inputs do) three ways, alternating for
+``--rounds`` rounds in this one process: as Hydra alone would (every file read and parsed at
+each composition), with ``params.private_api.configs_parsed_once``'s parses kept (each text
+parsed once in the process), and with ``tasks.catalog``'s compositions kept too (each
+composition made once in the process, then copied: the round after the first is all
+copies); checks that all three give the same configs. Prints the CPU seconds of each and
+their ratios to the first; last line ``COMPOSE compositions=<n> plain_s=<v>
+parsed_once_s=<v> ratio=<v> kept_s=<v> kept_ratio=<v>`` (the medians over the rounds).
 """
 
 from __future__ import annotations
@@ -30,30 +31,40 @@ def main() -> None:
     args = parser.parse_args()
 
     from params import private_api
+    from tasks import catalog
     from tasks.catalog import compose, names
 
     pairs = [(robot, learner) for robot in args.robots or names("robot") for learner in names("learner")]
 
-    def compose_all(forget: bool) -> tuple[float, list]:
+    def compose_all(forget_parses: bool, forget_compositions: bool) -> tuple[float, list]:
         start, configs = time.process_time(), []
         for robot, learner in pairs:
-            if forget:
+            if forget_compositions:
+                catalog._COMPOSED.clear()  # this composition is made, not copied
+            if forget_parses:
                 private_api._PARSED.clear()  # as Hydra alone: this composition parses its files
             configs.append(compose(robot, learner=learner))
         return time.process_time() - start, configs
 
-    compose_all(True)  # imports and Hydra's plugin scan, outside the timing
-    plain, once = [], []
+    catalog.COMPOSED_KEPT = max(catalog.COMPOSED_KEPT, len(pairs))  # every pair kept (~0.2 MB each)
+    compose_all(True, True)  # imports and Hydra's plugin scan, outside the timing
+    plain, once, kept = [], [], []
     for k in range(args.rounds):
-        seconds, expected = compose_all(True)
+        seconds, expected = compose_all(True, True)
         plain.append(seconds)
-        seconds, configs = compose_all(False)
+        seconds, configs = compose_all(False, True)
         once.append(seconds)
         assert configs == expected, "a composition differs when its files are parsed once"
-        print(f"round {k + 1}: {len(pairs)} compositions, plain {plain[-1]:.1f} s, "
-              f"parsed once {once[-1]:.1f} s, ratio {once[-1] / plain[-1]:.2f}", flush=True)
-    p, o = statistics.median(plain), statistics.median(once)
-    print(f"COMPOSE compositions={len(pairs)} plain_s={p:.2f} parsed_once_s={o:.2f} ratio={o / p:.2f}")
+        compose_all(False, False)  # made once, kept
+        seconds, configs = compose_all(False, False)
+        kept.append(seconds)
+        assert configs == expected, "a kept composition differs from one made anew"
+        print(f"round {k + 1}: {len(pairs)} compositions, plain {plain[-1]:.1f} s, parsed once {once[-1]:.1f} s "
+              f"(ratio {once[-1] / plain[-1]:.2f}), kept {kept[-1]:.2f} s (ratio {kept[-1] / plain[-1]:.3f})",
+              flush=True)
+    p, o, c = statistics.median(plain), statistics.median(once), statistics.median(kept)
+    print(f"COMPOSE compositions={len(pairs)} plain_s={p:.2f} parsed_once_s={o:.2f} ratio={o / p:.2f} "
+          f"kept_s={c:.2f} kept_ratio={c / p:.3f}")
 
 
 if __name__ == "__main__":

@@ -19,10 +19,17 @@ relative ``model`` path is resolved against the folder its ``robot/<name>.yaml``
 in (:func:`locate_model`), so a copied folder works anywhere. A task fits a robot when it
 builds with it: each task's ``setup`` refuses a robot of another class (:func:`built`).
 A description is the first sentence of the config file's header comment (:func:`summary`).
+A composition is made once per process and handed out as copies until a config file
+changes (:func:`_compose`; ``bench/compose.py`` prices it).
 """
 
 from __future__ import annotations
 
+import copy
+import hashlib
+import os
+import threading
+from collections import OrderedDict
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping, Sequence
@@ -216,7 +223,47 @@ def _resolved(cfg: DictConfig) -> DictConfig:
     return cfg
 
 
+# Compositions kept in this process, by what decides them (:func:`_compose`), least recently
+# used first out: a gym vector env's copies, a study's checks and the suite's tables compose
+# the same config again and again (~0.4 s each on a 2-core machine; a kept one: its copy).
+_COMPOSED: OrderedDict[tuple, DictConfig] = OrderedDict()
+COMPOSED_KEPT = 64
+_COMPOSED_LOCK = threading.Lock()  # a launcher's threads may compose at once
+
+
+def _config_texts() -> str:
+    """A digest of every YAML file of the config folders (its path and text): a kept
+    composition is used only while no config file was added, removed or edited."""
+    digest = hashlib.blake2b(digest_size=16)
+    for folder in config_dirs():
+        for path in sorted(folder.rglob("*.yaml")):
+            digest.update(str(path).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
 def _compose(overrides: list[str]) -> DictConfig:
+    """Hydra's composition of ``config`` with ``overrides``, of its ``hydra`` node only
+    ``runtime.choices`` and ``runtime.config_sources``: a copy of the one this process made for
+    the same overrides, config folders, files and working directory, else composed now."""
+    key = (tuple(overrides), tuple(str(d) for d in config_dirs()), _config_texts(), os.getcwd())
+    with _COMPOSED_LOCK:
+        kept = _COMPOSED.get(key)
+        if kept is not None:
+            _COMPOSED.move_to_end(key)
+    if kept is not None:
+        return copy.deepcopy(kept)
+    cfg = _hydra_compose(overrides)
+    runtime = cfg.hydra.runtime
+    with open_dict(cfg):
+        cfg.hydra = {"runtime": {"choices": runtime.choices, "config_sources": runtime.config_sources}}
+    with _COMPOSED_LOCK:
+        _COMPOSED[key] = copy.deepcopy(cfg)
+        while len(_COMPOSED) > COMPOSED_KEPT:
+            _COMPOSED.popitem(last=False)
+    return cfg
+
+
+def _hydra_compose(overrides: list[str]) -> DictConfig:
     gh = GlobalHydra.instance()
     app = gh.hydra if gh.is_initialized() else None
     gh.clear()

@@ -178,6 +178,21 @@ def test_no_tuned_drops_both_layers(task_layer):
     assert catalog.with_tuned_layers(["~tuned", "~tuned@_global_"]) == ["~tuned", "~tuned@_global_"]
 
 
+def test_a_composition_is_made_once_and_made_again_when_a_config_file_changes(task_layer):
+    """catalog.compose keeps each composition for the process and hands out copies; an
+    edited, added or removed YAML file of a config folder makes it anew."""
+    first = catalog.compose("cartpole", learner="qlearn")
+    assert first.learner.alpha == 0.31
+    first.learner.alpha = -1.0  # a copy: the next one is untouched
+    assert catalog.compose("cartpole", learner="qlearn").learner.alpha == 0.31
+    layer = task_layer / "tuned" / "cartpole_stay_up_qlearn.yaml"
+    layer.write_text(layer.read_text().replace("0.31", "0.42"))  # same size, same second
+    assert catalog.compose("cartpole", learner="qlearn").learner.alpha == 0.42
+    layer.unlink()
+    robot_file = OmegaConf.load(CONF / "tuned" / "cartpole_qlearn.yaml")
+    assert catalog.compose("cartpole", learner="qlearn").learner.alpha == robot_file.learner.alpha
+
+
 def test_a_task_tuned_file_without_a_robot_one_applies_alone(tmp_path):
     (tmp_path / "tuned").mkdir()
     (tmp_path / "tuned" / "acrobot_swingup_mbalunovic.yaml").write_text("# @package _global_\nlearner:\n  gamma: 0.9\n")
