@@ -232,11 +232,12 @@ _COMPOSED_LOCK = threading.Lock()  # a launcher's threads may compose at once
 
 
 def _config_texts() -> str:
-    """A digest of every YAML file of the config folders (its path and text): a kept
-    composition is used only while no config file was added, removed or edited."""
+    """A digest of every YAML file of the config folders, three levels deep (``config.yaml``,
+    ``robot/x.yaml``, ``hydra/launcher/x.yaml``), by path and text: a kept composition is used
+    only while no config file was added, removed or edited."""
     digest = hashlib.blake2b(digest_size=16)
     for folder in config_dirs():
-        for path in sorted(folder.rglob("*.yaml")):
+        for path in sorted(p for depth in ("", "*/", "*/*/") for p in folder.glob(f"{depth}*.yaml")):
             digest.update(str(path).encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()
 
