@@ -26,10 +26,9 @@ changes (:func:`_compose`; ``bench/compose.py`` prices it).
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import os
-import threading
-from collections import OrderedDict
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping, Sequence
@@ -223,14 +222,6 @@ def _resolved(cfg: DictConfig) -> DictConfig:
     return cfg
 
 
-# Compositions kept in this process, by what decides them (:func:`_compose`), least recently
-# used first out: a gym vector env's copies, a study's checks and the suite's tables compose
-# the same config again and again (~0.4 s each on a 2-core machine; a kept one: its copy).
-_COMPOSED: OrderedDict[tuple, DictConfig] = OrderedDict()
-COMPOSED_KEPT = 64
-_COMPOSED_LOCK = threading.Lock()  # a launcher's threads may compose at once
-
-
 def _config_texts() -> str:
     """A digest of every YAML file of the config folders, three levels deep (``config.yaml``,
     ``robot/x.yaml``, ``hydra/launcher/x.yaml``), by path and text: a kept composition is used
@@ -245,22 +236,22 @@ def _config_texts() -> str:
 def _compose(overrides: list[str]) -> DictConfig:
     """Hydra's composition of ``config`` with ``overrides``, of its ``hydra`` node only
     ``runtime.choices`` and ``runtime.config_sources``: a copy of the one this process made for
-    the same overrides, config folders, files and working directory, else composed now."""
-    key = (tuple(overrides), tuple(str(d) for d in config_dirs()), _config_texts(), os.getcwd())
-    with _COMPOSED_LOCK:
-        kept = _COMPOSED.get(key)
-        if kept is not None:
-            _COMPOSED.move_to_end(key)
-    if kept is not None:
-        return copy.deepcopy(kept)
-    cfg = _hydra_compose(overrides)
+    the same overrides, config folders, files and working directory (:func:`_composed`)."""
+    dirs = tuple(str(d) for d in config_dirs())
+    return copy.deepcopy(_composed(tuple(overrides), dirs, _config_texts(), os.getcwd()))
+
+
+# A gym vector env's copies, a study's checks and the suite's tables compose the same config
+# again and again (~0.4 s each on a 2-core machine; a kept one costs its copy): the last 64
+# are kept (~0.2 MB each), never handed out themselves.
+@functools.lru_cache(maxsize=64)
+def _composed(overrides: tuple[str, ...], dirs: tuple[str, ...], texts: str, cwd: str) -> DictConfig:
+    """The composition :func:`_compose` copies, made once per distinct arguments (``dirs``,
+    ``texts`` and ``cwd`` only key it: they are the state Hydra reads)."""
+    cfg = _hydra_compose(list(overrides))
     runtime = cfg.hydra.runtime
     with open_dict(cfg):
         cfg.hydra = {"runtime": {"choices": runtime.choices, "config_sources": runtime.config_sources}}
-    with _COMPOSED_LOCK:
-        _COMPOSED[key] = copy.deepcopy(cfg)
-        while len(_COMPOSED) > COMPOSED_KEPT:
-            _COMPOSED.popitem(last=False)
     return cfg
 
 
