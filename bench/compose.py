@@ -8,8 +8,9 @@ jobs, the benchmark's pairs and the suite's tables of inputs do) three ways, alt
 each composition), with ``params.private_api.configs_parsed_once``'s parses kept (each text
 parsed once in the process), and with ``tasks.catalog``'s compositions kept too (each
 composition made, then a second one timed: its copy); checks that all three give the same
-configs. Prints the CPU seconds of each and their ratios to the first; last line ``COMPOSE compositions=<n> plain_s=<v>
-parsed_once_s=<v> ratio=<v> kept_s=<v> kept_ratio=<v>`` (the medians over the rounds).
+configs. Prints the CPU seconds of each and their ratios to the first; last line
+``COMPOSE compositions=<n> plain_s=<v> parsed_once_s=<v> ratio=<v> kept_s=<v>
+kept_ratio=<v>`` (the medians over the rounds).
 """
 
 from __future__ import annotations

@@ -178,19 +178,25 @@ def test_no_tuned_drops_both_layers(task_layer):
     assert catalog.with_tuned_layers(["~tuned", "~tuned@_global_"]) == ["~tuned", "~tuned@_global_"]
 
 
-def test_a_composition_is_made_once_and_made_again_when_a_config_file_changes(task_layer):
+def test_a_composition_is_made_once_and_made_again_when_a_config_file_changes(task_layer, monkeypatch):
     """catalog.compose keeps each composition for the process and hands out copies; an
     edited, added or removed YAML file of a config folder makes it anew."""
+    made = []
+    real = catalog._hydra_compose
+    monkeypatch.setattr(catalog, "_hydra_compose", lambda overrides: made.append(1) or real(overrides))
+    catalog._composed.cache_clear()
     first = catalog.compose("cartpole", learner="qlearn")
-    assert first.learner.alpha == 0.31
+    assert first.learner.alpha == 0.31 and len(made) == 1
     first.learner.alpha = -1.0  # a copy: the next one is untouched
     assert catalog.compose("cartpole", learner="qlearn").learner.alpha == 0.31
+    assert len(made) == 1  # kept, not made again
     layer = task_layer / "tuned" / "cartpole_stay_up_qlearn.yaml"
     layer.write_text(layer.read_text().replace("0.31", "0.42"))  # same size, same second
-    assert catalog.compose("cartpole", learner="qlearn").learner.alpha == 0.42
+    assert catalog.compose("cartpole", learner="qlearn").learner.alpha == 0.42 and len(made) == 2
     layer.unlink()
     robot_file = OmegaConf.load(CONF / "tuned" / "cartpole_qlearn.yaml")
     assert catalog.compose("cartpole", learner="qlearn").learner.alpha == robot_file.learner.alpha
+    assert len(made) == 3
 
 
 def test_a_task_tuned_file_without_a_robot_one_applies_alone(tmp_path):
