@@ -20,8 +20,9 @@ also values the learner's own values of what it searches (its published ones), a
 file holds them where they beat every trial; a finished study that has not valued them
 gets a sweep of no trials that does (the maze's first five, of greedy laps, are not
 asked). Tasks the plan runs with extra overrides (``cube_minus_y``) are variants of
-another task's config and are not tuned, nor are the plan's learner ``variants`` (the dqn
-with one switch on: the dqn's tuned file and the switch).
+another task's config and are not tuned, nor are the plan's learner ``variants`` of another
+learner (the dqn with one switch on: the dqn's tuned file and the switch); a variant entry
+that names its own learner (ppo's, which only sets how often it is evaluated) is tuned.
 
 ``--studies <folder>`` replays the grid with its journals there and no tuned file written
 (to time it from empty journals); each sweep's wall minutes go to the folder's ``runs.csv``
@@ -153,10 +154,10 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             continue
         for learner in learners_of(plan, task, learners):
             name = f"{task}_{learner}"
-            variant = plan.get("variants", {}).get(learner)
-            if variant:
-                print(f"{name}: a variant of {variant['learner']} (overrides {variant['overrides']}): runs "
-                      f"{variant['learner']}'s tuned file with them, not tuned")
+            variant = plan.get("variants", {}).get(learner, {})
+            if variant.get("learner", learner) != learner:  # ppo's entry only sets its evaluations: tuned
+                print(f"{name}: a variant of {variant['learner']} (overrides {variant.get('overrides', [])}): "
+                      f"runs {variant['learner']}'s tuned file with them, not tuned")
                 continue
             study = journal_study(f"bench-{task}-{learner}", studies / f"{name}.log")
             counted, running = study_counts(study)

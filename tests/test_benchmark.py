@@ -541,6 +541,19 @@ def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file(
     assert benchmark.check_studies(Path("bench/timing/x")) == Path("bench/timing/x")
 
 
+def test_a_dry_run_of_the_whole_grid_skips_variants_of_another_learner_and_asks_for_ppo(tmp_path, capsys):
+    """``--tune --dry-run`` over every pair of the plan: the dqn's switches are variants of the
+    dqn (not tuned); ppo's entry, which only sets its evaluations, is ppo's own study."""
+    from bench import tune_grid
+
+    plan = benchmark.load_plan(False)
+    left = tune_grid.tune(plan, ["cartpole", "cube"], ["dqn_c51", "ppo"], dry_run=True, studies=tmp_path)
+    said = capsys.readouterr().out
+    assert "cartpole_dqn_c51: a variant of dqn (overrides ['learner.distributional=true'])" in said
+    assert "cartpole_ppo: 0 trials done" in said and "cube_ppo: 0 trials done" in said
+    assert left == 2
+
+
 def test_studies_side_by_side_start_longest_first(monkeypatch):
     """With several studies at once the grid starts the longest first (its records' minutes
     times the share of trials left; a pair never run first of all), so the last to end is
