@@ -41,7 +41,7 @@ from omegaconf import DictConfig, OmegaConf
 # refused value or --help answers in well under a second (bench/answers.py measures it).
 import robots  # noqa: F401  (sets a headless GL backend before dm_control loads)
 from params import ConfigError
-from params.private_api import configs_parsed_once
+from params.private_api import configs_parsed_once, mode_of_the_flag
 from runs.command import config_dir_args, end_promptly, flags_first, hydra_error, one_line, physical
 from runs.folder import MadeFolders, WRITE_FAILED, cannot_write, check_output_folder, with_run_choices, write_hydra_record
 from runs.job import compose_job, keep_failure, refusals
@@ -208,8 +208,11 @@ def cli() -> None:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, state.stop_sweep)
         state.let_siblings_save()
+    own_configs_only = not config_dir_args(sys.argv[1:]) and not any(
+        a in ("-cp", "--config-path") or a.startswith("--config-path=") for a in sys.argv[1:])
     try:
-        with configs_parsed_once():  # a sweep composes each job: its YAML files parsed once
+        # a sweep composes each job: its YAML files parsed once; the mode is -m's, not composed for
+        with configs_parsed_once(), mode_of_the_flag(own_configs_only):
             main()
     except (state.SweepRefused if sweep else ()) as err:  # before any job started: nothing was written
         print(f"error: {err}", file=sys.stderr)

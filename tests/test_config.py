@@ -66,6 +66,20 @@ def test_every_task_fits_a_robot_and_every_robot_its_default_task():
         assert catalog.built(robot, catalog.default_task(robot)) is not None
 
 
+def test_no_config_of_the_project_sets_hydras_mode():
+    """train.py takes a command's mode from ``-m`` without composing for it
+    (``params.private_api.mode_of_the_flag``): exact only while no file of conf/ sets
+    ``hydra.mode`` (a ``hydra:`` section's, or a ``conf/hydra/`` group's own ``mode``)."""
+    import yaml
+
+    for path in sorted(CONF.rglob("*.yaml")):
+        text = yaml.safe_load(path.read_text()) or {}
+        if not isinstance(text, dict):
+            continue
+        in_hydra_group = path.relative_to(CONF).parts[0] == "hydra"
+        assert "mode" not in (text.get("hydra") or {}) and not (in_hydra_group and "mode" in text), path
+
+
 def test_every_tuned_file_names_a_robot_and_a_learner(monkeypatch):
     """Hydra applies conf/tuned/<robot>_<learner>.yaml to that pair only: any other name never."""
     orphans = [name for name, pair in catalog.tuned_pairs().items() if pair is None]

@@ -8,6 +8,7 @@ import inspect
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
@@ -100,3 +101,29 @@ def test_hydras_sources_read_yaml_with_omegaconf_load_and_a_parse_is_reused_not_
     assert str(within.value) == str(plain.value)
     assert not getattr(OmegaConf.load, "parsed_once", False)  # restored on leaving
     assert compose("cartpole", learner="dqn") == compose("cartpole", learner="dqn")
+
+
+def test_hydras_mode_is_read_from_one_composition_and_the_flag_answers_it_where_no_config_can_set_it():
+    """``Hydra.get_mode`` composes the config only to read ``hydra.mode``; within
+    ``mode_of_the_flag(True)`` it answers None without composing, unless an override names
+    ``hydra.mode`` or ``hydra.searchpath`` (then Hydra's own composition answers), and
+    always with ``mode_of_the_flag(False)`` (a config folder beyond conf/)."""
+    from hydra._internal.hydra import Hydra
+
+    source = inspect.getsource(Hydra.get_mode)
+    assert "self.compose_config(" in source and "cfg.hydra.mode" in source, "Hydra.get_mode changed"
+    composed = []
+
+    class Fake:
+        def compose_config(self, **kwargs):
+            composed.append(kwargs["overrides"])
+            return OmegaConf.create({"hydra": {"mode": "MULTIRUN"}})
+
+    with private_api.mode_of_the_flag(True):
+        assert Hydra.get_mode(Fake(), "config", ["seed=1"]) is None and composed == []
+        assert Hydra.get_mode(Fake(), "config", ["hydra.mode=MULTIRUN"]) == "MULTIRUN"
+        assert Hydra.get_mode(Fake(), "config", ["hydra.searchpath=[file:///x]"]) == "MULTIRUN"
+    with private_api.mode_of_the_flag(False):
+        assert Hydra.get_mode(Fake(), "config", ["seed=1"]) == "MULTIRUN"
+    assert len(composed) == 3
+    assert Hydra.get_mode(Fake(), "config", ["seed=1"]) == "MULTIRUN"  # Hydra's own again after it
