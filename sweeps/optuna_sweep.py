@@ -143,7 +143,7 @@ class TuningSweep:
         if episode is not None and self.budget_steps < int(episode):
             raise ConfigError(f"hydra.sweeper.budget_steps must be at least one episode of {robot}/{task} "
                               f"(task.max_episode_steps = {int(episode)} env steps); got {self.budget_steps}")
-        check_space(params, base, str(space_file), lambda extra: check_run_config(self._compose([*fixed, *extra])))
+        check_space(params, base, str(space_file), check_run_config)
         defaults, why = None, ""
         if self.value_defaults:  # the learner's own values, where the tuned files change them
             own = searched_values(params, self._compose(with_tuned_layers([*fixed, "~tuned"])))

@@ -64,22 +64,18 @@ def test_a_bad_range_is_one_line(expr, words):
     assert words in message and "learner.lr" in message and "\n" not in message
 
 
-def _check(base: list[str]):
-    return lambda extra: check_run_config(compose(overrides=[*base, *extra]))
-
-
 def test_an_unknown_setting_in_a_space_is_named_with_the_closest_one():
     base = ["learner=dqn"]
     with pytest.raises(ConfigError, match=r"learner\.lrr is not a setting of this run; did you mean learner\.lr\?"):
         check_space(parse_space({"learner.lrr": "interval(0.1, 0.2)"}, "s.yaml"), compose(overrides=base), "s.yaml",
-                    _check(base))
+                    check_run_config)
 
 
 def test_a_range_the_run_refuses_is_refused_before_any_trial():
     base = ["learner=dqn"]
     with pytest.raises(ConfigError, match=r"learner\.lr can be -0\.1, which the run refuses: learner\.lr must be"):
         check_space(parse_space({"learner.lr": "interval(-0.1, 0.2)"}, "s.yaml"), compose(overrides=base), "s.yaml",
-                    _check(base))
+                    check_run_config)
 
 
 def test_every_learner_has_a_search_space():
@@ -99,7 +95,7 @@ def test_every_search_space_fits_its_learner(name):
     base = [f"robot={robot or 'cartpole'}", *([f"task={task}"] if task else []), f"learner={learner}",
             "max_env_steps=1000", "stop_when_solved=false"]
     space = load_space(conf_dir() / "search" / f"{name}.yaml")
-    check_space(space, compose(overrides=base), name, _check(base))
+    check_space(space, compose(overrides=base), name, check_run_config)
 
 
 @pytest.mark.parametrize("url", ["postgresql://nobody@127.0.0.1:1/none", "not a url", "sqlite:////proc/x/y.db",
@@ -638,7 +634,7 @@ def test_checked_sweeper_settings_keep_their_types():
 def test_a_space_reaching_zero_bins_is_refused_before_any_trial():
     with pytest.raises(ConfigError, match=r"learner\.number_splits can be 0, which the run refuses"):
         check_space(parse_space({"learner.number_splits": "int(interval(0, 14))"}, "s.yaml"), compose(),
-                    "s.yaml", _check([]))
+                    "s.yaml", check_run_config)
 
 
 def test_a_missing_search_space_is_one_line():
