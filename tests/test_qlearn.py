@@ -149,7 +149,7 @@ def random_policy(n_actions, seed):
     return act
 
 
-@pytest.mark.slow  # a learning check: CI's sibling is the default run (tests/test_success.py), solved
+# qlearn's learning check in CI (10 s); the default run solving the cart-pole: -m slow (tests/test_success.py)
 def test_tuned_qlearn_beats_random_three_times_on_a_fixed_seed(tmp_path):
     seed = 0
     done = run_train("max_episodes=200", f"seed={seed}", "quiet=true", f"hydra.run.dir={tmp_path}")
