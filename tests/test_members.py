@@ -134,7 +134,11 @@ DQN_CASES = {
 }
 
 
-@pytest.mark.parametrize("case", DQN_CASES)
+# One Rainbow switch at a time: -m slow (17 s); "dqn every switch" holds them all in CI.
+ONE_SWITCH = ("dqn n-step", "dqn dueling", "dqn prioritized")
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in ONE_SWITCH else c for c in DQN_CASES])
 def test_a_dqn_member_learns_bit_for_bit_as_alone(case):
     name, n, overrides = DQN_CASES[case]
     same_as_alone(config(name, overrides), n, steps=120)
