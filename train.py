@@ -48,7 +48,7 @@ from runs.job import compose_job, keep_failure, refusals
 from runs.layout import compare_command, is_run_folder, is_sweep_folder, train_command
 from runs.settings import check_hydra_key, moved, moved_to
 from runs.signals import hold_early
-from tasks.catalog import GROUPS, names, use_config_dirs, with_tuned_layers
+from tasks.catalog import GROUPS, config_dirs, names, use_config_dirs, with_tuned_layers
 
 
 # ``resume=<run folder>`` makes Hydra write into that folder (conf/config.yaml);
@@ -208,7 +208,7 @@ def cli() -> None:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, state.stop_sweep)
         state.let_siblings_save()
-    own_configs_only = not config_dir_args(sys.argv[1:]) and not any(
+    own_configs_only = len(config_dirs()) == 1 and not any(  # conf/ alone: no --config-dir (use_config_dirs above)
         a in ("-cp", "--config-path") or a.startswith("--config-path=") for a in sys.argv[1:])
     try:
         # a sweep composes each job: its YAML files parsed once; the mode is -m's, not composed for
