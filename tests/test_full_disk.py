@@ -22,7 +22,7 @@ from runs.settings import check_run_config
 from tasks.catalog import compose
 
 ROOT = Path(__file__).resolve().parents[1]
-RUN = ["num_envs=1", "max_episodes=150", "checkpoint_every=50", "eval_episodes=0", "quiet=true", "seed=3"]
+RUN = ["num_envs=1", "max_episodes=100", "checkpoint_every=50", "eval_episodes=0", "quiet=true", "seed=3"]
 
 
 def train(*args: str) -> subprocess.Popen:
