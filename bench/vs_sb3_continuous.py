@@ -128,7 +128,7 @@ def run_ours(algo: str, robot: str, seed: int, cap: int, every: int, out: Path, 
     s = run_to_solve([f"robot={robot}", f"learner={algo}", f"seed={seed}", f"max_env_steps={cap}", "max_episodes=0",
                       f"eval_every_steps={every}", "eval_every=1000000", *overrides], run_dir)
     return {"side": f"ours {algo}", "solved": s["solved"], "env_steps": s["env_steps"], "wall_s": s["wall_s"],
-            "run_dir": str(run_dir)}
+            "run_dir": str(run_dir.resolve().relative_to(ROOT) if run_dir.resolve().is_relative_to(ROOT) else run_dir)}
 
 
 def recorded(path: Path) -> list[dict]:
