@@ -127,8 +127,9 @@ def run_ours(algo: str, robot: str, seed: int, cap: int, every: int, out: Path, 
     run_dir = out / "ours" / f"{algo}_{robot}_seed{seed}"
     s = run_to_solve([f"robot={robot}", f"learner={algo}", f"seed={seed}", f"max_env_steps={cap}", "max_episodes=0",
                       f"eval_every_steps={every}", "eval_every=1000000", *overrides], run_dir)
+    where = run_dir.resolve()  # recorded from the project's root where it lies under it
     return {"side": f"ours {algo}", "solved": s["solved"], "env_steps": s["env_steps"], "wall_s": s["wall_s"],
-            "run_dir": str(run_dir.resolve().relative_to(ROOT) if run_dir.resolve().is_relative_to(ROOT) else run_dir)}
+            "run_dir": str(where.relative_to(ROOT) if where.is_relative_to(ROOT) else where)}
 
 
 def recorded(path: Path) -> list[dict]:

@@ -43,7 +43,7 @@ def killed(tmp_path_factory) -> Path:
     while True:  # killed where metrics.csv is ahead of the checkpoint (not just after one): a cut shows
         if proc.poll() is not None or time.time() > deadline:
             proc.kill()
-            pytest.fail(f"the run to kill did not get going: {proc.stderr.read()[-1500:]}")
+            pytest.fail(f"the run to kill ended or never got going: {proc.stderr.read()[-1500:]}")
         if metrics.is_file() and len(metrics.read_text().splitlines()) > 50:
             proc.send_signal(signal.SIGSTOP)  # frozen while its files are read (a checkpoint is renamed into place whole)
             saved = torch.load(run_dir / "checkpoint.pt", weights_only=True)["run"]["n_episodes"]
