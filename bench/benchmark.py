@@ -296,7 +296,8 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
     from where it went on) go to ``<learner>_<setting>.json`` beside its sweep, with its seeds' rows
     (:func:`pair_seeds`); its console is ``<learner>_<setting>.log``. The bar moves as each
     seed writes its verdict; a pair that Ctrl-C or SIGTERM stopped gets no record (the same command goes
-    on with it). ``solo`` (one pair at a time): also times the pair's first
+    on with it), nor a pair refused because another benchmark on ``out`` took it after this
+    one planned (that one writes its record). ``solo`` (one pair at a time): also times the pair's first
     seed trained alone (``solo_wall_s``), to say what training the seeds in one process saved."""
     commands = [pair_command(job, out) for job in todo]
     logs = [(out / job.folder).with_suffix(".log") for job in todo]
@@ -319,6 +320,8 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
         if returncode in STOPPED:  # Ctrl-C or SIGTERM: no record, so the same command goes on with it
             return
         job, (cmd, resumed) = todo[i], commands[i]
+        if returncode not in (0, 1) and trained_elsewhere(job, out):  # another process took it since the plan
+            return
         wall = time.perf_counter() - begun[i]
         bar.update(len(job.seeds) - done[i])
         done[i] = len(job.seeds)

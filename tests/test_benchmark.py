@@ -195,6 +195,24 @@ def test_a_pair_another_process_trains_is_left_to_it(tmp_path, capsys):
     assert not benchmark.trained_elsewhere(job, tmp_path)  # its holder gone: the next run takes it
 
 
+def test_a_pair_another_process_took_after_the_plan_gets_no_record(tmp_path, capsys):
+    """Two benchmarks on one ``--out``, the second taking a pair the first had planned: the
+    first's run of it is refused (the folder is the other's) and writes no record, so the page
+    reads the other's, not a pair of failed seeds."""
+    from runs.folder import run_lock
+
+    argv = ["--quick", "--learners", "qlearn", "--seeds", "1", "--out", str(tmp_path), "--no-readme"]
+    [job] = benchmark.plan_jobs(benchmark.parse_args(argv), benchmark.load_plan(True))
+    seed = tmp_path / job.folder / "0_cartpole_qlearn_seed1000"
+    seed.mkdir(parents=True)
+    with run_lock(seed), benchmark.tqdm(total=1, disable=True) as bar:
+        benchmark.run_pairs([job], tmp_path, bar)
+    assert (tmp_path / job.folder).with_suffix(".log").read_text().startswith("error: ")  # refused
+    assert sorted(p.name for p in (tmp_path / job.folder).iterdir()) == ["0_cartpole_qlearn_seed1000"]
+    assert f"{job.folder}: trained now by another process (pid {os.getpid()}); left to it" in capsys.readouterr().out
+    assert not (tmp_path / job.folder).with_suffix(".json").exists()
+
+
 def test_the_tuned_setting_names_and_uses_a_task_tuned_file(tmp_path):
     """A task's tuned file (conf/tuned/<robot>_<task>_<learner>.yaml) counts as a tuned file of
     the job, applies on top of the robot's in what the job's runs compose, is named in the
