@@ -34,7 +34,8 @@ def check_output_folder(key: str, path: str) -> str:
     this project made (a run's: run.json, its .lock or Hydra's .hydra record; a sweep's: multirun.yaml):
     anything else (``/``, a home folder, a source tree) is refused before a file is written, and
     so is a folder inside a run's (symlinks and ``..`` resolved: no run is written into
-    another). Returns the path to make: ``path``, or its resolved form where it went through
+    another), and a sweep's folder where a live run trains (one of its runs' locks held).
+    Returns the path to make: ``path``, or its resolved form where it went through
     ``..`` (Hydra would make the folders before the ``..``)."""
     if "${" in path:  # resolved by Hydra later: a time-stamped name, a new folder
         return path
@@ -62,7 +63,18 @@ def check_output_folder(key: str, path: str) -> str:
         raise ConfigError(f"{key}={path} is a folder that holds other files ({shown}); allowed: a new or "
                           f"empty folder, or a {'run' if key == 'hydra.run.dir' else 'sweep'} folder of "
                           "this project")
+    runs = [folder / name for name in names if key == "hydra.sweep.dir" and (folder / name).is_dir()]
+    held = next(((run, pid) for run in runs if (pid := lock_holder(run)) is not None), None)
+    if held is not None:  # a sweep refused before Hydra writes its multirun.yaml over another's
+        raise ConfigError(f"{key}={path} is in use by another run (pid {held[1]}, in {held[0].name}); "
+                          "let it finish or pick another folder")
     return path
+
+
+def held_elsewhere(run_dir: Path) -> bool:
+    """Whether another live process holds ``run_dir``'s lock: nothing of this one's (a
+    refusal's ``error.txt`` included) may be written there."""
+    return lock_holder(run_dir) not in (None, str(os.getpid()))
 
 
 def is_finished(run_dir: Path) -> bool:

@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 
 from params import CheckpointError, ConfigError
 from runs.console import tuned_changes
-from runs.folder import eval_config, resumed_config, run_folder_of
+from runs.folder import eval_config, held_elsewhere, resumed_config, run_folder_of
 from runs.settings import check_fit, check_no_empty_mappings, check_run_config
 from tasks.catalog import locate_model, run_choices, use_config_dirs
 
@@ -42,8 +42,11 @@ def refusals() -> tuple[type[BaseException], ...]:
 
 def keep_failure(run_dir: Path, message: str) -> None:
     """A sweep's job that failed: ``message`` printed (to stdout: the sweep's end says on
-    stderr how many failed) and kept in its folder's ``error.txt``; the sweep goes on."""
+    stderr how many failed) and kept in its folder's ``error.txt`` (unless another live run
+    holds that folder); the sweep goes on."""
     print(message, flush=True)
+    if held_elsewhere(run_dir):  # another live run's folder (its refusal is this line): never written into
+        return
     try:
         (run_dir / "error.txt").write_text(message + "\n")
     except OSError:  # (a full disk) the console has it

@@ -50,6 +50,46 @@ def test_a_folder_locked_by_a_live_run_is_refused_with_one_line(tmp_path):
     assert not (run_dir / "config.yaml").exists()
 
 
+def test_a_sweep_into_a_folder_a_live_run_trains_is_refused_before_a_file_is_written(tmp_path):
+    """A second sweep (another benchmark on the same results folder) into a sweep folder one
+    of whose runs is locked by a live process: one line, exit 2, and not a byte of that
+    folder changes (its multirun.yaml, and no error.txt in the run's folder)."""
+    sweep = tmp_path / "sweep"
+    run_dir = sweep / "0_cartpole_qlearn_seed1"
+    run_dir.mkdir(parents=True)
+    (sweep / "multirun.yaml").write_text("the first sweep's\n")
+    with open(run_dir / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        lock.write("4242")
+        lock.flush()
+        before = files(sweep)
+        proc = train("-m", f"hydra.sweep.dir={sweep}", "seed=1,2", *QUICK)
+        _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 2
+    assert err.strip().splitlines() == [f"error: hydra.sweep.dir={sweep} is in use by another run (pid 4242, in "
+                                        "0_cartpole_qlearn_seed1); let it finish or pick another folder"], err[-1500:]
+    assert files(sweep) == before
+
+
+def test_a_refusal_writes_no_error_file_into_a_folder_another_run_holds(tmp_path, capsys):
+    """A sweep's refused job keeps its line in its folder's error.txt, unless another live
+    run holds that folder (a resume of a sweep another process trains): then the console
+    alone has it."""
+    from runs.job import keep_failure
+
+    mine, theirs = tmp_path / "mine", tmp_path / "theirs"
+    mine.mkdir(), theirs.mkdir()
+    with open(theirs / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        lock.write("4242")
+        lock.flush()
+        keep_failure(theirs, "error: refused")
+        keep_failure(mine, "error: refused")
+    assert sorted(p.name for p in theirs.iterdir()) == [".lock"]
+    assert (mine / "error.txt").read_text() == "error: refused\n"
+    assert capsys.readouterr().out == "error: refused\nerror: refused\n"
+
+
 def files(folder: Path) -> dict[str, bytes | None]:
     """Every file (its bytes) and folder (None) under ``folder``."""
     return {str(p.relative_to(folder)): p.read_bytes() if p.is_file() else None for p in folder.rglob("*")}
