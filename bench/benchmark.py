@@ -583,12 +583,12 @@ def trained_elsewhere(job: Job, out: Path) -> bool:
     """Whether another process trains ``job`` in ``out`` now (one of its seeds' folders is
     locked by a live run): said in one line, and the pair left to that process, which
     writes its record when it ends."""
-    from runs.folder import lock_holder
+    from runs.folder import sweep_holders
 
     sweep = out / job.folder
     if not sweep.is_dir():
         return False
-    holders = sorted({lock_holder(run) for run in sweep.iterdir() if run.is_dir()} - {None})
+    holders = sorted(set(sweep_holders(sweep).values()))
     if holders:
         print(f"{job.folder}: trained now by another process (pid {', '.join(holders)}); left to it")
     return bool(holders)

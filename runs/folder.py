@@ -63,12 +63,18 @@ def check_output_folder(key: str, path: str) -> str:
         raise ConfigError(f"{key}={path} is a folder that holds other files ({shown}); allowed: a new or "
                           f"empty folder, or a {'run' if key == 'hydra.run.dir' else 'sweep'} folder of "
                           "this project")
-    runs = [folder / name for name in names if key == "hydra.sweep.dir" and (folder / name).is_dir()]
-    held = next(((run, pid) for run in runs if (pid := lock_holder(run)) is not None), None)
-    if held is not None:  # a sweep refused before Hydra writes its multirun.yaml over another's
-        raise ConfigError(f"{key}={path} is in use by another run (pid {held[1]}, in {held[0].name}); "
+    held = sweep_holders(folder) if key == "hydra.sweep.dir" else {}
+    if held:  # a sweep refused before Hydra writes its multirun.yaml over another's
+        name, pid = next(iter(held.items()))
+        raise ConfigError(f"{key}={path} is in use by another run (pid {pid}, in {name}); "
                           "let it finish or pick another folder")
     return path
+
+
+def sweep_holders(sweep: Path) -> dict[str, str]:
+    """The live runs training in the sweep folder ``sweep`` now: each held run folder's name
+    and its holder's pid (:func:`lock_holder`), in name order."""
+    return {run.name: pid for run in sorted(sweep.iterdir()) if run.is_dir() and (pid := lock_holder(run)) is not None}
 
 
 def held_elsewhere(run_dir: Path) -> bool:

@@ -42,14 +42,21 @@ def refusals() -> tuple[type[BaseException], ...]:
 
 def keep_failure(run_dir: Path, message: str) -> None:
     """A sweep's job that failed: ``message`` printed (to stdout: the sweep's end says on
-    stderr how many failed) and kept in its folder's ``error.txt`` (unless another live run
-    holds that folder); the sweep goes on."""
+    stderr how many failed) and kept in its folder's ``error.txt`` (:func:`keep_error`); the
+    sweep goes on."""
     print(message, flush=True)
-    if held_elsewhere(run_dir):  # another live run's folder (its refusal is this line): never written into
+    keep_error(run_dir, message)
+
+
+def keep_error(run_dir: Path, message: str) -> None:
+    """``message`` in ``run_dir/error.txt``, unless another live run holds that folder (a
+    refusal for being in use by it: nothing of this process is written there) or it cannot
+    be written (a full disk: the console has it)."""
+    if held_elsewhere(run_dir):
         return
     try:
         (run_dir / "error.txt").write_text(message + "\n")
-    except OSError:  # (a full disk) the console has it
+    except OSError:
         pass
 
 

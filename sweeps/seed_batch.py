@@ -28,8 +28,8 @@ from hydra.core.hydra_config import HydraConfig
 from params import ConfigError
 from params.private_api import apply_value_overrides, overrides_dirname
 from runs.command import one_line
-from runs.folder import cannot_write, held_elsewhere, write_hydra_record
-from runs.job import batchable, compose_job, keep_failure, refusals
+from runs.folder import cannot_write, write_hydra_record
+from runs.job import batchable, compose_job, keep_error, keep_failure, refusals
 from runs.lifecycle import Job, batch_key, run_jobs, same_batch
 
 log = logging.getLogger(__name__)
@@ -302,8 +302,7 @@ def _batch(jobs: list[Job], more=None) -> None:
         message = f"error: {err}"
         print(message, file=sys.stderr)
         for job in jobs:
-            if not held_elsewhere(job.run_dir):  # another live run's folder keeps its own files
-                (job.run_dir / "error.txt").write_text(message + "\n")
+            keep_error(job.run_dir, message)
         return
     stopped = [s for s in summaries if s.get("interrupted")]
     if stopped:
