@@ -22,6 +22,15 @@ def train(*args: str, cwd: Path = ROOT, **kw) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
 
 
+def held(run_dir: Path):
+    """``run_dir``'s lock held, as a live run (pid 4242) holds it."""
+    lock = open(run_dir / ".lock", "w")
+    fcntl.flock(lock, fcntl.LOCK_EX)
+    lock.write("4242")
+    lock.flush()
+    return lock
+
+
 def test_two_runs_started_together_get_two_complete_folders(tmp_path):
     procs = [train(f"seed={s}", *QUICK, cwd=tmp_path) for s in (1, 2)]
     outs = [p.communicate(timeout=300) for p in procs]
@@ -37,10 +46,7 @@ def test_two_runs_started_together_get_two_complete_folders(tmp_path):
 def test_a_folder_locked_by_a_live_run_is_refused_with_one_line(tmp_path):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    with open(run_dir / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        lock.write("4242")
-        lock.flush()
+    with held(run_dir):
         proc = train(f"hydra.run.dir={run_dir}", *QUICK)
         _, err = proc.communicate(timeout=300)
     assert proc.returncode == 2
@@ -58,10 +64,7 @@ def test_a_sweep_into_a_folder_a_live_run_trains_is_refused_before_a_file_is_wri
     run_dir = sweep / "0_cartpole_qlearn_seed1"
     run_dir.mkdir(parents=True)
     (sweep / "multirun.yaml").write_text("the first sweep's\n")
-    with open(run_dir / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        lock.write("4242")
-        lock.flush()
+    with held(run_dir):
         before = files(sweep)
         proc = train("-m", f"hydra.sweep.dir={sweep}", "seed=1,2", *QUICK)
         _, err = proc.communicate(timeout=300)
@@ -79,10 +82,7 @@ def test_a_refusal_writes_no_error_file_into_a_folder_another_run_holds(tmp_path
 
     mine, theirs = tmp_path / "mine", tmp_path / "theirs"
     mine.mkdir(), theirs.mkdir()
-    with open(theirs / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        lock.write("4242")
-        lock.flush()
+    with held(theirs):
         keep_failure(theirs, "error: refused")
         keep_failure(mine, "error: refused")
     assert sorted(p.name for p in theirs.iterdir()) == [".lock"]
