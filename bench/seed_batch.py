@@ -21,14 +21,18 @@ plain stacked PyTorch (the same network shapes, minibatch and members: each laye
 batched product, the TD loss, backward and one ``torch.optim.Adam`` step) with no sampling
 or bookkeeping, timed in the same run; ``target_ratio`` is the batch's time over both
 floors (issue 64's targets: dqn at most 1.3, qlearn at most 1.5 over its physics floor;
-issue 66's: sac at most 1.3).
+issue 66's: sac at most 1.3). Both floors are also read on this process's CPU clock
+(``floors_cpu_s``) and ``target_cpu_ratio`` is the batch's CPU seconds over them: on a
+machine other jobs share, each wall time counts their turns in its own share of the
+machine, so the CPU ratio is the one to read there.
 
 Its measurements (with their date and machine) are on the docs' performance page
 (docs/performance.md, "Seeds in one process").
 
 Last lines, per learner and copies: ``BATCH <learner> num_envs=<n> seeds=<N> one_s=<v>
 batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)> physics_floor_s=<v>
-floor_ratio=<floor/one> one_cpu_s=<v> batch_cpu_s=<v> cpu_ratio=<v> peak_rss_mb=<batch>``.
+floor_ratio=<floor/one> update_floor_s=<v> target_ratio=<v> one_cpu_s=<v> batch_cpu_s=<v>
+cpu_ratio=<v> floors_cpu_s=<v> target_cpu_ratio=<v> peak_rss_mb=<batch>``.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -54,6 +59,7 @@ WRAP = ("import resource, subprocess, sys; code = subprocess.call(sys.argv[1:], 
 
 
 ROBOT = "cartpole"  # --robot: the robot every run trains (its default task)
+Clock = Callable[[], float]  # time.perf_counter (wall seconds) or time.process_time (this process's CPU seconds)
 
 
 def tuned_copies(learner: str) -> int:
@@ -104,26 +110,27 @@ def copy_steps(folder: Path) -> tuple[int, int, int]:
     return train, evals, width
 
 
-def physics_floor(learner: str, n: str, seeds: int, folder: Path) -> float:
+def physics_floor(learner: str, n: str, seeds: int, folder: Path, clock: Clock = time.perf_counter) -> float:
     """Seconds the batch under ``folder`` needs for its physics alone (:func:`floor_of` at
     ``seeds`` x the copies a seed)."""
     copies_a_seed = tuned_copies(learner) if n == "tuned" else int(n)
-    return floor_of(ROBOT, folder, seeds * copies_a_seed)
+    return floor_of(ROBOT, folder, seeds * copies_a_seed, clock)
 
 
-def floor_of(robot: str, folder: Path, copies: int) -> float:
+def floor_of(robot: str, folder: Path, copies: int, clock: Clock = time.perf_counter) -> float:
     """Seconds the job folders under ``folder`` need for their physics alone: their
     copy-steps, each priced at this machine's cost per copy-step of a ``mujoco.rollout``
     call as wide as its steps are (training: ``copies``; evaluations: their copies;
     :func:`per_copy_step`). Below this no batch can go here."""
     train, evals, width = copy_steps(folder)
-    return train * per_copy_step(robot, copies) + evals * per_copy_step(robot, max(width, 1))
+    return train * per_copy_step(robot, copies, clock=clock) + evals * per_copy_step(robot, max(width, 1), clock=clock)
 
 
-def per_copy_step(robot: str, copies: int, seconds: float = 2.0) -> float:
+def per_copy_step(robot: str, copies: int, seconds: float = 2.0, clock: Clock = time.perf_counter) -> float:
     """Seconds a copy-step of ``robot``'s physics takes here, ``copies`` side by side (one
     ``mujoco.rollout`` call a step, as a batch steps them; the rollout pool's threads as
-    the env uses them), timed over ``seconds``."""
+    the env uses them), timed over ``seconds`` of wall time; read on ``clock`` (the wall's,
+    or ``time.process_time``: the CPU seconds of every thread of this process)."""
     sys.path.insert(0, str(ROOT))
     from robots.physics import BatchedPhysics
     from tasks import catalog
@@ -132,22 +139,22 @@ def per_copy_step(robot: str, copies: int, seconds: float = 2.0) -> float:
     physics, substeps = BatchedPhysics(env.physics.model, copies), env.task.n_substeps
     env.close()
     physics.step(substeps)
-    calls, start = 0, time.perf_counter()
+    calls, start, read = 0, time.perf_counter(), clock()
     while time.perf_counter() - start < seconds:
         physics.step(substeps)
         calls += 1
-    return (time.perf_counter() - start) / (calls * copies)
+    return (clock() - read) / (calls * copies)
 
 
-def update_floor(folder: Path, seeds: int, rounds: int = 300) -> float:
+def update_floor(folder: Path, seeds: int, rounds: int = 300, clock: Clock = time.perf_counter) -> float:
     """Seconds the batch under ``folder`` needs for its gradient updates alone: the update
     rounds its members made (the most optimizer steps of a member, from the ``model.pt``
     files), each priced at one plain stacked PyTorch update of ``seeds`` members (the
     members' network shapes and minibatch, from a job's ``config.yaml``; each linear layer
     one ``baddbmm``, ``backward`` and ``torch.optim.Adam``; no sampling, clipping or
     bookkeeping): dqn's double-DQN Huber TD loss, or sac's three losses (twin critics with
-    target copies, a tanh-Gaussian actor, the temperature), timed over ``rounds`` updates on
-    as many threads as the runs had (their ``torch_threads``)."""
+    target copies, a tanh-Gaussian actor, the temperature), timed on ``clock`` over ``rounds``
+    updates on as many threads as the runs had (their ``torch_threads``)."""
     import torch
     from omegaconf import OmegaConf
 
@@ -200,12 +207,12 @@ def update_floor(folder: Path, seeds: int, rounds: int = 300) -> float:
     try:
         for _ in range(20):
             step()
-        start = time.perf_counter()
+        start = clock()
         for _ in range(rounds):
             step()
     finally:
         torch.set_num_threads(threads)
-    return (time.perf_counter() - start) / rounds * steps
+    return (clock() - start) / rounds * steps
 
 
 def sac_update(net, q, shapes, obs, nxt, reward, gen):
@@ -285,15 +292,18 @@ def main() -> None:
             one = timed([sys.executable, "train.py", *common, "seed=0", f"hydra.run.dir={where / 'one'}"])
             batch = timed([sys.executable, "train.py", "-m", *common, f"seed=range({args.seeds})",
                            f"hydra.sweep.dir={where / 'batch'}"])
-            rows.append((learner, label, one, batch, physics_floor(learner, n, args.seeds, where / "batch"),
-                         update_floor(where / "batch", args.seeds) if learner != "qlearn" else 0.0))
+            floors = [(physics_floor(learner, n, args.seeds, where / "batch", clock),
+                       update_floor(where / "batch", args.seeds, clock=clock) if learner != "qlearn" else 0.0)
+                      for clock in (time.perf_counter, time.process_time)]
+            rows.append((learner, label, one, batch, *floors))
     print(f"load average (1/5/15 min) at the end: {load()}")
-    for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb), floor_s, updates_s in rows:
+    for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb), (floor_s, updates_s), cpu in rows:
         print(f"BATCH {learner} num_envs={label} seeds={args.seeds} one_s={one_s:.1f} batch_s={batch_s:.1f} "
               f"ratio={batch_s / one_s:.2f} per_seed_ratio={batch_s / (args.seeds * one_s):.3f} "
               f"physics_floor_s={floor_s:.1f} floor_ratio={floor_s / one_s:.2f} update_floor_s={updates_s:.1f} "
               f"target_ratio={batch_s / (floor_s + updates_s):.2f} "
               f"one_cpu_s={one_cpu:.1f} batch_cpu_s={batch_cpu:.1f} cpu_ratio={batch_cpu / one_cpu:.2f} "
+              f"floors_cpu_s={sum(cpu):.1f} target_cpu_ratio={batch_cpu / sum(cpu):.2f} "
               f"peak_rss_mb={batch_mb:.0f} (one seed: {one_mb:.0f})")
 
 
