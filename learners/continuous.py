@@ -17,7 +17,7 @@ from torchrl.modules.distributions import TanhNormal
 from torchrl.modules.distributions.utils import safetanh_noeps
 
 from learners.device import DEVICE_NOTE, check_device
-from learners.member import lanes
+from learners.member import lanes, obs_scale_param
 from params.declare import param
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
@@ -75,6 +75,7 @@ class ReplaySettings:
 
     hidden: list[int] = param([256, 256], "widths of the actor's and each critic's hidden layers")
     activation: str = param("relu", "hidden layers' activation", choices=tuple(ACTIVATIONS))
+    obs_scale: dict[str, float] | None = obs_scale_param()
     lr: float = param(3e-4, "Adam's learning rate of the actor and the critics", gt=0)
     gamma: float = param(0.99, "discount of the next state's value", ge=0, le=1)
     loss: str = param("l2", "critics' TD error loss", choices=tuple(DISTANCES))

@@ -34,7 +34,7 @@ from torch import nn
 from torchrl.modules import MLP, DistributionalQValueActor, NoisyLinear, QValueActor
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
-from learners.member import ObsScale, ReplayLearner, check_replay_settings
+from learners.member import ReplayLearner, check_replay_settings, obs_scale_param, with_obs_scale
 from learners.transitions import Transitions, unpack
 from params import require
 from params.declare import REQUIRED, check_fields, param
@@ -113,9 +113,7 @@ class DQN(ReplayLearner):
                                    "LogEpisodeEpsilon")
     hidden: list[int] = param([64, 64], "widths of the Q-network's hidden layers")
     activation: str = param("relu", "hidden layers' activation", choices=tuple(ACTIVATIONS))
-    obs_scale: dict[str, float] | None = param(None, "per observation name, a factor its value is "
-                                                     "multiplied by before the network (others 1)",
-                                               note="null = none")
+    obs_scale: dict[str, float] | None = obs_scale_param()
     lr: float = param(1e-3, "Adam's learning rate", gt=0)
     lr_decay: float = param(0.0, "Keras-style decay: lr / (1 + lr_decay * updates)", ge=0)
     gamma: float = param(0.99, "discount of the next state's value", ge=0, le=1)
@@ -201,7 +199,7 @@ class DQN(ReplayLearner):
 
     def template(self, task) -> nn.Sequential:
         """One member's Q-network on the CPU (where each member's stream initialises it and
-        its states are saved): TorchRL's ``MLP``, after an :class:`ObsScale` if asked, ending in
+        its states are saved): TorchRL's ``MLP``, after a :class:`~learners.member.ObsScale` if asked, ending in
         a :class:`DuelingHead` with ``dueling``; its layers TorchRL's ``NoisyLinear`` with ``noisy``
         (their noise buffers zero: the saved model acts by its mean weights)."""
         noisy = {"layer_class": NoisyLinear, "layer_kwargs": {"std_init": self.noisy_sigma}} if self.noisy else {}
@@ -215,14 +213,7 @@ class DQN(ReplayLearner):
             net = nn.Sequential(*net, DuelingHead(atoms))
         if self.distributional:  # TorchRL's DistributionalQValueActor reads [atoms, actions]
             net = nn.Sequential(*net, nn.Unflatten(-1, (atoms, self.n_actions)))
-        if self.obs_scale:
-            names = list(task.observation_names)
-            unknown = sorted(set(self.obs_scale) - set(names))
-            require(not unknown, f"learner.obs_scale names no observation of this task; its "
-                                 f"observations: {', '.join(names)}", unknown)
-            scale = torch.tensor([float(self.obs_scale.get(n, 1.0)) for n in names])
-            net = nn.Sequential(ObsScale(scale), *net)
-        return net
+        return with_obs_scale(net, self.obs_scale, list(task.observation_names))
 
     def actor_of(self, template: nn.Sequential) -> nn.Module:
         """The network as ``model.pt`` holds it: TorchRL's Q-value actor."""

@@ -47,6 +47,7 @@ from torchrl.modules import NoisyLinear
 from learners.base import Member, StateMismatch, check_state, everyone, member_settings, per_member, single
 from learners.transitions import Transitions, pack, unpack
 from params import require
+from params.declare import param
 from params.private_api import writer_cursor, with_entries
 
 # The layers' gradients are views of one tensor (MemberNets.layers), strided as their
@@ -195,6 +196,28 @@ class ObsScale(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x * self.scale
+
+
+def obs_scale_param() -> Any:
+    """Declares a learner's ``obs_scale`` (None, or a factor per observation name)."""
+    return param(None, "per observation name, a factor its value is multiplied by before the networks "
+                       "(others 1)", note="null = none")
+
+
+def with_obs_scale(net: nn.Sequential, obs_scale: Mapping[str, float] | None,
+                   names: Sequence[str]) -> nn.Sequential:
+    """``net`` after an :class:`ObsScale` of ``obs_scale``'s factors on its first inputs, the
+    observation's ``names`` in order (its later inputs, such as a critic's action, by 1);
+    ``net`` itself when ``obs_scale`` is empty. A name that is no observation is refused."""
+    if not obs_scale:
+        return net
+    unknown = sorted(set(obs_scale) - set(names))
+    require(not unknown, f"learner.obs_scale names no observation of this task; its observations: "
+                         f"{', '.join(names)}", unknown)
+    inputs = next(layer for layer in net if isinstance(layer, nn.Linear)).in_features
+    scale = torch.ones(inputs)
+    scale[:len(names)] = torch.tensor([float(obs_scale.get(n, 1.0)) for n in names])
+    return nn.Sequential(ObsScale(scale), *net)
 
 
 _FUNCTIONS = {nn.Tanh: lambda x: lanes(torch.tanh, x), nn.ReLU: torch.relu}
@@ -1223,8 +1246,10 @@ class PolicyMembers(MemberLearner):
         check_action_form(task, "continuous", self.kind)
         self._members(generators, variants)
         self.n_obs, self.n_actions = len(task.observation_names), task.action_range.dims
+        names = list(task.observation_names)
         with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
-            plan = self.networks(task)
+            plan = {name: (None if template is None else with_obs_scale(template, self.obs_scale, names), target)
+                    for name, (template, target) in self.networks(task).items()}
         self.templates = {name: template for name, (template, _) in plan.items()}
         starts = [self._initial(g, own) for g, own in zip(self.generators, self.settings)]
         self.groups = {name: MemberGroup(template, [start[name] for start in starts], self.device, target)
@@ -1305,9 +1330,10 @@ class PolicyMembers(MemberLearner):
             tracker.restart(self.steps[b])
 
     def arch(self) -> dict:
-        """The networks a saved state must match (the algorithm's ``hidden`` and ``activation``)."""
+        """The networks a saved state must match (the algorithm's ``hidden``, ``activation``
+        and ``obs_scale``)."""
         return {"n_obs": self.n_obs, "n_actions": self.n_actions, "hidden": self.hidden,
-                "activation": self.activation}
+                "activation": self.activation} | ({"obs_scale": dict(self.obs_scale)} if self.obs_scale else {})
 
     def _check_arch(self, arch: dict, where: str) -> None:
         if arch != self.arch():

@@ -27,7 +27,7 @@ from torch import nn
 from torchrl.modules.distributions.utils import safetanh_noeps
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
-from learners.member import GroupStep, Losses, RolloutLearner, lanes
+from learners.member import GroupStep, Losses, RolloutLearner, lanes, obs_scale_param
 from learners.continuous import ACTIVATIONS, LOG_SQRT_2PI, GaussianHead, log_prob_of, mlp, squashed, tanh_normal_actor
 from params import require
 from params.declare import check_fields, param
@@ -60,6 +60,7 @@ class PPO(RolloutLearner):
 
     hidden: list[int] = param([64, 64], "widths of the actor's and the critic's hidden layers")
     activation: str = param("tanh", "hidden layers' activation", choices=tuple(ACTIVATIONS))
+    obs_scale: dict[str, float] | None = obs_scale_param()
     lr: float = param(3e-4, "Adam's learning rate of the actor and the critic", gt=0)
     gamma: float = param(0.99, "discount of the next state's value", ge=0, le=1)
     gae_lambda: float = param(0.95, "GAE's lambda (0: one-step TD advantages, 1: Monte Carlo)", ge=0, le=1)

@@ -123,6 +123,9 @@ DQN_CASES = {
                                                     "learner.learning_starts=30", "learner.updates=2",
                                                     "learner.fixed_alpha=true", "learner.grad_clip=1.0",
                                                     "learner.loss=smooth_l1"]),
+    # a fixed input factor before every network (the critics' action inputs by 1)
+    "sac with obs_scale": ("sac", 2, ["learner.hidden=[8]", "learner.batch_size=8", "learner.learning_starts=30",
+                                      "+learner.obs_scale={cart_pos: 0.5, pole_vel: 3.0}"]),
     # TD3: a delayed actor (members whose updates step it, and those whose do not, apart),
     # target actor and critics, smoothing noise from each member's stream
     "td3, 2 copies": ("td3", 2, ["learner.hidden=[16]", "learner.batch_size=8", "learner.learning_starts=30",

@@ -107,6 +107,41 @@ def test_its_policy_is_torchrl_actor():
     env.close()
 
 
+@pytest.mark.parametrize("learner", ["sac", "td3", "ppo"])
+def test_obs_scale_multiplies_named_observations_before_every_network(learner):
+    """``obs_scale`` on a continuous learner: a fixed factor per named observation in front
+    of every network (a critic's action inputs by 1), in the policy model.pt holds; a saved
+    state without it does not load into a learner with it; an unknown name is one line
+    naming the task's observations."""
+    from learners.base import StateMismatch
+
+    scale = ["+learner.obs_scale={wheel_speed: 0.01, yaw: 10.0}"]
+    scaled, env = built("cube", scale, learner=learner)
+    plain, _ = built("cube", learner=learner)
+    names = list(env.task.observation_names)
+    factor = torch.ones(len(names))
+    factor[names.index("wheel_speed")], factor[names.index("yaw")] = 0.01, 10.0
+    def outputs(net, params, x):  # an actor's (loc, scale) as one tensor
+        found = net.q(params, x)
+        return torch.cat(found, -1) if isinstance(found, tuple) else found
+
+    for name, group in scaled.groups.items():
+        if group.net is None:
+            continue
+        inputs = torch.randn(1, 5, group.net.template[1].in_features)
+        by = torch.cat((factor, torch.ones(inputs.shape[-1] - len(names))))
+        params = plain.groups[name].params  # the same layers after the scale
+        assert torch.equal(outputs(group.net, params, inputs), outputs(plain.groups[name].net, params, inputs * by))
+    saved = scaled.model_state(0)["actor"]
+    assert [torch.equal(v, factor) for k, v in saved.items() if k.endswith(".scale")] == [True]
+    with pytest.raises(StateMismatch, match="does not fit this run"):
+        scaled.load_model_state(0, plain.model_state(0), "model.pt")
+    with pytest.raises(ConfigError, match=f"learner.obs_scale names no observation of this task; its "
+                                          f"observations: {', '.join(names)}"):
+        built("cube", ["+learner.obs_scale={wheel: 2.0}"], learner=learner)
+    env.close()
+
+
 @pytest.mark.parametrize("robot, task", [("cartpole", None), ("cube", None), ("turtlebot", "maze"),
                                          ("turtlebot", "wall"), ("pendulum", None), ("point_mass", None),
                                          ("acrobot", None), ("double_pendulum", None)])
