@@ -117,10 +117,12 @@ def test_obs_scale_multiplies_named_observations_before_every_network(learner):
 
     scale = ["+learner.obs_scale={wheel_speed: 0.01, yaw: 10.0}"]
     scaled, env = built("cube", scale, learner=learner)
-    plain, _ = built("cube", learner=learner)
+    plain, plain_env = built("cube", learner=learner)
+    plain_env.close()
     names = list(env.task.observation_names)
     factor = torch.ones(len(names))
     factor[names.index("wheel_speed")], factor[names.index("yaw")] = 0.01, 10.0
+
     def outputs(net, params, x):  # an actor's (loc, scale) as one tensor
         found = net.q(params, x)
         return torch.cat(found, -1) if isinstance(found, tuple) else found
