@@ -115,9 +115,9 @@ def test_obs_scale_multiplies_named_observations_before_every_network(learner):
     naming the task's observations."""
     from learners.base import StateMismatch
 
-    scale = ["+learner.obs_scale={wheel_speed: 0.01, yaw: 10.0}"]
+    scale = ["~tuned", "learner.obs_scale={wheel_speed: 0.01, yaw: 10.0}"]  # not conf/tuned/cube_sac.yaml's
     scaled, env = built("cube", scale, learner=learner)
-    plain, plain_env = built("cube", learner=learner)
+    plain, plain_env = built("cube", ["~tuned"], learner=learner)
     plain_env.close()
     names = list(env.task.observation_names)
     factor = torch.ones(len(names))
@@ -140,7 +140,7 @@ def test_obs_scale_multiplies_named_observations_before_every_network(learner):
         scaled.load_model_state(0, plain.model_state(0), "model.pt")
     with pytest.raises(ConfigError, match=f"learner.obs_scale names no observation of this task; its "
                                           f"observations: {', '.join(names)}"):
-        built("cube", ["+learner.obs_scale={wheel: 2.0}"], learner=learner)
+        built("cube", ["~tuned", "learner.obs_scale={wheel: 2.0}"], learner=learner)
     env.close()
 
 
