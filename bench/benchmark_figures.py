@@ -33,14 +33,14 @@ def draw(task: str, pairs: list[dict], seeds: list[dict], path: Path) -> Path | 
     import matplotlib.pyplot as plt
     import matplotlib.ticker  # noqa: F401 - matplotlib.ticker below
 
-    rows = [p for p in pairs if p["task"] == task and p["greedy_iqm"] is not None]
+    rows = [p for p in pairs if p["task"] == task and p["seeds"] and p["greedy_iqm"] is not None]  # not a pair not run
     if not rows:
         return None
     rows.sort(key=lambda p: p["greedy_iqm"])
     threshold = next((s["threshold"] for s in seeds if s["task"] == task and s["threshold"] is not None), None)
     measure = rows[0]["measure"] or "measure"
     style = styles(task, pairs)
-    learners = list(dict.fromkeys(p["learner"] for p in pairs if p["task"] == task and p["greedy_iqm"] is not None))
+    learners = list(dict.fromkeys(p["learner"] for p in rows))
     columns = min(3, len(learners))
     lines = -(-len(learners) // columns)
     fig = plt.figure(figsize=(5 * columns + 6, 3.6 * lines + 1.2))

@@ -539,6 +539,25 @@ def test_a_learner_keeps_one_colour_in_a_tasks_figure():
     assert len({style[name, "tuned"][0] for name in learners}) == 6
 
 
+def test_a_pair_not_run_is_left_out_of_its_tasks_figure(tmp_path):
+    """A results folder's pair not run yet (no seeds, its IQM NaN) draws no panel and no row
+    at the end (it was drawn as "0/0" without a point)."""
+    import matplotlib.image
+
+    from bench.benchmark_figures import draw
+
+    def pair(learner: str, seeds: int) -> dict:
+        iqm = 2.0 if seeds else float("nan")
+        return {"task": "cube", "learner": learner, "setting": "published", "seeds": seeds, "success": seeds,
+                "greedy_iqm": iqm, "ci_low": iqm, "ci_high": iqm, "measure": "distance_walked"}
+
+    seeds = [{"task": "cube", "learner": "dqn", "setting": "published", "status": "ok", "threshold": 1.0,
+              "evaluations": [[1000, 0.5], [2000, 2.0]]}]
+    one = draw("cube", [pair("dqn", 1)], seeds, tmp_path / "one.png")
+    both = draw("cube", [pair("dqn", 1), pair("n1try", 0)], seeds, tmp_path / "both.png")
+    assert (matplotlib.image.imread(one) == matplotlib.image.imread(both)).all()
+
+
 def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file():
     """``--tune --studies <folder>``: each pair's study in that folder's journal, its
     ``write_tuned`` off; the plan's own folder writes the tuned files."""
