@@ -19,8 +19,10 @@ reader finds a number through it, never by spelling the name itself:
 - ``greedy_<measure>``, ``greedy_return``: the final greedy evaluation's mean measure and
   mean return (a run a tuning study pruned: its last evaluation's, as it makes no final
   one; None without one);
-- ``judged_<measure>``: the mean the verdict compared with the threshold (at the solving
-  point; else the last greedy evaluation's, or the best training window's);
+- ``judged_<measure>``: the mean where the verdict was reached (the training window's,
+  which a training verdict compares with the threshold, or the confirming greedy
+  evaluation's, whose episodes' pass rate a greedy verdict compares); else the last greedy
+  evaluation's, or the best training window's;
 - ``start_level``, ``stuck_steps``, ``stuck``: the mean measure of the first 20 training
   episodes, the env steps the run spent at that level before it first rose above it
   (:class:`runs.run.StartWatch`), and whether that was a quarter of its budget or more (a
@@ -144,8 +146,10 @@ class MeasureKeys:
         what = description or self.measure
         unit = f" ({unit})" if unit else ""
         return {
-            self.judged: f"the mean {what}{unit} the verdict compared with the threshold (where it solved; "
-                         "else the last greedy evaluation's, or the best training window's)",
+            self.judged: f"the mean {what}{unit} where the verdict was reached (the training window's, which a "
+                         "training verdict compares with the threshold, or the confirming greedy evaluation's, "
+                         "whose episodes' pass rate a greedy verdict compares); else the last greedy "
+                         "evaluation's, or the best training window's",
             self.train_return_mean: "the mean return over all training episodes",
             self.train_return_last100: f"the mean return of the last {RETURN_WINDOW} training episodes",
             self.train_best_rolling: f"the best mean {what}{unit} of {self.window} consecutive training episodes",
@@ -564,7 +568,18 @@ def _headline(s: dict, unit: str) -> str:
     n = s["solved_at"] if s["solved"] else s["episodes"]
     keys = measure_keys(s["measure"], s["window"])
     judged, greedy = s[keys.judged], s.get(keys.greedy)
-    if s["decided_by"] == "greedy":
+    rated = s.get("greedy_rate") is not None and s.get("rate") is not None
+    if rated and s["decided_by"] == "greedy":  # the rate decides, not the mean
+        rule = f"{s['description']} >= {s['threshold']:g}{unit}"
+        if s["solved"]:
+            return (f"solved after {n} episodes: at least {s['rate']:.0%} of the greedy policy's episodes "
+                    f"reached {rule}, in an evaluation at episode {n} and its confirmation from fresh "
+                    f"starts (the confirmation's mean {_num(judged)}{unit})")
+        return (f"not solved after {n} episodes: needs {rule} on at least {s['rate']:.0%} of a greedy "
+                f"evaluation's episodes, confirmed from fresh starts (judged on the greedy policy, after "
+                f"at least {s['min_episodes']} episodes); the final evaluation: {s['greedy_rate']:.0%} "
+                f"passed, mean {_num(judged)}{unit}")
+    if s["decided_by"] == "greedy":  # a run from before rates: the mean decided
         how = (f"the greedy policy's mean {s['description']}, "
                f"{_num(judged)}{unit} (greedy evaluation at episode {n})")
     else:

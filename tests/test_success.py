@@ -92,6 +92,8 @@ def test_a_cube_that_never_moves_is_not_solved(tmp_path):
     v = verdict(lines)
     assert v["solved"] == "false" and v["measure"] == "distance_walked" and v["judge"] == "greedy"
     assert "not solved after 8 episodes: needs distance walked towards +y >= 1 m" in lines[0]
+    assert "on at least 90% of a greedy evaluation's episodes" in lines[0]  # the rate decides, said as such
+    assert "the final evaluation: 0% passed" in lines[0]
 
 
 def test_one_tip_over_an_edge_is_not_a_walk(tmp_path):
@@ -123,7 +125,10 @@ def test_a_turtlebot_that_drives_laps_is_solved_by_the_greedy_judge(tmp_path):
     assert summary["judged_laps"] >= 2.0  # laps, measured: about 4.4 in 500 steps
     v = verdict(lines)
     assert v["solved"] == "true" and v["judge"] == "greedy" and float(v["judged_laps"]) >= 2.0
-    assert lines[0].startswith("solved after 2 episodes: the greedy policy's mean laps round the maze")
+    # a greedy verdict is the pass rate's (at least 90% of the episodes), not the mean's: the line says so
+    assert lines[0].startswith("solved after 2 episodes: at least 90% of the greedy policy's episodes reached "
+                               "laps round the maze without a collision >= 2 laps")
+    assert "its confirmation from fresh starts (the confirmation's mean" in lines[0]
 
 
 def feed(run: Run, lengths: list[int]) -> None:
