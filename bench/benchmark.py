@@ -510,6 +510,8 @@ def markdown(pairs: list[dict], plan_text: str, specs: dict[str, str], figures: 
         notes = []
         for p in mine:
             success = f"{p['success']}/{p['seeds']}" if p["seeds"] else "-"
+            if p["seeds"] and p["failed"]:  # a pair still running (or stopped) is not a 0/10
+                success += f" ({p['failed']} not finished)"
             setting = f"tuned ({p['tuned_file']})" if p["tuned_file"] else p["setting"]
             lines.append(f"| {p['learner']} | {setting} | {success} | {_iqm_text(p)} | "
                          f"{_g(p['steps_to_success'], ',.0f')} | {_g(p['wall_to_success'], '.1f')} | "

@@ -9,6 +9,8 @@ published settings drawn dashed and hollow, its tuned ones solid. Drawn from the
 
 from __future__ import annotations
 
+import math
+
 from pathlib import Path
 
 from sweeps.comparison_plot import greedy_points
@@ -33,7 +35,8 @@ def draw(task: str, pairs: list[dict], seeds: list[dict], path: Path) -> Path | 
     import matplotlib.pyplot as plt
     import matplotlib.ticker  # noqa: F401 - matplotlib.ticker below
 
-    rows = [p for p in pairs if p["task"] == task and p["seeds"] and p["greedy_iqm"] is not None]  # not a pair not run
+    rows = [p for p in pairs if p["task"] == task and p["seeds"] and p["greedy_iqm"] is not None
+            and math.isfinite(p["greedy_iqm"])]  # not a pair not run, nor one whose seeds are all still running
     if not rows:
         return None
     rows.sort(key=lambda p: p["greedy_iqm"])

@@ -486,6 +486,11 @@ def test_a_pairs_notes_are_all_kept_and_a_task_not_run_first_still_names_its_mea
     text = benchmark.markdown([empty, dqn], "plan", {"cube": "cube/move"})
     assert "greedy_distance IQM" in text and "greedy_measure" not in text
     assert "- qlearn (tuned): not run" in text
+    running = {**seed, "success": False, "status": "interrupted", "greedy": None,
+               "error": "no summary.json: killed before it finished, or still running"}
+    text = benchmark.markdown([benchmark.pair_row(job, [seed, running], None, "unfinished", "")], "plan",
+                              {"cube": "cube/move"})
+    assert "| 1/2 (1 not finished) |" in text  # a pair still running reads as such, not as a failure
 
 
 def test_a_pair_resumed_after_a_stop_says_its_wall_time_is_the_last_pieces(tmp_path):
@@ -540,14 +545,15 @@ def test_a_learner_keeps_one_colour_in_a_tasks_figure():
 
 
 def test_a_pair_not_run_is_left_out_of_its_tasks_figure(tmp_path):
-    """A results folder's pair not run yet (no seeds, its IQM NaN) draws no panel and no row
-    at the end (it was drawn as "0/0" without a point)."""
+    """A results folder's pair not run yet (no seeds, its IQM NaN), or still running (seeds, none
+    finished: its IQM NaN too), draws no panel and no row at the end (it was drawn as "0/0", or
+    "0/10", without a point)."""
     import matplotlib.image
 
     from bench.benchmark_figures import draw
 
-    def pair(learner: str, seeds: int) -> dict:
-        iqm = 2.0 if seeds else float("nan")
+    def pair(learner: str, seeds: int, finished: bool = True) -> dict:
+        iqm = 2.0 if seeds and finished else float("nan")
         return {"task": "cube", "learner": learner, "setting": "published", "seeds": seeds, "success": seeds,
                 "greedy_iqm": iqm, "ci_low": iqm, "ci_high": iqm, "measure": "distance_walked"}
 
@@ -556,6 +562,8 @@ def test_a_pair_not_run_is_left_out_of_its_tasks_figure(tmp_path):
     one = draw("cube", [pair("dqn", 1)], seeds, tmp_path / "one.png")
     both = draw("cube", [pair("dqn", 1), pair("n1try", 0)], seeds, tmp_path / "both.png")
     assert (matplotlib.image.imread(one) == matplotlib.image.imread(both)).all()
+    running = draw("cube", [pair("dqn", 1), pair("sac", 10, finished=False)], seeds, tmp_path / "running.png")
+    assert (matplotlib.image.imread(one) == matplotlib.image.imread(running)).all()
 
 
 def test_a_replay_of_the_grid_keeps_its_journals_apart_and_writes_no_tuned_file():
