@@ -10,7 +10,6 @@ published settings drawn dashed and hollow, its tuned ones solid. Drawn from the
 from __future__ import annotations
 
 import math
-
 from pathlib import Path
 
 from sweeps.comparison_plot import greedy_points
