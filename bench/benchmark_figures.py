@@ -34,7 +34,7 @@ def draw(task: str, pairs: list[dict], seeds: list[dict], path: Path) -> Path | 
     import matplotlib.pyplot as plt
     import matplotlib.ticker  # noqa: F401 - matplotlib.ticker below
 
-    rows = [p for p in pairs if p["task"] == task and p["seeds"] and p["greedy_iqm"] is not None
+    rows = [p for p in pairs if p["task"] == task and p["greedy_iqm"] is not None
             and math.isfinite(p["greedy_iqm"])]  # not a pair not run, nor one whose seeds are all still running
     if not rows:
         return None

@@ -564,7 +564,8 @@ def _num(v) -> str:
 
 
 def _headline(s: dict, unit: str) -> str:
-    """``solved after N episodes: <how> >= T`` or ``not solved after N episodes: needs ...``."""
+    """``solved after N episodes: <how> >= T`` (a greedy verdict: ``at least 90% of the greedy
+    policy's episodes reached ...``) or ``not solved after N episodes: needs ...``."""
     n = s["solved_at"] if s["solved"] else s["episodes"]
     keys = measure_keys(s["measure"], s["window"])
     judged, greedy = s[keys.judged], s.get(keys.greedy)
