@@ -108,10 +108,12 @@ def _step(learner: Learner, env, live: list[Lane], training: list[Lane], td: Ten
     acted, next_td = env.step_and_maybe_reset(acted)
     _together(live, lambda: learner.observe(acted, _indices(training)))
     sound = _sound(training)
-    ended = _book(learner, sound, acted)
+    ended, booked = _book(learner, sound, acted)
     if ended:
         _together(sound, lambda: learner.end_episodes(ended))
     for lane in _sound(sound):
+        if lane.index not in booked and lane.run.end_quiet_step(next_td):
+            continue  # most steps: nothing finished and nothing due
         lane.guarded(lambda lane=lane: lane.run.end_step(next_td))
         if lane.run.waiting:
             if lane.failed is None:
@@ -171,29 +173,32 @@ def _resume(env, lane: Lane, state: dict, td: TensorDictBase) -> TensorDictBase:
     return td
 
 
-def _book(learner: Learner, lanes: list[Lane], td: TensorDictBase) -> dict[int, int]:
+def _book(learner: Learner, lanes: list[Lane], td: TensorDictBase) -> tuple[dict[int, int], set[int]]:
     """Each lane's Run books its block of the step (its finished episodes, with its member's
-    numbers); per member, how many episodes it booked."""
+    numbers); per member, how many episodes it booked, and the members whose block finished
+    an episode (the others' runs only count the step)."""
     nxt = td.get("next")
     reward, done, terminated = (nxt.get(key).reshape(-1).numpy() for key in ("reward", "done", "terminated"))
     n = len(reward) // learner.members
     ended: dict[int, int] = {}
+    booked: set[int] = set()
 
-    def book(lane: Lane) -> None:
-        rows = slice(lane.index * n, (lane.index + 1) * n)
-        view, finished = lane.env, done[rows]
-        lane.run.divergences = getattr(view, "divergences", 0)
-        if not finished.any():  # most steps: the run only counts the step
-            lane.run.record(reward[rows], finished, terminated[rows])
-            return
-        count = len(lane.run.record(reward[rows], finished, terminated[rows], lane.member.stats,
+    def book(lane: Lane, rows: slice) -> None:
+        view = lane.env
+        lane.run.divergences = getattr(view, "divergences", 0)  # a diverged copy's episode ends
+        count = len(lane.run.record(reward[rows], done[rows], terminated[rows], lane.member.stats,
                                     getattr(view, "ended_info", None)))
         if count:
             ended[lane.index] = count
 
     for lane in lanes:
-        lane.guarded(lambda lane=lane: book(lane))
-    return ended
+        rows = slice(lane.index * n, (lane.index + 1) * n)
+        if not done[rows].any():  # most steps: the run only counts the step
+            lane.run.episodes.step(reward[rows])
+            continue
+        booked.add(lane.index)
+        lane.guarded(lambda lane=lane, rows=rows: book(lane, rows))
+    return ended, booked
 
 
 def _together(lanes: list[Lane], work):

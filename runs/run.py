@@ -353,6 +353,7 @@ class Run:
         self.resume_td: TensorDictBase | None = None  # where a resumed run's first step starts
         self.last_td: TensorDictBase | None = None  # where the next step would start
         self._owed: str | None = None  # the evaluation a waiting run's boundary waits for
+        self._quiet_until = 0  # env steps before which a boundary after no finished episode has nothing due
         self.episodes = EpisodeLog(num_envs)
         self.evals: list[dict] = []  # one row per greedy evaluation (evals.csv's, "value" the measure)
         self.last_eval: dict | None = None  # the newest evaluation's full result
@@ -428,6 +429,34 @@ class Run:
             self._close_boundary(td)
         return td
 
+    def end_quiet_step(self, td: TensorDictBase) -> bool:
+        """Ends the step before ``td`` if it finished none of the run's episodes and its
+        boundary has nothing due (:meth:`end_step` would only keep ``td``): whether it did
+        (False: :meth:`end_step` must run). What a boundary does changes with episodes,
+        evaluations and a few env-step marks (the train/* point, a progress report, a
+        periodic evaluation by env steps, the budget: :meth:`_quiet_horizon`), or with a stop
+        asked or a trial pruned at any step."""
+        if (self.env_steps >= self._quiet_until or self.stop_requested
+                or (self.progress is not None and self.progress.pruned)):
+            return False
+        self.last_td = td
+        return True
+
+    def _quiet_horizon(self) -> float:
+        """The env steps before which a boundary that follows no finished episode has nothing
+        due (the boundary just ended did everything due until then); 0: none is known."""
+        if (self._owed is not None or self.done
+                or (self._train_due and self.logger is not None and self.train_stats is not None)):
+            return 0
+        marks = [self.max_env_steps or math.inf]
+        if self.logger is not None and self.train_stats is not None:
+            marks.append((self._train_logged or 0) + TRAIN_LOG_STEPS)
+        if self.progress is not None and self.progress.every:
+            marks.append(self._next_progress)
+        if self.greedy_eval is not None and self.eval_every_steps:
+            marks.append((self.evals[-1]["env_steps"] if self.evals else 0) + self.eval_every_steps)
+        return min(marks)
+
     def _evaluate_owed(self) -> bool:
         """Makes the boundary's evaluations while one is owed (a passing one owes its
         confirmation at once), each from fresh starts (the run's ``len(evals)``-th); whether
@@ -488,6 +517,7 @@ class Run:
         if self.n_episodes - self._last_trim >= TRIM_EPISODES:  # after the checkpoint's garbage
             _release_free_memory()
             self._last_trim = self.n_episodes
+        self._quiet_until = self._quiet_horizon()
 
     # -- episodes and evaluations ---------------------------------------------
     def _evaluation_due(self) -> bool:
