@@ -166,13 +166,22 @@ class BatchedPhysics:
             return
         stepped, stepped_sensor = self._rollout(self.state[some], self.ctrl[some], nsubsteps,
                                                 self._warmstart[some])
+        timestep = self._opt.timestep
+        elapsed = np.subtract(stepped[:, 0], self.time[some])
+        if (_min(elapsed, None) >= (nsubsteps - 0.5) * timestep and _max(elapsed, None) <= (nsubsteps + 0.5) * timestep
+                and -_MAXVAL <= _min(stepped, None) and _max(stepped, None) <= _MAXVAL
+                and (stepped_sensor is None or math.isfinite(_min(stepped_sensor, None) + _max(stepped_sensor, None)))):
+            self.diverged = self._none_diverged  # as :meth:`step`'s fast path: every stepped copy is fine
+            self.state[some] = stepped
+            if stepped_sensor is not None:
+                self.sensordata[some] = stepped_sensor
+            return
         last = self.state.copy()
         last[some] = stepped
         sensor = None
         if self._nsensordata:
             sensor = self.sensordata.copy()
             sensor[some] = stepped_sensor
-        timestep = self._opt.timestep
         elapsed = np.full(self.num_envs, nsubsteps * timestep)
         elapsed[some] = last[some, 0] - self.time[some]
         off = (elapsed < (nsubsteps - 0.5) * timestep) | (elapsed > (nsubsteps + 0.5) * timestep)
