@@ -146,6 +146,7 @@ class MemberEvaluations:
         self.alive = np.zeros(n, dtype=bool)
         self.info: dict[str, np.ndarray] = {}
         self.observation = torch.zeros(n, len(self.env.task.observation_names))
+        self.null_action = self.env.action_spec.zero()  # the rows of blocks not evaluating
         # The members evaluating: each one's block and the stream that breaks its greedy ties.
         self.running: dict[int, tuple[int, torch.Generator]] = {}
         self.spread: dict[int, dict[str, float]] = {}  # each one's starts: how far they spread
@@ -175,12 +176,11 @@ class MemberEvaluations:
             acting[env.block(self.running[member][0])] = True
         rows = torch.from_numpy(acting)
         observed = TensorDict({"observation": self.observation[rows]}, batch_size=[int(acting.sum())])
-        action = env.action_spec.zero()  # the rows of blocks not evaluating: a null action
+        action = self.null_action.clone()
         with torch.no_grad():
             action[rows] = self.learner.act_members(observed, members, True,
                                                     [self.running[m][1] for m in members]).get("action")
-            nxt = env.step(TensorDict({"observation": self.observation, "action": action},
-                                      batch_size=[env.num_envs])).get("next")
+        nxt = env.step_actions(action)
         _book_step(env, nxt, self.ret, self.length, self.alive, self.info)
         self.observation = nxt.get("observation")
         results = {}

@@ -218,6 +218,12 @@ class RobotTaskEnv(EnvBase):
         action = tensordict.get("action").reshape(self.action_shape).cpu().numpy()
         return self._advance(action, device=None)[0]
 
+    def step_actions(self, action: torch.Tensor) -> TensorDictBase:
+        """``step``'s ``next`` tensordict for every copy's ``action``, made without an input
+        tensordict: the same tensors, less ``EnvBase.step``'s handling of a tensordict this
+        env made itself (a greedy evaluation's steps: ~0.2 ms a step less)."""
+        return self._advance(action.reshape(self.action_shape).cpu().numpy(), device=None)[0]
+
     def _step_and_maybe_reset(self, tensordict: TensorDictBase
                               ) -> tuple[TensorDictBase, TensorDictBase]:
         """``step``, ``step_mdp`` and the partial reset of the ended copies, as
