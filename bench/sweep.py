@@ -16,8 +16,12 @@ from runs.summary import summarize_run  # noqa: E402
 def run_to_solve(overrides: list[str], run_dir: Path) -> dict:
     """One ``train.py <overrides> quiet=true`` into ``run_dir``: its summary, with ``solved``
     and, at solving (or at the end when it did not), ``episodes``, ``env_steps`` and ``wall_s``
-    (the run's own clock)."""
-    cmd = [sys.executable, "train.py", *overrides, "quiet=true", f"hydra.run.dir={run_dir}"]
+    (the run's own clock). A run stopped part way there (Ctrl-C, a benchmark stopped or
+    killed) is continued from its checkpoint (``resume=``)."""
+    if "resume" in summarize_run(run_dir):
+        cmd = [sys.executable, "train.py", f"resume={run_dir}"]
+    else:
+        cmd = [sys.executable, "train.py", *overrides, "quiet=true", f"hydra.run.dir={run_dir}"]
     print("running:", " ".join(cmd), flush=True)
     subprocess.run(cmd, cwd=ROOT, check=False)
     s = summarize_run(run_dir)

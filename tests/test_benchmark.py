@@ -718,3 +718,21 @@ def test_a_pair_a_signal_stopped_gets_no_record(tmp_path, monkeypatch, returncod
     assert benchmark.job_record(job, out) == {}
     pair_exits(2)
     assert benchmark.job_record(job, out)["returncode"] == 2  # a pair that failed is recorded
+
+
+def test_a_benchmark_run_stopped_part_way_is_continued_not_refused(tmp_path):
+    """bench/sweep.py's ``run_to_solve`` into a folder holding a run stopped part way (a
+    comparison stopped or killed at a session's end) continues it from its checkpoint, where
+    ``train.py`` into a used folder would refuse."""
+    from bench.sweep import run_to_solve
+
+    run_dir = tmp_path / "run"
+    overrides = ["learner=qlearn", "num_envs=1", "max_episodes=40", "checkpoint_every=10", "eval_episodes=0",
+                 "seed=3"]
+    killed = subprocess.run([sys.executable, "tests/kill_at.py", "second_checkpoint", "quiet=true",
+                             f"hydra.run.dir={run_dir}", *overrides], cwd=ROOT, capture_output=True, text=True)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr[-1500:]
+    assert not (run_dir / "summary.json").exists()
+    summary = run_to_solve(overrides, run_dir)
+    assert summary["status"] == "ok"
+    assert len((run_dir / "metrics.csv").read_text().splitlines()) - 1 == 40  # each episode once
