@@ -146,6 +146,28 @@ def test_batched_physics_rolls_diverged_copies_back_to_their_state_before_the_st
     physics.close()
 
 
+def test_a_diverged_copy_among_some_stepping_rolls_back_and_the_held_ones_stay():
+    """With copies on hold (a waiting run's block), only the stepping ones step: a diverged
+    one among them is flagged and keeps its state, the held ones keep theirs, the rest move."""
+    model = mujoco.MjModel.from_xml_string(TINY)
+    physics = BatchedPhysics(model, 4, nthread=1)
+    physics.ctrl[:] = [[1.0], [1.0], [-1.0], [1.0]]
+    physics.hold(np.array([False, False, False, True]))
+    physics.step(5)
+    assert not physics.diverged.any()
+    before_state, before_sensor = physics.state.copy(), physics.sensordata.copy()
+    physics.ctrl[1] = 1e12
+    physics.step(5)
+    assert physics.diverged.tolist() == [False, True, False, False]
+    np.testing.assert_array_equal(physics.state[[1, 3]], before_state[[1, 3]])
+    np.testing.assert_array_equal(physics.sensordata[[1, 3]], before_sensor[[1, 3]])
+    assert (physics.time[[0, 2]] == pytest.approx(10 * model.opt.timestep)) and physics.time[3] == 0
+    physics.ctrl[1] = 1.0
+    physics.step(5)
+    assert not physics.diverged.any() and physics.time[1] > before_state[1, 0]
+    physics.close()
+
+
 def test_qlearning_keeps_training_on_an_unstable_cartpole(tmp_path, monkeypatch):
     """A run through ``train.py`` whose effort-controlled cart-pole has a huge motor gear."""
     from runs import lifecycle
