@@ -142,22 +142,10 @@ class BatchedPhysics:
         if self._stepping is not None:
             return self._step_some(nsubsteps, self._stepping)
         last, sensor = self._rollout(self.state, self.ctrl, nsubsteps, self._warmstart)
-        # MuJoCo adds the timestep once per substep: a copy whose clock moved by half
-        # a timestep more or less was reset or stopped by a warning. NaN fails every
-        # comparison, so the fast path below (a few reductions, the ufuncs' own: no
-        # Python frames) only passes when every copy is fine.
         elapsed = np.subtract(last[:, 0], self.time, out=self._elapsed)
-        timestep = self._opt.timestep
-        lo, hi = (nsubsteps - 0.5) * timestep, (nsubsteps + 0.5) * timestep
-        if (_min(elapsed, None) >= lo and _max(elapsed, None) <= hi
-                and -_MAXVAL <= _min(last, None) and _max(last, None) <= _MAXVAL
-                and (sensor is None or math.isfinite(_min(sensor, None) + _max(sensor, None)))):
-            self.diverged = self._none_diverged
-            self.state[:] = last
-            if sensor is not None:
-                self.sensordata[:] = sensor
-            return
-        self._keep_good((elapsed < lo) | (elapsed > hi), last, sensor)
+        lo, hi = self._clock_bounds(nsubsteps)
+        if not self._take_if_fine(slice(None), elapsed, last, sensor, lo, hi):
+            self._keep_good((elapsed < lo) | (elapsed > hi), last, sensor)
 
     def _step_some(self, nsubsteps: int, some: np.ndarray) -> None:
         """:meth:`step` for the copies ``some`` (indices) only; the others keep their state."""
@@ -166,15 +154,8 @@ class BatchedPhysics:
             return
         stepped, stepped_sensor = self._rollout(self.state[some], self.ctrl[some], nsubsteps,
                                                 self._warmstart[some])
-        timestep = self._opt.timestep
-        elapsed = np.subtract(stepped[:, 0], self.time[some])
-        if (_min(elapsed, None) >= (nsubsteps - 0.5) * timestep and _max(elapsed, None) <= (nsubsteps + 0.5) * timestep
-                and -_MAXVAL <= _min(stepped, None) and _max(stepped, None) <= _MAXVAL
-                and (stepped_sensor is None or math.isfinite(_min(stepped_sensor, None) + _max(stepped_sensor, None)))):
-            self.diverged = self._none_diverged  # as :meth:`step`'s fast path: every stepped copy is fine
-            self.state[some] = stepped
-            if stepped_sensor is not None:
-                self.sensordata[some] = stepped_sensor
+        lo, hi = self._clock_bounds(nsubsteps)
+        if self._take_if_fine(some, np.subtract(stepped[:, 0], self.time[some]), stepped, stepped_sensor, lo, hi):
             return
         last = self.state.copy()
         last[some] = stepped
@@ -182,12 +163,34 @@ class BatchedPhysics:
         if self._nsensordata:
             sensor = self.sensordata.copy()
             sensor[some] = stepped_sensor
-        elapsed = np.full(self.num_envs, nsubsteps * timestep)
+        elapsed = np.full(self.num_envs, nsubsteps * self._opt.timestep)
         elapsed[some] = last[some, 0] - self.time[some]
-        off = (elapsed < (nsubsteps - 0.5) * timestep) | (elapsed > (nsubsteps + 0.5) * timestep)
-        self._keep_good(off, last, sensor)
+        self._keep_good((elapsed < lo) | (elapsed > hi), last, sensor)
         if not self.diverged.any():
             self.diverged = self._none_diverged
+
+    def _clock_bounds(self, nsubsteps: int) -> tuple[float, float]:
+        """How far a copy's clock may move in ``nsubsteps`` substeps: MuJoCo adds the timestep
+        once per substep, so a copy whose clock moved by half a timestep more or less was
+        reset or stopped by a warning."""
+        timestep = self._opt.timestep
+        return (nsubsteps - 0.5) * timestep, (nsubsteps + 0.5) * timestep
+
+    def _take_if_fine(self, rows: slice | np.ndarray, elapsed: np.ndarray, states: np.ndarray,
+                      sensors: np.ndarray | None, lo: float, hi: float) -> bool:
+        """A step's fast path: if every stepped copy is fine (its clock moved by ``lo`` to
+        ``hi``, its state within mjMAXVAL and its sensors finite), the ``rows`` take their
+        ``states`` and ``sensors``; whether they did. NaN fails every comparison, so these
+        few reductions (the ufuncs' own: no Python frames) only pass when all is fine."""
+        if not (_min(elapsed, None) >= lo and _max(elapsed, None) <= hi
+                and -_MAXVAL <= _min(states, None) and _max(states, None) <= _MAXVAL
+                and (sensors is None or math.isfinite(_min(sensors, None) + _max(sensors, None)))):
+            return False
+        self.diverged = self._none_diverged
+        self.state[rows] = states
+        if sensors is not None:
+            self.sensordata[rows] = sensors
+        return True
 
     def _rollout(self, initial: np.ndarray, ctrl: np.ndarray, nsubsteps: int,
                  warmstart: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
