@@ -8,7 +8,8 @@
     act (every member, one call) -> env step -> observe (one call)
     -> each lane books its block's finished episodes (its Run)
     -> end_episodes (one call: epsilon schedules, the updates the episodes owe)
-    -> each lane ends the step (evaluation, checkpoint when due)
+    -> each lane ends the step (evaluation, checkpoint when due; a run that finished no
+       episode and has nothing due only counts the step: ``Run.end_quiet_step``)
     -> one step of the batch's evaluations under way (``side``)
 
 A lane whose greedy evaluation is due waits (a single run's too: a batch of one): its
