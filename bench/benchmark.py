@@ -35,7 +35,6 @@ import csv
 import json
 import math
 import platform
-import signal
 import statistics
 import subprocess
 import sys
@@ -46,6 +45,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from tqdm import tqdm
 
+from bench.sweep import STOPPED  # train.py's exit codes when Ctrl-C or SIGTERM stopped it
 from bench.tune_grid import learners_of
 from sweeps import child
 from runs.layout import is_sweep_folder
@@ -54,8 +54,6 @@ ROOT = Path(__file__).resolve().parents[1]
 PLAN = Path(__file__).with_name("benchmark.yaml")
 BEGIN, END = "<!-- benchmark:begin -->", "<!-- benchmark:end -->"
 SETTINGS = ("published", "tuned")
-#: train.py's exit codes when Ctrl-C or SIGTERM stopped it (its checkpoints saved), or the signal itself.
-STOPPED = {128 + signal.SIGINT, 128 + signal.SIGTERM, -signal.SIGINT, -signal.SIGTERM}
 SEED_COLUMNS = ("task", "robot/task", "learner", "setting", "seed", "status", "success", "verdict",
                 "measure", "threshold", "greedy", "greedy_rate", "env_steps", "wall_s", "steps_to_solve",
                 "wall_to_solve", "stuck", "stuck_steps", "error", "run_dir")

@@ -736,3 +736,28 @@ def test_a_benchmark_run_stopped_part_way_is_continued_not_refused(tmp_path):
     summary = run_to_solve(overrides, run_dir)
     assert summary["status"] == "ok"
     assert len((run_dir / "metrics.csv").read_text().splitlines()) - 1 == 40  # each episode once
+
+
+def test_a_benchmark_run_stopped_by_sigterm_stops_its_training_and_saves(tmp_path):
+    """SIGTERM to a process running ``run_to_solve`` (a comparison stopped with ``pkill
+    -TERM``) goes on to its train.py, which saves its checkpoint and ends: no training is
+    left running on its own, and the same call goes on from it."""
+    run_dir = tmp_path / "run"
+    overrides = ["learner=qlearn", "num_envs=1", "max_episodes=5000", "checkpoint_every=10", "eval_episodes=0",
+                 "seed=3"]
+    script = f"import sys; sys.path.insert(0, {str(ROOT)!r}); from bench.sweep import run_to_solve; " \
+             f"run_to_solve({overrides!r}, __import__('pathlib').Path({str(run_dir)!r}))"
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    metrics, deadline = run_dir / "metrics.csv", time.time() + 300
+    while not (metrics.is_file() and len(metrics.read_text().splitlines()) > 20) and time.time() < deadline:
+        assert proc.poll() is None, proc.stderr.read()[-1500:]
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 1 and "the same command continues it" in err, err[-1500:]
+    ps = subprocess.run(["pgrep", "-f", f"hydra.run.dir={run_dir}"], capture_output=True, text=True)
+    assert ps.stdout.strip() == ""  # its train.py ended with it
+    from runs.summary import summarize_run
+
+    assert "resume" in summarize_run(run_dir)  # stopped with a checkpoint to go on from
