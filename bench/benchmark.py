@@ -45,7 +45,6 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from tqdm import tqdm
 
-from bench.sweep import STOPPED  # train.py's exit codes when Ctrl-C or SIGTERM stopped it
 from bench.tune_grid import learners_of
 from sweeps import child
 from runs.layout import is_sweep_folder
@@ -315,7 +314,7 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
         done[i] = max(done[i], finished)
 
     def ended(i: int, returncode: int) -> None:
-        if returncode in STOPPED:  # Ctrl-C or SIGTERM: no record, so the same command goes on with it
+        if returncode in child.STOPPED:  # Ctrl-C or SIGTERM: no record, so the same command goes on with it
             return
         job, (cmd, resumed) = todo[i], commands[i]
         if returncode not in (0, 1) and trained_elsewhere(job, out):  # another process took it since the plan

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import time
@@ -12,27 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from runs.summary import summarize_run  # noqa: E402
-
-
-#: a child's exit codes when Ctrl-C or SIGTERM stopped it (its checkpoint saved), or the signal itself.
-STOPPED = {128 + signal.SIGINT, 128 + signal.SIGTERM, -signal.SIGINT, -signal.SIGTERM}
-
-
-def run_stopping(cmd: list[str]) -> int:
-    """Runs ``cmd`` in the project folder to its end: its exit code. A SIGTERM to this process
-    goes on to the child (which stops after its step and saves, as train.py does) and a
-    Ctrl-C, which the terminal gives both, waits for it: a benchmark stopped leaves no
-    training running on its own."""
-    proc = subprocess.Popen(cmd, cwd=ROOT)
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: proc.send_signal(signum))
-    try:
-        while True:
-            try:
-                return proc.wait()
-            except KeyboardInterrupt:  # the child got the same Ctrl-C: it saves, then ends
-                continue
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+from sweeps import child  # noqa: E402
 
 
 def run_to_solve(overrides: list[str], run_dir: Path) -> dict:
@@ -45,8 +24,13 @@ def run_to_solve(overrides: list[str], run_dir: Path) -> dict:
     else:
         cmd = [sys.executable, "train.py", *overrides, "quiet=true", f"hydra.run.dir={run_dir}"]
     print("running:", " ".join(cmd), flush=True)
-    if run_stopping(cmd) in STOPPED:
-        raise SystemExit(f"stopped; {run_dir} keeps its checkpoint: the same command continues it")
+    stopped = f"stopped; {run_dir} keeps its checkpoint: the same command continues it"
+    try:  # a Ctrl-C or SIGTERM of this process goes on to train.py, which saves and ends
+        code = child.call(cmd, ROOT)
+    except child.Stopped:
+        raise SystemExit(stopped) from None
+    if code in child.STOPPED:
+        raise SystemExit(stopped)
     s = summarize_run(run_dir)
     if s.get("status") != "ok":
         raise SystemExit(f"our run failed; see {run_dir}")

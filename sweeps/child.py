@@ -23,6 +23,10 @@ from pathlib import Path
 from typing import IO
 
 
+#: a child's exit codes when Ctrl-C or SIGTERM stopped it (train.py saved its checkpoints), or the signal itself.
+STOPPED = {128 + signal.SIGINT, 128 + signal.SIGTERM, -signal.SIGINT, -signal.SIGTERM}
+
+
 class Stopped(KeyboardInterrupt):
     """The caller was signalled (``signum``: SIGINT or SIGTERM); every child, passed the
     signal, has exited."""
