@@ -215,8 +215,7 @@ class RobotTaskEnv(EnvBase):
                                        "truncated": torch.from_numpy(false.copy())})
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action").reshape(self.action_shape).cpu().numpy()
-        return self._advance(action, device=None)[0]
+        return self.step_actions(tensordict.get("action"))
 
     def step_actions(self, action: torch.Tensor) -> TensorDictBase:
         """``step``'s ``next`` tensordict for every copy's ``action``, made without an input
