@@ -12,12 +12,14 @@ in this run:
 - B: one member's module stacked with ``torch.func.stack_module_state`` (B'': tensordict's
   ``from_modules``), called through ``torch.vmap(functional_call)``, ``torch.optim.Adam``
   over the stacked leaves (B': ``fused=True``);
-- C: TorchRL's ``DQNLoss`` (``SoftUpdate``, ``make_value_estimator``) per member, in a loop.
+- C: TorchRL's ``DQNLoss`` (``SoftUpdate``, ``make_value_estimator``) per member, in a loop;
+- D: A with its loss under ``torch.compile`` (compiled during the warm-up, not timed).
 
 Prints microseconds per update (best and median of ``repeats``) and each one's ratio to A.
 Measured on 2026-12-02 (this project's 2-core machine, torch 2.13.0): B/A 3.4 at M=1 and
 1.9-2.2 at M=10, C/A 4-5 at M=1 and 20-27 at M=10; every variant's member 0 is bit for bit
 the same at M=1 and M=10; B differs from A by ~1e-8 after one update (Adam's last op).
+D (2026-12-05, two training jobs beside): D/A 0.99 at M=1 and 1.06 at M=10.
 """
 import copy, sys, time, statistics, warnings
 from pathlib import Path
@@ -93,6 +95,30 @@ class KernelA:
 
     def member_vector(self, j):
         return self.params[j].clone()
+
+# ---------------------------------------------------------------- D
+class CompiledD(KernelA):
+    """A with its loss (forward, and backward through AOTAutograd) under ``torch.compile``
+    (compiled in the warm-up); clipping, Adam and the target's step as A's. (Compiling that
+    step too stops inductor here with ``KeyError: 'buf5'``, torch 2.13.0.)"""
+
+    def __init__(self, M):
+        super().__init__(M)
+        self.loss = torch.compile(self._loss)
+
+    def _loss(self, online, rows):
+        batch, net, valued = unpack(rows), self.net, self.valued
+        q, tgt = td_terms(lambda x: net.q(online, x), lambda x: net.q(valued, x), batch, GAMMA, True)
+        return nn.functional.smooth_l1_loss(q, tgt, reduction="none").mean((1, 2)).sum()
+
+    def update(self, rows):
+        self.grads.zero_()
+        self.loss(self.net.layers(self.params, self.grads), rows).backward()
+        with torch.no_grad():
+            clip_norms(self.grads, CLIP)
+            self.steps += 1
+            adam_step(self.params, self.grads, self.exp_avg, self.exp_avg_sq, [self.steps] * self.M, [LR] * self.M)
+            self.target.lerp_(self.params, TAU)
 
 # ---------------------------------------------------------------- B
 class FuncB:
@@ -227,6 +253,7 @@ def main():
         "B' vmap+Adam(fused)": (lambda M: FuncB(M, True), False),
         "B\" TD.from_modules+foreach": (lambda M: FuncB(M, False, via="td"), False),
         "C  DQNLoss loop": (TorchRLC, True),
+        "D  A under torch.compile": (CompiledD, False),
     }
     for M in (1, 10):
         base = None
