@@ -15,11 +15,13 @@ in this run:
 - C: TorchRL's ``DQNLoss`` (``SoftUpdate``, ``make_value_estimator``) per member, in a loop;
 - D: A with its loss under ``torch.compile`` (compiled during the warm-up, not timed).
 
-Prints microseconds per update (best and median of ``repeats``) and each one's ratio to A.
+Prints microseconds per update (best and median of ``repeats``, the variants taking turns
+within each) and each one's ratio to A.
 Measured on 2026-12-02 (this project's 2-core machine, torch 2.13.0): B/A 3.4 at M=1 and
 1.9-2.2 at M=10, C/A 4-5 at M=1 and 20-27 at M=10; every variant's member 0 is bit for bit
 the same at M=1 and M=10; B differs from A by ~1e-8 after one update (Adam's last op).
-D (2026-12-05, two training jobs beside): D/A 0.99 at M=1 and 1.06 at M=10.
+D (2026-12-05, the variants taking turns, three training jobs beside): D/A 1.04 at M=1 and
+0.96 at M=10, its parameters off A's in the last bits (~1e-6 after 840 updates).
 """
 import copy, sys, time, statistics, warnings
 from pathlib import Path
@@ -78,19 +80,18 @@ class KernelA:
         self.steps = 0
         self.M = M
 
-    def update(self, rows):
-        batch = unpack(rows)
-        grads, net = self.grads, self.net
-        grads.zero_()
-        online = net.layers(self.params, grads)
-        valued = self.valued
+    def loss(self, online, rows):
+        batch, net, valued = unpack(rows), self.net, self.valued
         q, tgt = td_terms(lambda x: net.q(online, x), lambda x: net.q(valued, x), batch, GAMMA, True)
-        loss = nn.functional.smooth_l1_loss(q, tgt, reduction="none").mean((1, 2))
-        loss.sum().backward()
+        return nn.functional.smooth_l1_loss(q, tgt, reduction="none").mean((1, 2)).sum()
+
+    def update(self, rows):
+        self.grads.zero_()
+        self.loss(self.net.layers(self.params, self.grads), rows).backward()
         with torch.no_grad():
-            clip_norms(grads, CLIP)
+            clip_norms(self.grads, CLIP)
             self.steps += 1
-            adam_step(self.params, grads, self.exp_avg, self.exp_avg_sq, [self.steps] * self.M, [LR] * self.M)
+            adam_step(self.params, self.grads, self.exp_avg, self.exp_avg_sq, [self.steps] * self.M, [LR] * self.M)
             self.target.lerp_(self.params, TAU)
 
     def member_vector(self, j):
@@ -104,21 +105,7 @@ class CompiledD(KernelA):
 
     def __init__(self, M):
         super().__init__(M)
-        self.loss = torch.compile(self._loss)
-
-    def _loss(self, online, rows):
-        batch, net, valued = unpack(rows), self.net, self.valued
-        q, tgt = td_terms(lambda x: net.q(online, x), lambda x: net.q(valued, x), batch, GAMMA, True)
-        return nn.functional.smooth_l1_loss(q, tgt, reduction="none").mean((1, 2)).sum()
-
-    def update(self, rows):
-        self.grads.zero_()
-        self.loss(self.net.layers(self.params, self.grads), rows).backward()
-        with torch.no_grad():
-            clip_norms(self.grads, CLIP)
-            self.steps += 1
-            adam_step(self.params, self.grads, self.exp_avg, self.exp_avg_sq, [self.steps] * self.M, [LR] * self.M)
-            self.target.lerp_(self.params, TAU)
+        self.loss = torch.compile(self.loss)
 
 # ---------------------------------------------------------------- B
 class FuncB:
@@ -224,20 +211,26 @@ class TorchRLC:
         return torch.cat([p.detach().reshape(-1) for p in loss.value_network_params.values(True, True)])
 
 # ---------------------------------------------------------------- timing
-def timeit(maker, M, iters, warmup, repeats, is_c=False):
+def timeit(makers, M, iters, warmup, repeats):
+    """Microseconds an update of each of ``makers`` (name: (maker, is_c)) at ``M`` members,
+    ``(best, median)`` over ``repeats``: the variants take turns within each repeat, so a
+    change in the machine's load falls on all of them alike."""
     n = 16  # cycle through 16 fixed minibatches
     rows = member_rows(M, n)
-    results = []
-    for r in range(repeats):
-        obj = maker(M)
-        data = [obj.make_td(rows[i]) for i in range(n)] if is_c else [rows[i] for i in range(n)]
+    objs, data = {}, {}
+    for name, (maker, is_c) in makers.items():
+        objs[name] = obj = maker(M)
+        data[name] = [obj.make_td(rows[i]) for i in range(n)] if is_c else [rows[i] for i in range(n)]
         for i in range(warmup):
-            obj.update(data[i % n])
-        t0 = time.perf_counter()
-        for i in range(iters):
-            obj.update(data[i % n])
-        results.append((time.perf_counter() - t0) / iters * 1e6)
-    return min(results), statistics.median(results)
+            obj.update(data[name][i % n])
+    results = {name: [] for name in makers}
+    for r in range(repeats):
+        for name, obj in objs.items():
+            t0 = time.perf_counter()
+            for i in range(iters):
+                obj.update(data[name][i % n])
+            results[name].append((time.perf_counter() - t0) / iters * 1e6)
+    return {name: (min(v), statistics.median(v)) for name, v in results.items()}
 
 def main():
     threads = sys.argv[1]
@@ -256,11 +249,9 @@ def main():
         "D  A under torch.compile": (CompiledD, False),
     }
     for M in (1, 10):
-        base = None
-        for name, (mk, is_c) in makers.items():
-            best, med = timeit(mk, M, iters, warmup, repeats, is_c)
-            if base is None:
-                base = best
+        times = timeit(makers, M, iters, warmup, repeats)
+        base = next(iter(times.values()))[0]
+        for name, (best, med) in times.items():
             print(f"M={M:2d} {name:30s} best {best:9.1f} us  median {med:9.1f} us  ratio/A {best / base:5.2f}", flush=True)
 
 if __name__ == "__main__":
