@@ -5,70 +5,74 @@ alike but their seed trained together as one seed batch (:func:`runs.lifecycle.r
 each exactly as ``resume=<job folder>`` continues it alone; then the sweep's comparison is
 made again. Jobs that cannot continue (no checkpoint.pt, a damaged one) are listed with
 their one-line reason and left as they are; finished jobs are not touched. Jobs of the
-sweep's plan that never started (a launcher stopped before them) then run, each as its own
-``train.py`` into the folder its sweep would have given it: the one command finishes the
-sweep.
+sweep's plan that never started (a launcher stopped before them) are composed here and
+checked as the sweep's launcher checks a job, in the folder the sweep would have given each,
+and train with the others (those alike but their seed in one batch): the one command
+finishes the sweep.
 """
 
 from __future__ import annotations
 
-import shlex
-import signal
-import sys
 from pathlib import Path
 from typing import Sequence
 
-from omegaconf import DictConfig, OmegaConf
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from params import ConfigError
 from runs.lifecycle import Job, run_jobs, same_batch
 from runs.checkpoint import CheckpointError
 from runs.folder import is_finished, resumed_config
-from runs.layout import is_run_folder, train_command
+from runs.layout import is_run_folder
 from runs.training_state import read_run_json
 from runs.settings import check_run_config
-from sweeps import child
 from sweeps.comparison import NotASweep, report
 from sweeps.folder import job_folders, overrides_dict, sweep_jobs
+from sweeps.seed_batch import checked_job
 from sweeps.state import report_stopped_sweep
 
 
-def never_started(folder: Path) -> list[list[str]]:
-    """The command line (``train.py``'s arguments) that runs each job of the sweep in
-    ``folder`` that never started, into the folder its sweep would have given it."""
+def never_started(folder: Path) -> list[tuple[list[str], Path]]:
+    """The overrides of each job of the sweep in ``folder`` that never started, and the
+    folder its sweep would have given it."""
     jobs, _ = sweep_jobs(folder)
-    commands = []
+    found = []
     for job in (j for j in jobs if j.get("status") == "never started" and j.get("overrides") is not None):
         seed = overrides_dict(job["overrides"]).get("seed", 0)
-        name = f"{job['job']}_{job.get('robot')}_{job.get('learner')}_seed{seed}"
-        commands.append([*job["overrides"], f"hydra.run.dir={folder / name}"])
-    return commands
+        found.append((list(job["overrides"]), folder / f"{job['job']}_{job.get('robot')}_{job.get('learner')}_seed{seed}"))
+    return found
 
 
-def shown(args: Sequence[str]) -> str:
-    """``python train.py <args>``, quoted for a shell."""
-    return " ".join([train_command(), *(shlex.quote(a) for a in args)])
+def composed(unstarted: Sequence[tuple[list[str], Path]]) -> list[tuple[DictConfig, Path, DictConfig]]:
+    """Each of ``unstarted`` (:func:`never_started`) composed in this process as ``train.py``
+    composes its config: ``(config, folder, Hydra's config of it)``; nothing written."""
+    from hydra import compose
+
+    found = []
+    for overrides, run_dir in unstarted:
+        cfg = compose(config_name=HydraConfig.get().job.config_name, overrides=overrides, return_hydra_config=True)
+        with open_dict(cfg):
+            hydra_cfg = cfg.pop("hydra")
+        found.append((cfg, run_dir, hydra_cfg))
+    return found
 
 
-def run_never_started(commands: Sequence[Sequence[str]], folder: Path) -> None:
-    """Runs each of ``commands`` (:func:`never_started`) as its own ``train.py``, in turn; a
-    Ctrl-C (or SIGTERM) stops the one running (it saves) and starts no more: the stop is
-    reported and the process exits 130 (143)."""
-    for args in commands:
-        print(f"starting a job that never started: {shown(args)}", flush=True)
-        try:
-            code = child.call([*_train_command(), *args], Path.cwd(), every=0.2)
-        except KeyboardInterrupt as stop:  # (child.Stopped) SIGINT or SIGTERM, passed on to the job
-            code = 128 + getattr(stop, "signum", signal.SIGINT)
-        if code >= 128:
+def _run_batches(jobs: Sequence, folder: Path, verb: str) -> tuple[list[dict], bool]:
+    """``jobs`` trained in batches (those alike but their seed together); each a
+    :class:`Job`, or a composed ``(config, folder, Hydra's config)`` (:func:`composed`) checked as the sweep's
+    launcher checks a job (:func:`sweeps.seed_batch.checked_job`) when its batch starts.
+    The summaries, and whether a batch was stopped (the stop reported; no batch starts after it)."""
+    summaries = []
+    for members in same_batch([job.cfg if isinstance(job, Job) else job[0] for job in jobs]):
+        batch = [jobs[i] for i in members]
+        print(f"{verb} {len(batch)} job{'s' * (len(batch) != 1)} of {folder} together: "
+              f"{', '.join((job.run_dir if isinstance(job, Job) else job[1]).name for job in batch)}")
+        batch = [job for job in (j if isinstance(j, Job) else checked_job(*j) for j in batch) if job is not None]
+        summaries += run_jobs(batch) if batch else []
+        if any(s.get("interrupted") for s in summaries):
             report_stopped_sweep(folder)
-            raise SystemExit(code)
-
-
-def _train_command() -> list[str]:
-    """This program again: ``train.py`` (or the installed command) as it was started."""
-    program = Path(sys.argv[0])
-    return [sys.executable, str(program)] if program.is_file() else [sys.executable, "-m", "train"]
+            return summaries, True
+    return summaries, False
 
 
 def resumable_jobs(cfg: DictConfig, overrides: Sequence[str]) -> tuple[list[Job], list[str]]:
@@ -129,18 +133,14 @@ def resume_sweep(cfg: DictConfig, overrides: Sequence[str]) -> list[dict]:
     for line in skipped:
         print(line)
     (folder / ".stop").unlink(missing_ok=True)  # the stop is over: the comparison says so no more
-    summaries = []
-    for members in same_batch([job.cfg for job in jobs]):
-        batch = [jobs[i] for i in members]
-        print(f"resuming {len(batch)} job{'s' * (len(batch) != 1)} of {folder} together: "
-              f"{', '.join(job.run_dir.name for job in batch)}")
-        summaries += run_jobs(batch)
-    if any(s.get("interrupted") for s in summaries):
-        report_stopped_sweep(folder)
+    summaries, stopped = _run_batches(jobs, folder, "resuming")
+    if stopped:
         return summaries
-    run_never_started(unstarted, folder)
+    fresh, stopped = _run_batches(composed(unstarted), folder, "starting")
+    if stopped:
+        return summaries + fresh
     try:
         report(folder)
     except NotASweep as err:  # pragma: no cover - the folder held the jobs just resumed
         print(f"no comparison: {err}")
-    return summaries
+    return summaries + fresh

@@ -178,10 +178,9 @@ class SeedBatchLaunch:
         return ret
 
     def check(self, cfg: DictConfig) -> Job | None:
-        """A batch's job, inside Hydra's ``run_job`` (its folder and config set): its record
-        written, composed and checked (:func:`runs.job.compose_job`), a tuning trial linked to
-        its study; the job, to train with the others. A refused job's line is kept in its
-        ``error.txt`` (None); a job that is not a fresh training run is the app's own task's."""
+        """A batch's job, inside Hydra's ``run_job`` (its folder and config set):
+        :func:`checked_job`, to train with the others (None: refused, or the sweep was stopped
+        before it began); a job that is not a fresh training run is the app's own task's."""
         if not batchable(cfg):
             return self.task_function(cfg)
         from sweeps.state import sweep_stopped
@@ -189,21 +188,7 @@ class SeedBatchLaunch:
         if sweep_stopped():
             return None  # the sweep was stopped before this job began: it never starts
         hydra_cfg = HydraConfig.get()
-        run_dir = Path(hydra_cfg.runtime.output_dir)
-        write_hydra_record(run_dir, ".hydra", cfg, hydra_cfg, hydra_cfg.overrides.task)
-        try:
-            job = compose_job(cfg, run_dir, list(OmegaConf.to_container(hydra_cfg.overrides.task, resolve=False)),
-                              hydra_cfg)
-            job.run_dir.mkdir(parents=True, exist_ok=True)
-            if job.cfg.get("trial") is not None:
-                from sweeps.tuning import trial_link
-
-                job.progress = trial_link(job.cfg, job.run_dir, hydra_cfg.sweeper)
-        except refusals() as err:
-            return keep_failure(run_dir, f"error: {one_line(err)}")
-        except OSError as err:  # its folder: read-only, full
-            return keep_failure(run_dir, cannot_write(err, run_dir))
-        return job
+        return checked_job(cfg, Path(hydra_cfg.runtime.output_dir), hydra_cfg)
 
     def _launch_batch(self, chunk: list[tuple[int, Sequence[str]]]) -> dict[int, JobReturn]:
         """The chunk's jobs checked and handed over, then trained as one batch."""
@@ -216,6 +201,26 @@ class SeedBatchLaunch:
                 else f"seed {j.cfg.seed}" if trials else str(j.cfg.seed) for j in jobs))
         _batch(jobs)
         return returns
+
+
+def checked_job(cfg: DictConfig, run_dir: Path, hydra_cfg: DictConfig) -> Job | None:
+    """A sweep's job to train in a batch: Hydra's record of it written in ``run_dir``, composed
+    and checked (:func:`runs.job.compose_job`), a tuning trial linked to its study. A refused
+    job's line is kept in its ``error.txt`` (None)."""
+    write_hydra_record(run_dir, ".hydra", cfg, hydra_cfg, hydra_cfg.overrides.task)
+    try:
+        job = compose_job(cfg, run_dir, list(OmegaConf.to_container(hydra_cfg.overrides.task, resolve=False)),
+                          hydra_cfg)
+        job.run_dir.mkdir(parents=True, exist_ok=True)
+        if job.cfg.get("trial") is not None:
+            from sweeps.tuning import trial_link
+
+            job.progress = trial_link(job.cfg, job.run_dir, hydra_cfg.sweeper)
+    except refusals() as err:
+        return keep_failure(run_dir, f"error: {one_line(err)}")
+    except OSError as err:  # its folder: read-only, full
+        return keep_failure(run_dir, cannot_write(err, run_dir))
+    return job
 
 
 def compose_jobs(loader, master: DictConfig, job_overrides: Sequence[Sequence[str]]) -> list[DictConfig]:

@@ -333,8 +333,8 @@ except child.Stopped as stop:
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_ctrl_c_of_the_caller_reaches_its_child_once_and_waits_for_it(tmp_path, sig):
-    """``kill -INT`` (or ``-TERM``) of the caller alone (a benchmark, ``resume=<sweep>``
-    running a job that never started): its child gets exactly that signal once (train.py's
+    """``kill -INT`` (or ``-TERM``) of the caller alone (a benchmark running a
+    ``train.py``): its child gets exactly that signal once (train.py's
     'stop after this step and save'), is given the time it takes, and the caller stops after
     it; ``subprocess.call`` had killed it a quarter of a second later, before it saved, and a
     SIGTERM had left it running alone."""

@@ -438,20 +438,24 @@ def test_a_multirun_trains_its_seeds_in_one_batch_per_group(tmp_path):
     assert sorted(p.name for p in (tmp_path / "sweep").iterdir()) == before  # no .hydra-resume/
 
 
-def test_a_resumed_sweep_runs_a_job_that_never_started_into_its_folder(tmp_path):
-    """A launcher stopped before a job (here: its folder removed, as if it never began): the
-    resume runs it, as the command it prints, into the folder its sweep would have given it;
-    then the sweep is whole."""
+def test_a_resumed_sweep_runs_the_jobs_that_never_started_together_into_their_folders(tmp_path):
+    """A launcher stopped before two jobs (here: their folders removed, as if they never
+    began): the resume trains them as one batch, each into the folder its sweep would have
+    given it and as the uninterrupted sweep made it; then the sweep is whole."""
     sweep = tmp_path / "sweep"
-    proc = run_cli(["-m", "hydra/launcher=basic", "seed=0,1", "max_episodes=10", "eval_episodes=0", "quiet=true",
+    proc = run_cli(["-m", "hydra/launcher=basic", "seed=0,1,2", "max_episodes=10", "eval_episodes=0", "quiet=true",
                     f"hydra.sweep.dir={sweep}"], tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    shutil.rmtree(next(sweep.glob("1_*")))
+    made = {p.name: (p / "metrics.csv").read_bytes() for p in sweep.glob("[12]_*")}
+    for name in made:
+        shutil.rmtree(sweep / name)
     proc = run_cli([f"resume={sweep}"], tmp_path)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    command = next(line for line in proc.stdout.splitlines() if line.startswith("starting a job that never started: "))
-    assert "seed=1" in command and f"hydra.run.dir={sweep / '1_cartpole_qlearn_seed1'}" in command, command
-    assert (sweep / "1_cartpole_qlearn_seed1" / "summary.json").is_file()
+    assert f"starting 2 jobs of {sweep} together: 1_cartpole_qlearn_seed1, 2_cartpole_qlearn_seed2" in proc.stdout, \
+        proc.stdout[-2000:]
+    assert {name: (sweep / name / "metrics.csv").read_bytes() for name in made} == made
+    assert (sweep / "1_cartpole_qlearn_seed1" / ".hydra" / "overrides.yaml").is_file()
+    assert "comparison" in proc.stdout and (sweep / "comparison.csv").is_file()
     proc = run_cli([f"resume={sweep}"], tmp_path)  # nothing left: finished, and never-started none
     assert proc.returncode == 2 and "every run of this sweep is finished" in proc.stderr, proc.stderr[-2000:]
 

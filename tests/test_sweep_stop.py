@@ -69,7 +69,7 @@ def test_one_ctrl_c_stops_the_sweep_and_one_command_finishes_it(tmp_path, launch
         assert not (sweep / "3_cartpole_qlearn_seed3" / "run.json").exists()
     finish = re.search(r"^or the whole rest of the sweep in one command .*: (python train\.py resume=\S+)$", out, re.M)
     assert finish is not None and finish.group(1) == f"python train.py resume={sweep}", out[-3000:]
-    done = run_train(f"resume={sweep}")  # the printed command, in this process (its never-started jobs in their own)
+    done = run_train(f"resume={sweep}")  # the printed command, in this process (its never-started jobs too)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     unended = {job.name: (sorted(p.name for p in job.iterdir()), (job / "train.log").read_text()[-600:])
                for job in sweep.glob("*_seed*") if not (job / "model.pt").is_file()}
