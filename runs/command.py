@@ -8,6 +8,7 @@ import atexit
 import logging
 import os
 import re
+import signal
 import sys
 from pathlib import Path
 from typing import Callable
@@ -156,8 +157,8 @@ def end_promptly(main: Callable[[], None]) -> None:
     """Runs ``main`` as the program, then ends the process as soon as Python's exit handlers
     have run (logs flushed, loggers finished), with its exit status: the interpreter's own
     teardown of torch's and TorchRL's modules, which writes nothing, took 1.0-1.3 s after
-    the VERDICT line on this machine. An unexpected exception ends the usual way, its trace
-    printed."""
+    the VERDICT line on this machine. A second Ctrl-C (which aborts) ends in one line, exit
+    130; an unexpected exception ends the usual way, its trace printed."""
     status: list[int] = []
 
     def end_now() -> None:  # registered first, so it runs after every other exit handler
@@ -174,4 +175,8 @@ def end_promptly(main: Callable[[], None]) -> None:
         code = stop.code  # (Python prints a message given as the code before the exit handlers)
         status.append(code if isinstance(code, int) else 0 if code is None else 1)
         raise
+    except KeyboardInterrupt:  # a second Ctrl-C (the first asks the runs to stop and save)
+        print("aborted by Ctrl-C: nothing saved since each run's last checkpoint", file=sys.stderr)
+        status.append(128 + signal.SIGINT)
+        raise SystemExit(128 + signal.SIGINT) from None
     status.append(0)

@@ -109,6 +109,21 @@ def test_ctrl_c_saves_and_resume_ends_like_an_uninterrupted_run(tmp_path, uninte
     assert [int(r.split(",")[0]) for r in timing[1:]] == list(range(1, len(timing)))
 
 
+def test_a_second_ctrl_c_aborts_in_one_line(tmp_path):
+    """The first Ctrl-C asks the run to stop and save; a second, while it does, aborts: one
+    line, exit 130, no trace from whatever library was running."""
+    run_dir = tmp_path / "run"
+    proc = start(run_dir, *QLEARN)
+    wait_for_rows(proc, run_dir, 20)
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.02)  # the first is handled (a step is a few ms) before the second comes
+    proc.send_signal(signal.SIGINT)
+    code, out, err = finish(proc)
+    assert code == 130, err[-1500:]
+    assert "Traceback" not in err, err[-3000:]
+    assert err.rstrip().splitlines()[-1] == "aborted by Ctrl-C: nothing saved since each run's last checkpoint"
+
+
 def test_sigkill_leaves_complete_checkpoints_and_resumes(tmp_path, uninterrupted):
     run_dir = tmp_path / "run"
     proc = start(run_dir, *QLEARN)
