@@ -128,8 +128,8 @@ def report_stopped_sweep(folder: Path) -> None:
             print(f"not started: {where}")
             not_started += 1
     if resumable > 1 or not_started:
-        print(f"or the whole rest of the sweep in one command (stopped jobs resumed, seeds of one setting "
-              f"together, jobs not started run): {train_command()} resume={folder}")
+        print(f"or the whole rest of the sweep in one command (stopped jobs resumed, then jobs not started "
+              f"begun, seeds of one setting together): {train_command()} resume={folder}")
     record = folder / "multirun.yaml"
     if record.is_file() and "rl_optuna_sweeper" in record.read_text(errors="replace"):
         print("or the same tuning command again: the next sweep of the study resumes the trials this "
