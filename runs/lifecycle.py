@@ -697,12 +697,15 @@ def _train(learner, slots: list[Seed], env: RobotTaskEnv, finals: _FinalEvaluati
     a seed ends (its final evaluation, checkpoint, model and verdict) at the step its run is
     done; ``more`` hands freed members new jobs (:class:`_Refill`, their consoles kept open
     in ``stack``); ``side`` makes the periodic evaluations. A batch stopped by an exception
-    (one that is not a seed's own failure) still saves each seed's model and closes its files."""
+    (one that is not a seed's own failure) still saves each seed's model and closes its files;
+    a second Ctrl-C aborts as it lands."""
     runs = [slot.run for slot in slots]
     with stop_on_signals(runs) as stopped:
         refill = None if more is None else _Refill(more, learner, env, slots, stack, stopped, runs, side)
         try:
             train(learner, env, slots, partial(_end_done, env=env, stopped=stopped, finals=finals), refill, side)
+        except KeyboardInterrupt:  # a second Ctrl-C aborts: nothing more is saved, whatever it cut
+            raise
         except BaseException:
             for slot in slots:
                 if slot.run is not None and not slot.closed:

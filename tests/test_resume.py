@@ -124,6 +124,27 @@ def test_a_second_ctrl_c_aborts_in_one_line(tmp_path):
     assert err.rstrip().splitlines()[-1] == "aborted by Ctrl-C: nothing saved since each run's last checkpoint"
 
 
+def test_a_second_ctrl_c_while_a_run_closes_is_not_followed_by_another_close(tmp_path, monkeypatch):
+    """A second Ctrl-C that lands while a run closes (here: while matplotlib loads to draw the
+    curve, which then stays half-imported) aborts; nothing tries to close the run again, which
+    would end in that library's error instead of the abort's one line (a CI run showed it)."""
+    import runs.plot
+
+    calls = []
+
+    def cut(*args, **kwargs):
+        calls.append(args)
+        if len(calls) == 1:
+            raise KeyboardInterrupt  # the second Ctrl-C, inside the import
+        raise AttributeError("module 'matplotlib' has no attribute 'get_data_path'")
+
+    monkeypatch.setattr(runs.plot, "plot_reward_curve", cut)
+    with pytest.raises(KeyboardInterrupt):
+        run_train("learner=qlearn", "num_envs=1", "max_episodes=3", "quiet=true", "eval_episodes=0",
+                  f"hydra.run.dir={tmp_path / 'run'}")
+    assert len(calls) == 1
+
+
 def test_sigkill_leaves_complete_checkpoints_and_resumes(tmp_path, uninterrupted):
     run_dir = tmp_path / "run"
     proc = start(run_dir, *QLEARN)
