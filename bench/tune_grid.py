@@ -36,6 +36,7 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
+from typing import Sequence
 
 from sweeps import child
 
@@ -108,9 +109,11 @@ def pruning(pruner: str, budget: int, first_rung: int = 9) -> list[str]:
 
 
 def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, sweep_dir: Path,
-            studies: Path = STUDIES, write: bool = True) -> list[str]:
+            studies: Path = STUDIES, write: bool = True, extra: Sequence[str] = ()) -> list[str]:
     """The tuning sweep of one pair: ``missing`` more trials of its study (its journal in
-    ``studies``), its folders in ``sweep_dir``; ``write``: its tuned file written when it ends."""
+    ``studies``), its folders in ``sweep_dir``; ``write``: its tuned file written when it ends;
+    ``extra``: overrides every trial runs with (the plan's entry of the learner itself, e.g.
+    ppo's evaluations once a rollout on the cube), as the pair's benchmark row does."""
     budget = int(spec["budget_steps"])
     name = f"{task}_{learner}"
     write = write and tuning.get("write_tuned", True)
@@ -126,7 +129,7 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
             # the learner's own values of the searched settings valued too (the published ones)
             *(["hydra.sweeper.value_defaults=true"] if tuning.get("value_defaults") else []),
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(write).lower()}",
-            f"hydra.sweep.dir={sweep_dir}"]
+            f"hydra.sweep.dir={sweep_dir}", *extra]
 
 def learners_of(plan: dict, task: str, asked: list[str] | None = None) -> list[str]:
     """The learners of ``task``: those ``asked``, else the task's own list where the plan
@@ -166,7 +169,8 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             if missing <= 0 and not running and (not write or written(spec, learner, task)) and valued:
                 print(f"{name}: study complete ({counted} trials)")
                 continue
-            cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp, studies, write)
+            extra = [*variant.get("overrides", []), *variant.get("task_overrides", {}).get(task, [])]
+            cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp, studies, write, extra)
             print(f"{name}: {counted} trials done, {running} left running, {max(missing, 0)} to ask\n  "
                   + " ".join(cmd[1:]), flush=True)
             pending.append((name, cmd, max(missing, 0) + running))

@@ -597,6 +597,10 @@ def test_a_dry_run_of_the_whole_grid_skips_variants_of_another_learner_and_asks_
     assert "cartpole_dqn_c51: a variant of dqn (overrides ['learner.distributional=true'])" in said
     assert "cartpole_ppo: 0 trials done" in said and "cube_ppo: 0 trials done" in said
     assert left == 2
+    # its trials evaluate as its benchmark rows do: on the cube once a rollout, on the cart-pole as usual
+    cube = next(line for line in said.splitlines() if "task=one_disk_walk learner=ppo" in line).split()
+    assert cube[-2:] == ["eval_every=0", "eval_every_steps=16384"]
+    assert not any("eval_every" in line for line in said.splitlines() if "task=stay_up learner=ppo" in line)
 
 
 def test_studies_side_by_side_start_longest_first(monkeypatch):
