@@ -45,7 +45,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from tqdm import tqdm
 
-from bench.tune_grid import learners_of
+from bench.tune_grid import entry_overrides, learners_of
 from sweeps import child
 from runs.layout import is_sweep_folder
 
@@ -157,8 +157,7 @@ def plan_jobs(args: argparse.Namespace, plan: dict) -> list[Job]:
         for learner in learners_of(plan, task, args.learners):
             variant = variants.get(learner, {})
             for setting in settings:
-                extra = [*spec.get("overrides", []), *variant.get("overrides", []),
-                         *variant.get("task_overrides", {}).get(task, []),
+                extra = [*spec.get("overrides", []), *entry_overrides(plan, learner, task),
                          *(plan.get("published_overrides", []) if setting == "published" else []),
                          *args.overrides]
                 jobs.append(Job(task, spec["robot"], spec["task"], learner, setting,

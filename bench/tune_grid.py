@@ -131,6 +131,13 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(write).lower()}",
             f"hydra.sweep.dir={sweep_dir}", *extra]
 
+def entry_overrides(plan: dict, learner: str, task: str) -> list[str]:
+    """The overrides of the plan's entry ``learner`` under ``variants`` on ``task`` (its own and
+    the task's), none where it has no entry."""
+    variant = plan.get("variants", {}).get(learner, {})
+    return [*variant.get("overrides", []), *variant.get("task_overrides", {}).get(task, [])]
+
+
 def learners_of(plan: dict, task: str, asked: list[str] | None = None) -> list[str]:
     """The learners of ``task``: those ``asked``, else the task's own list where the plan
     gives it one (the continuous-control tasks), else the plan's."""
@@ -169,8 +176,8 @@ def tune(plan: dict, tasks: list[str] | None, learners: list[str] | None, dry_ru
             if missing <= 0 and not running and (not write or written(spec, learner, task)) and valued:
                 print(f"{name}: study complete ({counted} trials)")
                 continue
-            extra = [*variant.get("overrides", []), *variant.get("task_overrides", {}).get(task, [])]
-            cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp, studies, write, extra)
+            cmd = command(task, spec, learner, tuning, max(missing, 0), SWEEPS / name / stamp, studies, write,
+                          entry_overrides(plan, learner, task))
             print(f"{name}: {counted} trials done, {running} left running, {max(missing, 0)} to ask\n  "
                   + " ".join(cmd[1:]), flush=True)
             pending.append((name, cmd, max(missing, 0) + running))
