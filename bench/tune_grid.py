@@ -131,6 +131,7 @@ def command(task: str, spec: dict, learner: str, tuning: dict, missing: int, swe
             "hydra.sweeper.sampler_seed=0", f"hydra.sweeper.write_tuned={str(write).lower()}",
             f"hydra.sweep.dir={sweep_dir}", *extra]
 
+
 def entry_overrides(plan: dict, learner: str, task: str) -> list[str]:
     """The overrides of the plan's entry ``learner`` under ``variants`` on ``task`` (its own and
     the task's), none where it has no entry."""
