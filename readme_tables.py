@@ -107,7 +107,7 @@ def discovery_tables() -> str:
     """Markdown tables of the robots, the tasks and the learners."""
     fits = {(r, t): catalog.built(r, t) for r in catalog.robot_names() for t in catalog.names("task")}
     # A pair with a robot's file and a task's file (conf/tuned/<robot>_<task>_<learner>) counts once.
-    tuned = list(dict.fromkeys(pair for pair in catalog.tuned_pairs().values() if pair))
+    tuned = sorted(set(pair for pair in catalog.tuned_pairs().values() if pair))  # each list reads alphabetically
     return "\n\n".join((_robots(fits, tuned), _tasks(fits), _learners(tuned))) + "\n"
 
 
@@ -134,7 +134,7 @@ def _robots(fits: dict, tuned: list[tuple[str, str]]) -> str:
         default = catalog.default_task(r)
         rows.append((f"`{r}`", catalog.summary(catalog.conf_dir() / "robot" / f"{r}.yaml"), f"`{default}`",
                      _codes(t for t in catalog.names("task") if fits[r, t]),
-                     _codes(sorted(lr for rr, lr in tuned if rr == r)), f"`{env_id(r, default)}`"))
+                     _codes(lr for rr, lr in tuned if rr == r), f"`{env_id(r, default)}`"))
     return _table("Robots (`robot=`); `robot=` alone picks its default task:",
                   ("robot", "what", "default task", "tasks that fit", "tuned learners",
                    "Gymnasium id"), rows)
@@ -154,7 +154,7 @@ def _learners(tuned: list[tuple[str, str]]) -> str:
     for lr in catalog.names("learner"):
         path = catalog.conf_dir() / "learner" / f"{lr}.yaml"
         rows.append((f"`{lr}`", f"`{OmegaConf.load(path)._target_}`", catalog.summary(path),
-                     _codes(sorted(r for r, ll in tuned if ll == lr))))
+                     _codes(r for r, ll in tuned if ll == lr)))
     return _table("Learners (`learner=`); a tuned pair's file is "
                   "`conf/tuned/<robot>_<learner>.yaml`:",
                   ("learner", "class", "what", "tuned for robots"), rows)
