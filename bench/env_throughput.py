@@ -28,6 +28,14 @@ above the resident set just before the env was built (Linux: ``/proc/self/status
 the mark reset through ``/proc/self/clear_refs``; elsewhere the process's peak from
 ``getrusage`` and no growth). Torch is pinned to one thread. The last lines are
 machine-readable: ``RATIO <robot>/<task> num_envs=64 <ours/limit>``.
+
+    python bench/env_throughput.py --pool [--gap-ms 2] [--robots ...] [--sizes 1 2 4 10 20 40]
+
+prices ``robots.physics.BatchedPhysics``'s choice between rollout's thread pool and the calling
+thread (``POOL_FROM_S``): a step of N copies (the robot's default task's substeps, zero
+controls), each followed by ``--gap-ms`` of Python work as a learner's between steps, on the
+pool, on the calling thread and as the physics chooses, in interleaved rounds; microseconds of
+wall and of CPU (every thread of this process) a step, the gap not counted, medians over rounds.
 """
 
 from __future__ import annotations
@@ -191,18 +199,66 @@ def measure(cfg, model, substeps: int, n: int, seconds: float, rounds: int):
     return rates
 
 
+def pool_choice(robots: list[str], sizes: list[int], gap: float, seconds: float, rounds: int) -> None:
+    """The ``--pool`` table (see the module docstring)."""
+    from robots import physics
+
+    print(f"rollout threads: {default_threads()}; POOL_FROM_S={physics.POOL_FROM_S}; gap {gap * 1e3:.1f} ms; "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"{'robot':>10s} {'copies':>6s} {'pool wall/CPU us':>17s} {'alone wall/CPU us':>18s} "
+          f"{'chosen wall/CPU us':>19s} {'chosen':>6s}")
+    for robot in robots:
+        probe = factory.build_env(catalog.compose(robot), 1, seed=0)
+        model, substeps = probe.model, probe.task.n_substeps
+        probe.close()
+        for n in sizes:
+            ways = {"pool": lambda copies, steps: True, "alone": lambda copies, steps: False, "chosen": None}
+            built = {}
+            for name, rule in ways.items():
+                built[name] = physics.BatchedPhysics(model, n)
+                if rule is not None:
+                    built[name]._pooled_step = rule
+                for _ in range(20):
+                    built[name].step(substeps)
+            times = {name: [] for name in ways}
+            for _ in range(rounds):
+                for name, batch in built.items():
+                    steps, wall, cpu = 0, time.perf_counter(), time.process_time()
+                    while time.perf_counter() - wall < seconds / rounds:
+                        batch.step(substeps)
+                        steps += 1
+                        until = time.perf_counter() + gap
+                        while time.perf_counter() < until:
+                            pass
+                    times[name].append(((time.perf_counter() - wall) / steps - gap,
+                                        (time.process_time() - cpu) / steps - gap))
+            chosen = built["chosen"]._pooled_step(n, substeps)
+            cells = [f"{statistics.median(w for w, _ in t) * 1e6:8.0f}/{statistics.median(c for _, c in t) * 1e6:<8.0f}"
+                     for t in times.values()]
+            print(f"{robot:>10s} {n:6d} {cells[0]:>17s} {cells[1]:>18s} {cells[2]:>19s} "
+                  f"{'pool' if chosen else 'alone':>6s}", flush=True)
+            for batch in built.values():
+                batch.close()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="per measurement (all rounds)")
     parser.add_argument("--rounds", type=int, default=10, help="interleaved rounds per measurement")
     parser.add_argument("--robots", nargs="+", default=catalog.robot_names())
     parser.add_argument("--sizes", nargs="+", type=int, default=list(SIZES))
+    parser.add_argument("--pool", action="store_true", help="price the physics' choice of thread pool")
+    parser.add_argument("--gap-ms", type=float, default=2.0, help="with --pool: Python work between steps")
     parser.add_argument("--memory-of", nargs=2, metavar=("ROBOT", "NUM_ENVS"),
                         help=argparse.SUPPRESS)  # the child of env_memory
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.memory_of:
         memory_probe(args.memory_of[0], int(args.memory_of[1]))
+        return
+    if args.pool:
+        sizes = args.sizes if args.sizes != list(SIZES) else [1, 2, 4, 10, 20, 40]
+        pool_choice(args.robots, sizes, args.gap_ms / 1e3, args.seconds, args.rounds)
         return
     print(f"torch threads: {torch.get_num_threads()}; rollout threads: {default_threads()}; "
           f"cores: {os.cpu_count()}; {args.seconds:.1f} s per measurement in {args.rounds} "

@@ -3,7 +3,8 @@
 The whole batch's physics state lives in one ``(num_envs, nstate)`` array
 (MuJoCo's ``mjSTATE_FULLPHYSICS`` layout); controls in ``(num_envs, nu)``.
 ``step`` advances every copy by the same number of substeps in one call to
-``mujoco.rollout``, whose C thread pool does the work: no per-copy Python.
+``mujoco.rollout``: no per-copy Python. A step whose work is large enough runs on
+rollout's C thread pool, a smaller one on the calling thread (see ``POOL_FROM_S``).
 Robots and tasks read and write the batch through the named views ``qpos``,
 ``qvel``, ``ctrl`` and ``sensordata``.
 
@@ -28,6 +29,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import time
 
 import mujoco
 import numpy as np
@@ -38,6 +40,20 @@ _NO_SENSORS = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
 _MAXVAL = float(mujoco.mjMAXVAL)  # MuJoCo's own "huge value" threshold
 _min, _max = np.minimum.reduce, np.maximum.reduce  # (array, None): over all its entries
 _log = logging.getLogger(__name__)
+
+POOL_FROM_S = 2e-3
+"""A step runs on the thread pool when its copies would take at least this many seconds on one
+thread (a copy-step priced by the steps made on the calling thread). Waking the pool's threads
+costs a few hundred microseconds a step when other work runs between steps (a learner's), and
+the pool always costs more CPU time than one thread. Measured on 2 cores (``python
+bench/env_throughput.py --pool``, steps 2 ms apart, 2026-12-06), microseconds a step on the
+calling thread against pooled: the cart-pole's 10 copies 642 against 708, the TurtleBot's 10
+1,163 against 1,220 and its 20 2,251 against 1,771, the cube's 10 3,747 against 2,338, the
+pendulum's 80 645 against 1,381. Either way each copy's result is the same, bit for bit."""
+REPRICE_EVERY = 100
+"""A pooled step in this many runs on the calling thread, keeping the price of a copy-step current."""
+FIRST_ALONE = 5
+"""The first steps of a length that run on the calling thread (and price it) whatever their width."""
 
 
 def _mujoco_warning(message: str) -> None:
@@ -81,12 +97,14 @@ class BatchedPhysics:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.model = model
         self.num_envs = num_envs
-        nthread = default_threads() if nthread is None else nthread
-        nthread = max(1, min(nthread, num_envs))
-        self._datas = [mujoco.MjData(model) for _ in range(nthread)]
+        self._threads = max(1, min(default_threads() if nthread is None else nthread, num_envs))
+        self._datas = [mujoco.MjData(model) for _ in range(self._threads)]
         self._models = [model] * num_envs
-        # A pool only pays off with more than one thread.
-        self._pool = rollout.Rollout(nthread=nthread if nthread > 1 else 0)
+        # A pool only pays off with more than one thread, and on wide enough steps.
+        self._pool = rollout.Rollout(nthread=self._threads if self._threads > 1 else 0)
+        self._alone = rollout.Rollout(nthread=0)
+        self._copy_step_s: dict[int, list] = {}  # nsubsteps -> [seconds a copy-step on one thread, steps priced]
+        self._pooled = 0  # pooled steps since the last one on the calling thread
 
         data = self._datas[0]
         mujoco.mj_forward(model, data)
@@ -201,28 +219,49 @@ class BatchedPhysics:
         (``bench/env_throughput.py``). Sensors do not act on the dynamics; the last substep starts its constraint
         solver cold (as every step already does), which can move the state by the solver's
         tolerance."""
-        models = self._models[:len(initial)]
+        copies, steps = len(initial), nsubsteps
+        pooled = self._pooled_step(copies, steps)
+        start = time.perf_counter()
+        models = self._models[:copies]
         if self._nsensordata and nsubsteps > 1:
             flags = self._opt.disableflags
             self._opt.disableflags = flags | _NO_SENSORS
             try:
-                initial = self._substeps(models, initial, ctrl, nsubsteps - 1, warmstart)[0][:, -1]
+                initial = self._substeps(models, initial, ctrl, nsubsteps - 1, warmstart, pooled)[0][:, -1]
             finally:
                 self._opt.disableflags = flags
             nsubsteps = 1
-        states, sensors = self._substeps(models, np.ascontiguousarray(initial), ctrl, nsubsteps, warmstart)
+        states, sensors = self._substeps(models, np.ascontiguousarray(initial), ctrl, nsubsteps, warmstart, pooled)
+        if not pooled:  # the price: an average of the latest steps', weighting the last by a fifth
+            price = self._copy_step_s.setdefault(steps, [0.0, 0])
+            seconds = (time.perf_counter() - start) / copies
+            price[0] = seconds if not price[1] else 0.8 * price[0] + 0.2 * seconds
+            price[1] += 1
         return states[:, -1], sensors[:, -1] if self._nsensordata else None
 
+    def _pooled_step(self, copies: int, nsubsteps: int) -> bool:
+        """Whether a step of ``copies`` runs on the thread pool: with more than one thread, when
+        their copy-steps' price on the calling thread adds up to ``POOL_FROM_S``; the first
+        ``FIRST_ALONE`` steps of a length, and one pooled step in ``REPRICE_EVERY``, run on the
+        calling thread (and price it)."""
+        price = self._copy_step_s.get(nsubsteps)
+        if self._threads < 2 or price is None or price[1] < FIRST_ALONE or copies * price[0] < POOL_FROM_S:
+            return False
+        self._pooled = (self._pooled + 1) % REPRICE_EVERY
+        return self._pooled != 0
+
     def _substeps(self, models: list, initial: np.ndarray, ctrl: np.ndarray, nsubsteps: int,
-                  warmstart: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """One ``mujoco.rollout`` call: every substep's states and sensor readings (the
-        buffers', overwritten by the next call of this shape)."""
+                  warmstart: np.ndarray, pooled: bool) -> tuple[np.ndarray, np.ndarray]:
+        """One ``mujoco.rollout`` call (on the thread pool, or the calling thread): every
+        substep's states and sensor readings (the buffers', overwritten by the next call of
+        this shape)."""
         out_state, out_sensor, control = self._buffers(len(initial), nsubsteps)
         control[:] = ctrl[:, None, :]
         # Arguments are already in rollout's final form, so its checks are skipped.
-        self._pool.rollout(models, self._datas, initial, control, nstep=nsubsteps,
-                           initial_warmstart=warmstart, state=out_state, sensordata=out_sensor,
-                           skip_checks=True)
+        runner, datas = (self._pool, self._datas) if pooled else (self._alone, self._datas[:1])
+        runner.rollout(models, datas, initial, control, nstep=nsubsteps,
+                       initial_warmstart=warmstart, state=out_state, sensordata=out_sensor,
+                       skip_checks=True)
         return out_state, out_sensor
 
     def _buffers(self, copies: int, nsubsteps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -280,3 +319,4 @@ class BatchedPhysics:
 
     def close(self) -> None:
         self._pool.close()
+        self._alone.close()
