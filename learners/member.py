@@ -225,16 +225,16 @@ _FUNCTIONS = {nn.Tanh: lambda x: lanes(torch.tanh, x), nn.ReLU: torch.relu}
 
 def affine(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
     """Each member's linear layer, ``x @ weight^T + bias`` (``[k, n, in]``, ``[k, out, in]``,
-    ``[k, 1, out]``), one batched product. A layer of one output (a critic's last) or one input
-    is computed padded to two with zeros: a product whose result is one column wide takes
-    another kernel when ``k`` is 1 than when it is more (matrix-vector rather than batched
-    matrix products), and differs from it in the last bit."""
+    ``[k, 1, out]``), one batched product. A layer of one output (a critic's last) is each
+    row's products summed, a layer of one input a broadcast product: a batched product one
+    column wide or deep takes another kernel when ``k`` is 1 than when it is more
+    (matrix-vector rather than batched matrix products) and differs from it in the last bit,
+    where a sum along a row (and its gradients) does not (``tests/test_members.py``); it also
+    costs about a third of the product padded to two columns, forward and backward."""
     if weight.shape[1] == 1:
-        wide = torch.cat((weight, torch.zeros_like(weight)), 1)
-        return torch.baddbmm(torch.cat((bias, torch.zeros_like(bias)), 2), x, wide.transpose(1, 2))[..., :1]
+        return (x * weight).sum(-1, keepdim=True) + bias
     if weight.shape[2] == 1:
-        x = torch.cat((x, torch.zeros_like(x)), 2)
-        weight = torch.cat((weight, torch.zeros_like(weight)), 2)
+        return x * weight.transpose(1, 2) + bias
     return torch.baddbmm(bias, x, weight.transpose(1, 2))
 
 
