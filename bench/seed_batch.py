@@ -19,7 +19,7 @@ batch can go below it here. A dqn or sac batch also has an update floor (``updat
 gradient updates (the rounds its members made, read from their ``model.pt``) done as
 plain stacked PyTorch (the same network shapes, minibatch and members: each layer a
 batched product, the TD loss, backward and one ``torch.optim.Adam`` step) with no sampling
-or bookkeeping, timed in the same run; ``target_ratio`` is the batch's time over both
+or bookkeeping, timed in the same run (15 s of them, on both clocks at once); ``target_ratio`` is the batch's time over both
 floors (issue 64's targets: dqn at most 1.3, qlearn at most 1.5 over its physics floor;
 issue 66's: sac at most 1.3). Both floors are also read on this process's CPU clock
 (``floors_cpu_s``) and ``target_cpu_ratio`` is the batch's CPU seconds over them: on a
@@ -146,21 +146,23 @@ def per_copy_step(robot: str, copies: int, seconds: float = 2.0, clock: Clock = 
     return (clock() - read) / (calls * copies)
 
 
-def update_floor(folder: Path, seeds: int, rounds: int = 300, clock: Clock = time.perf_counter) -> float:
+def update_floor(folder: Path, seeds: int, seconds: float = 15.0) -> tuple[float, float]:
     """Seconds the batch under ``folder`` needs for its gradient updates alone: the update
     rounds its members made (the most optimizer steps of a member, from the ``model.pt``
     files), each priced at one plain stacked PyTorch update of ``seeds`` members (the
     members' network shapes and minibatch, from a job's ``config.yaml``; each linear layer
     one ``baddbmm``, ``backward`` and ``torch.optim.Adam``; no sampling, clipping or
     bookkeeping): dqn's double-DQN Huber TD loss, or sac's three losses (twin critics with
-    target copies, a tanh-Gaussian actor, the temperature), timed on ``clock`` over ``rounds``
-    updates on as many threads as the runs had (their ``torch_threads``)."""
+    target copies, a tanh-Gaussian actor, the temperature), on as many threads as the runs had
+    (their ``torch_threads``). ``(wall s, CPU s)``, both clocks read around the same updates,
+    as many as take ``seconds`` (a few seconds' price moved by 10% between readings on this
+    shared machine)."""
     import torch
     from omegaconf import OmegaConf
 
     models = list(folder.rglob("model.pt"))
     if not models:
-        return 0.0
+        return 0.0, 0.0
     saved = [torch.load(m, weights_only=False) for m in models]
     steps = max(int(m["optimizer_steps"]) for m in saved)
     cfg = OmegaConf.load(models[0].parent / "config.yaml")
@@ -207,12 +209,14 @@ def update_floor(folder: Path, seeds: int, rounds: int = 300, clock: Clock = tim
     try:
         for _ in range(20):
             step()
-        start = clock()
-        for _ in range(rounds):
+        rounds, wall, cpu = 0, time.perf_counter(), time.process_time()
+        while time.perf_counter() - wall < seconds:
             step()
+            rounds += 1
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     finally:
         torch.set_num_threads(threads)
-    return (clock() - start) / rounds * steps
+    return wall / rounds * steps, cpu / rounds * steps
 
 
 def sac_update(net, q, shapes, obs, nxt, reward, gen):
@@ -292,9 +296,9 @@ def main() -> None:
             one = timed([sys.executable, "train.py", *common, "seed=0", f"hydra.run.dir={where / 'one'}"])
             batch = timed([sys.executable, "train.py", "-m", *common, f"seed=range({args.seeds})",
                            f"hydra.sweep.dir={where / 'batch'}"])
-            floors = [(physics_floor(learner, n, args.seeds, where / "batch", clock),
-                       update_floor(where / "batch", args.seeds, clock=clock) if learner != "qlearn" else 0.0)
-                      for clock in (time.perf_counter, time.process_time)]
+            updates = update_floor(where / "batch", args.seeds) if learner != "qlearn" else (0.0, 0.0)
+            floors = [(physics_floor(learner, n, args.seeds, where / "batch", clock), priced)
+                      for clock, priced in zip((time.perf_counter, time.process_time), updates)]
             rows.append((learner, label, one, batch, *floors))
     print(f"load average (1/5/15 min) at the end: {load()}")
     for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb), (floor_s, updates_s), cpu in rows:
