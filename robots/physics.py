@@ -232,7 +232,7 @@ class BatchedPhysics:
                 self._opt.disableflags = flags
             nsubsteps = 1
         states, sensors = self._substeps(models, np.ascontiguousarray(initial), ctrl, nsubsteps, warmstart, pooled)
-        if not pooled:  # the price: an average of the latest steps', weighting the last by a fifth
+        if not pooled and self._threads > 1:  # the price (an average of the latest steps', the last weighing a fifth)
             price = self._copy_step_s.setdefault(steps, [0.0, 0])
             seconds = (time.perf_counter() - start) / copies
             price[0] = seconds if not price[1] else 0.8 * price[0] + 0.2 * seconds
