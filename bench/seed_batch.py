@@ -23,8 +23,8 @@ or bookkeeping, timed in the same run (15 s of them, on both clocks at once);
 ``target_ratio`` is the batch's time over both floors (issue 64's targets: dqn at most
 1.3, qlearn at most 1.5 over its physics floor; issue 66's: sac at most 1.3). Both floors
 are also read on this process's CPU clock (``floors_cpu_s``) and ``target_cpu_ratio`` is
-the batch's CPU seconds over them: on a machine other jobs share, each wall time counts their turns in its own share of the
-machine, so the CPU ratio is the one to read there.
+the batch's CPU seconds over them: on a machine other jobs share, each wall time counts
+their turns in its own share of the machine, so the CPU ratio is the one to read there.
 
 Its measurements (with their date and machine) are on the docs' performance page
 (docs/performance.md, "Seeds in one process").
