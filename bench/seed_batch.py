@@ -1,7 +1,7 @@
 """Seeds in one process against one seed alone: wall time, CPU time and peak memory (run by hand).
 
     python bench/seed_batch.py [--seeds 10] [--learners qlearn dqn] [--num-envs tuned 1]
-                               [--qlearn-steps 150000] [--dqn-steps 30000]
+                               [--qlearn-steps 150000] [--dqn-steps 30000] [--repeats 1]
     python bench/seed_batch.py --robot pendulum --learners sac --num-envs tuned --sac-steps 10000
 
 Per learner and number of copies a seed (``tuned``: the tuned file's, read from
@@ -14,9 +14,9 @@ the process's user + system seconds (its physics thread pool's included: on a sh
 machine the wall time also counts the other jobs' turns); the peak memory is the largest
 resident set of the process. The load average is printed at the start and the end. The
 physics floor (``physics_floor_s``) is the batch's copy-steps (training and greedy
-evaluations) priced at this machine's rollout cost a copy-step at the batch's widths: no
-batch can go below it here. A dqn or sac batch also has an update floor (``update_floor_s``): its
-gradient updates (the rounds its members made, read from their ``model.pt``) done as
+evaluations) priced at this machine's rollout cost a copy-step at the batch's widths, on
+the states of the task's own episodes (:func:`per_copy_step`): no batch can go below it
+here. A dqn or sac batch also has an update floor (``update_floor_s``): its gradient updates (the rounds its members made, read from their ``model.pt``) done as
 plain stacked PyTorch (the same network shapes, minibatch and members: each layer a
 batched product, the TD loss, backward and one ``torch.optim.Adam`` step) with no sampling
 or bookkeeping, timed in the same run (15 s of them, on both clocks at once);
@@ -25,14 +25,20 @@ or bookkeeping, timed in the same run (15 s of them, on both clocks at once);
 are also read on this process's CPU clock (``floors_cpu_s``) and ``target_cpu_ratio`` is
 the batch's CPU seconds over them: on a machine other jobs share, each wall time counts
 their turns in its own share of the machine, so the CPU ratio is the one to read there.
+This machine's speed also drifts by a third over minutes (the same ten-seed batch took 132 s
+and, ten minutes later, 84 s): ``--repeats R`` runs the batch R times, its floors read after
+each, and judges each batch against the floors read just before and just after it; the
+median of its ratios is the reading.
 
 Its measurements (with their date and machine) are on the docs' performance page
 (docs/performance.md, "Seeds in one process").
 
-Last lines, per learner and copies: ``BATCH <learner> num_envs=<n> seeds=<N> one_s=<v>
+Last lines, per learner, copies and repeat: ``BATCH <learner> num_envs=<n> seeds=<N> repeat=<r> one_s=<v>
 batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)> physics_floor_s=<v>
 floor_ratio=<floor/one> update_floor_s=<v> target_ratio=<v> one_cpu_s=<v> batch_cpu_s=<v>
-cpu_ratio=<v> floors_cpu_s=<v> target_cpu_ratio=<v> peak_rss_mb=<batch>``.
+cpu_ratio=<v> floors_cpu_s=<v> target_cpu_ratio=<v> peak_rss_mb=<batch>``; then per learner
+and copies: ``TARGET <learner> num_envs=<n> repeats=<R> target_ratio=<median> (<min>-<max>)
+target_cpu_ratio=<median> (<min>-<max>)``.
 """
 
 from __future__ import annotations
@@ -42,6 +48,7 @@ import csv
 import json
 import math
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -126,24 +133,58 @@ def floor_of(robot: str, folder: Path, copies: int, clock: Clock = time.perf_cou
     return train * per_copy_step(robot, copies, clock=clock) + evals * per_copy_step(robot, max(width, 1), clock=clock)
 
 
-def per_copy_step(robot: str, copies: int, seconds: float = 2.0, clock: Clock = time.perf_counter) -> float:
+def per_copy_step(robot: str, copies: int, seconds: float = 2.0, clock: Clock = time.perf_counter,
+                  at_rest: bool = False) -> float:
     """Seconds a copy-step of ``robot``'s physics takes here, ``copies`` side by side (one
     ``mujoco.rollout`` call a step, as a batch steps them; the rollout pool's threads as
     the env uses them), timed over ``seconds`` of wall time; read on ``clock`` (the wall's,
-    or ``time.process_time``: the CPU seconds of every thread of this process)."""
+    or ``time.process_time``: the CPU seconds of every thread of this process).
+
+    The copies step from the states and with the controls of the robot's default task's
+    own episodes under random actions (:func:`episode_steps`): a copy held still at its
+    model's rest pose costs less (the cart-pole's upright pole at rest: 8-16 % less, its
+    constraint solver done at once). ``at_rest``: from that rest pose, with no control
+    (the machine yardstick ``bench.tune_grid.physics_speed`` keeps reading, for its
+    earlier rows)."""
     sys.path.insert(0, str(ROOT))
     from robots.physics import BatchedPhysics
     from tasks import catalog
 
-    env = catalog.make_env(robot)
+    env = catalog.make_env(robot, num_envs=copies)
+    steps = [] if at_rest else episode_steps(env)
     physics, substeps = BatchedPhysics(env.physics.model, copies), env.task.n_substeps
     env.close()
     physics.step(substeps)
-    calls, start, read = 0, time.perf_counter(), clock()
+    calls, spent, start = 0, 0.0, time.perf_counter()
     while time.perf_counter() - start < seconds:
-        physics.step(substeps)
-        calls += 1
-    return (clock() - read) / (calls * copies)
+        for state, ctrl in steps or [(physics.state, physics.ctrl)]:
+            physics.state[:], physics.ctrl[:] = state, ctrl
+            read = clock()
+            physics.step(substeps)
+            spent += clock() - read
+            calls += 1
+    return spent / (calls * copies)
+
+
+def episode_steps(env, steps: int = 100) -> list[tuple]:
+    """``steps`` env steps of ``env``'s episodes under uniformly random actions (a copy
+    whose episode ends starts its next one): each physics step's starting state and
+    control, one row a copy."""
+    import torch
+
+    seen, step = [], env.physics.step
+
+    def keep(nsubsteps: int) -> None:
+        seen.append((env.physics.state.copy(), env.physics.ctrl.copy()))
+        step(nsubsteps)
+
+    env.physics.step = keep
+    torch.manual_seed(0)
+    try:
+        env.rollout(steps, break_when_any_done=False)
+    finally:
+        env.physics.step = step
+    return seen
 
 
 def update_floor(folder: Path, seeds: int, seconds: float = 15.0) -> tuple[float, float]:
@@ -279,11 +320,13 @@ def main() -> None:
     parser.add_argument("--dqn-steps", type=int, default=30000)
     parser.add_argument("--sac-steps", type=int, default=10000)
     parser.add_argument("--robot", default="cartpole", help="the robot every run trains (its default task)")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="batches per learner and copies, each followed by a reading of its floors")
     args = parser.parse_args()
     global ROBOT
     ROBOT = args.robot
-    if args.seeds < 1:
-        sys.exit("error: --seeds must be >= 1")
+    if args.seeds < 1 or args.repeats < 1:
+        sys.exit("error: --seeds and --repeats must be >= 1")
     out = ROOT / "multirun" / f"bench_seed_batch_{time.strftime('%Y%m%d-%H%M%S')}"
     print(f"load average (1/5/15 min) at the start: {load()} on {os.cpu_count()} cores", flush=True)
     rows = []
@@ -294,22 +337,38 @@ def main() -> None:
                       *([] if n == "tuned" else [f"num_envs={n}"])]
             where = out / learner / f"n{label}"
             one = timed([sys.executable, "train.py", *common, "seed=0", f"hydra.run.dir={where / 'one'}"])
-            batch = timed([sys.executable, "train.py", "-m", *common, f"seed=range({args.seeds})",
-                           f"hydra.sweep.dir={where / 'batch'}"])
-            updates = update_floor(where / "batch", args.seeds) if learner != "qlearn" else (0.0, 0.0)
-            floors = [(physics_floor(learner, n, args.seeds, where / "batch", clock), priced)
-                      for clock, priced in zip((time.perf_counter, time.process_time), updates)]
-            rows.append((learner, label, one, batch, *floors))
+            read = []  # the floors read after each batch: ((wall physics, wall updates), (CPU ...))
+            for r in range(args.repeats):
+                batch = timed([sys.executable, "train.py", "-m", *common, f"seed=range({args.seeds})",
+                               f"hydra.sweep.dir={where / f'batch{r}'}"])
+                read.append(floors_of(learner, n, args.seeds, where / f"batch{r}"))
+                beside = read[-2:]  # the floors read just before this batch and just after it
+                floors = [tuple(sum(f[c][i] for f in beside) / len(beside) for i in (0, 1)) for c in (0, 1)]
+                rows.append((learner, label, r, one, batch, *floors))
     print(f"load average (1/5/15 min) at the end: {load()}")
-    for learner, label, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb), (floor_s, updates_s), cpu in rows:
-        print(f"BATCH {learner} num_envs={label} seeds={args.seeds} one_s={one_s:.1f} batch_s={batch_s:.1f} "
+    ratios: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    for learner, label, r, (one_s, one_cpu, one_mb), (batch_s, batch_cpu, batch_mb), (floor_s, updates_s), cpu in rows:
+        print(f"BATCH {learner} num_envs={label} seeds={args.seeds} repeat={r} one_s={one_s:.1f} batch_s={batch_s:.1f} "
               f"ratio={batch_s / one_s:.2f} per_seed_ratio={batch_s / (args.seeds * one_s):.3f} "
               f"physics_floor_s={floor_s:.1f} floor_ratio={floor_s / one_s:.2f} update_floor_s={updates_s:.1f} "
               f"target_ratio={batch_s / (floor_s + updates_s):.2f} "
               f"one_cpu_s={one_cpu:.1f} batch_cpu_s={batch_cpu:.1f} cpu_ratio={batch_cpu / one_cpu:.2f} "
               f"floors_cpu_s={sum(cpu):.1f} target_cpu_ratio={batch_cpu / sum(cpu):.2f} "
               f"peak_rss_mb={batch_mb:.0f} (one seed: {one_mb:.0f})")
+        ratios.setdefault((learner, label), []).append((batch_s / (floor_s + updates_s), batch_cpu / sum(cpu)))
+    for (learner, label), found in ratios.items():
+        wall, cpu = ([x[i] for x in found] for i in (0, 1))
+        print(f"TARGET {learner} num_envs={label} repeats={len(found)} target_ratio={statistics.median(wall):.2f} "
+              f"({min(wall):.2f}-{max(wall):.2f}) target_cpu_ratio={statistics.median(cpu):.2f} "
+              f"({min(cpu):.2f}-{max(cpu):.2f})")
 
+
+def floors_of(learner: str, n: str, seeds: int, folder: Path) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The batch under ``folder``'s floors read now: ``((physics, updates) wall s, (physics,
+    updates) CPU s)`` (qlearn: no update floor)."""
+    updates = update_floor(folder, seeds) if learner != "qlearn" else (0.0, 0.0)
+    return tuple((physics_floor(learner, n, seeds, folder, clock), priced)  # type: ignore[return-value]
+                 for clock, priced in zip((time.perf_counter, time.process_time), updates))
 
 if __name__ == "__main__":
     main()

@@ -268,10 +268,11 @@ def record_grid(studies: Path, pairs: list[str], minutes: float, jobs: int, spee
 
 def physics_speed(copies: int = 64, seconds: float = 1.0) -> float:
     """Microseconds a copy-step of the cart-pole's physics takes here (``copies`` side by side,
-    :func:`bench.seed_batch.per_copy_step`): a yardstick of the machine."""
+    at rest, :func:`bench.seed_batch.per_copy_step`): a yardstick of the machine, read as
+    in its earlier rows."""
     from bench.seed_batch import per_copy_step
 
-    return per_copy_step("cartpole", copies, seconds) * 1e6
+    return per_copy_step("cartpole", copies, seconds, at_rest=True) * 1e6
 
 
 def grid_run_minutes(studies: Path = STUDIES) -> list[float]:

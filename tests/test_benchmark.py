@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bench import benchmark
@@ -765,3 +766,21 @@ def test_a_benchmark_run_stopped_by_sigterm_stops_its_training_and_saves(tmp_pat
     from runs.summary import summarize_run
 
     assert "resume" in summarize_run(run_dir)  # stopped with a checkpoint to go on from
+
+
+def test_the_physics_floor_steps_the_tasks_own_moving_episodes():
+    """The seeds bench's physics floor prices copy-steps on the states a task's episodes visit
+    (random actions, each copy's episodes started anew as they end), not on a model held
+    still at its rest pose, which costs less (the cart-pole's upright pole at rest: 8-16 %)."""
+    from bench.seed_batch import episode_steps, per_copy_step
+    from tasks import catalog
+
+    env = catalog.make_env("cartpole", num_envs=4)
+    steps = episode_steps(env, 40)
+    env.close()
+    assert len(steps) == 40 and all(state.shape[0] == 4 == ctrl.shape[0] for state, ctrl in steps)
+    states = np.stack([state for state, _ in steps])
+    assert np.ptp(states[:, :, 1:], axis=0).min() > 0  # every copy's qpos and qvel moved
+    assert len({ctrl.tobytes() for _, ctrl in steps}) > 10  # the controls changed with the actions
+    assert 0 < per_copy_step("cartpole", 4, 0.05) < 0.01
+    assert 0 < per_copy_step("cartpole", 4, 0.05, at_rest=True) < 0.01
