@@ -50,9 +50,14 @@ def _mark_success(ax, rows: list[dict], evals: list[dict], success: Success) -> 
 
 def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
                       evals_csv: Path | None = None) -> None:
+    """Draws :func:`reward_curve` into ``out_png``."""
+    reward_curve(metrics_csv, success, evals_csv, Path(out_png).parent.name).savefig(out_png, dpi=100)
+
+
+def reward_curve(metrics_csv: Path, success: Success, evals_csv: Path | None = None, title: str = ""):
     """The task's measure per episode, its rolling mean, the threshold and the greedy
     evaluations; the episode length (if it is not the measure) and return (if it is
-    not the length) below."""
+    not the length) below; a matplotlib ``Figure``."""
     from matplotlib.figure import Figure  # not pyplot: no GUI backend to load, nothing to close
 
     rows = _read(metrics_csv)
@@ -64,12 +69,12 @@ def plot_reward_curve(metrics_csv: Path, out_png: Path, success: Success,
         if rows:
             ax.plot(_column(rows, "episode"), _column(rows, key), lw=0.6, alpha=0.5,
                     label="training episode")
-        ax.set_ylabel(label)
+        ax.set_ylabel(textwrap.fill(label, 34), fontsize=9 if len(label) > 34 else None)  # a panel is 2.6 in high
     _mark_success(axes[0, 0], rows, evals, success)
     axes[-1, 0].set_xlabel("episode")
     from runs.console import solved_when  # the console's words for the rule
 
     rule = textwrap.fill(f"solved when {solved_when(success)}", 120)
-    fig.suptitle(f"{Path(out_png).parent.name}\n{rule}", fontsize=8)
+    fig.suptitle(f"{title}\n{rule}", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out_png, dpi=100)
+    return fig
