@@ -5,40 +5,40 @@
     python bench/seed_batch.py --robot pendulum --learners sac --num-envs tuned --sac-steps 10000
 
 Per learner and number of copies a seed (``tuned``: the tuned file's, read from
-``conf/tuned/cartpole_<learner>.yaml``; a number: ``num_envs=<n>``), side by side in this run: one plain process
-``train.py seed=0`` and one ``train.py -m seed='range(N)'`` (the ``seeds`` launcher: one
-batch of N seeds), each with the same per-seed budget of env steps (``max_env_steps``; an
-episode budget would let the batch wait for its slowest seed), training past "solved" so
-every seed spends the whole budget. Timed from outside, start to exit; the CPU time is
-the process's user + system seconds (its physics thread pool's included: on a shared
-machine the wall time also counts the other jobs' turns); the peak memory is the largest
-resident set of the process. The load average is printed at the start and the end. The
-physics floor (``physics_floor_s``) is the batch's copy-steps (training and greedy
-evaluations) priced at this machine's rollout cost a copy-step at the batch's widths, on
-the states of the task's own episodes (:func:`per_copy_step`): no batch can go below it
-here. A dqn or sac batch also has an update floor (``update_floor_s``): its gradient updates (the rounds its members made, read from their ``model.pt``) done as
-plain stacked PyTorch (the same network shapes, minibatch and members: each layer a
-batched product, the TD loss, backward and one ``torch.optim.Adam`` step) with no sampling
-or bookkeeping, timed in the same run (15 s of them, on both clocks at once);
-``target_ratio`` is the batch's time over both floors (issue 64's targets: dqn at most
-1.3, qlearn at most 1.5 over its physics floor; issue 66's: sac at most 1.3). Both floors
-are also read on this process's CPU clock (``floors_cpu_s``) and ``target_cpu_ratio`` is
-the batch's CPU seconds over them: on a machine other jobs share, each wall time counts
-their turns in its own share of the machine, so the CPU ratio is the one to read there.
-This machine's speed also drifts by a third over minutes (the same ten-seed batch took 132 s
-and, ten minutes later, 84 s): ``--repeats R`` runs the batch R times, its floors read after
-each, and judges each batch against the floors read just before and just after it; the
-median of its ratios is the reading.
+``conf/tuned/cartpole_<learner>.yaml``; a number: ``num_envs=<n>``), side by side in this
+run: one plain process ``train.py seed=0`` and one ``train.py -m seed='range(N)'`` (the
+``seeds`` launcher: one batch of N seeds), each with the same per-seed budget of env steps
+(``max_env_steps``; an episode budget would let the batch wait for its slowest seed),
+training past "solved" so every seed spends the whole budget. Timed from outside, start to
+exit; the CPU time is the process's user + system seconds (its physics thread pool's
+included: on a shared machine the wall time also counts the other jobs' turns); the peak
+memory is the largest resident set of the process. The load average is printed at the start
+and the end. The physics floor (``physics_floor_s``) is the batch's copy-steps (training and
+greedy evaluations) priced at this machine's rollout cost a copy-step at the batch's widths,
+on the states of the task's own episodes (:func:`per_copy_step`): no batch can go below it
+here. A dqn or sac batch also has an update floor (``update_floor_s``): its gradient updates
+(the rounds its members made, read from their ``model.pt``) done as plain stacked PyTorch
+(the same network shapes, minibatch and members: each layer a batched product, the TD loss,
+backward and one ``torch.optim.Adam`` step) with no sampling or bookkeeping, timed in the
+same run (15 s of them, on both clocks at once); ``target_ratio`` is the batch's time over
+both floors (issue 64's targets: dqn at most 1.3, qlearn at most 1.5 over its physics floor;
+issue 66's: sac at most 1.3). Both floors are also read on this process's CPU clock
+(``floors_cpu_s``) and ``target_cpu_ratio`` is the batch's CPU seconds over them: on a
+machine other jobs share, each wall time counts their turns in its own share of the machine,
+so the CPU ratio is the one to read there. This machine's speed also drifts by a third over
+minutes (the same ten-seed batch took 132 s and, ten minutes later, 84 s): ``--repeats R``
+runs the batch R times, its floors read after each, and judges each batch against the floors
+read just before and just after it; the median of its ratios is the reading.
 
 Its measurements (with their date and machine) are on the docs' performance page
 (docs/performance.md, "Seeds in one process").
 
-Last lines, per learner, copies and repeat: ``BATCH <learner> num_envs=<n> seeds=<N> repeat=<r> one_s=<v>
-batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)> physics_floor_s=<v>
-floor_ratio=<floor/one> update_floor_s=<v> target_ratio=<v> one_cpu_s=<v> batch_cpu_s=<v>
-cpu_ratio=<v> floors_cpu_s=<v> target_cpu_ratio=<v> peak_rss_mb=<batch>``; then per learner
-and copies: ``TARGET <learner> num_envs=<n> repeats=<R> target_ratio=<median> (<min>-<max>)
-target_cpu_ratio=<median> (<min>-<max>)``.
+Last lines, per learner, copies and repeat: ``BATCH <learner> num_envs=<n> seeds=<N>
+repeat=<r> one_s=<v> batch_s=<v> ratio=<batch/one> per_seed_ratio=<batch/(N*one)>
+physics_floor_s=<v> floor_ratio=<floor/one> update_floor_s=<v> target_ratio=<v>
+one_cpu_s=<v> batch_cpu_s=<v> cpu_ratio=<v> floors_cpu_s=<v> target_cpu_ratio=<v>
+peak_rss_mb=<batch>``; then per learner and copies: ``TARGET <learner> num_envs=<n>
+repeats=<R> target_ratio=<median> (<min>-<max>) target_cpu_ratio=<median> (<min>-<max>)``.
 """
 
 from __future__ import annotations
@@ -157,7 +157,7 @@ def per_copy_step(robot: str, copies: int, seconds: float = 2.0, clock: Clock = 
     physics.step(substeps)
     calls, spent, start = 0, 0.0, time.perf_counter()
     while time.perf_counter() - start < seconds:
-        for state, ctrl in steps or [(physics.state, physics.ctrl)]:
+        for state, ctrl in steps or [(physics.state, physics.ctrl)]:  # at rest: each step from the last
             physics.state[:], physics.ctrl[:] = state, ctrl
             read = clock()
             physics.step(substeps)
@@ -306,6 +306,14 @@ def sac_update(net, q, shapes, obs, nxt, reward, gen):
     return update, leaves
 
 
+def floors_of(learner: str, n: str, seeds: int, folder: Path) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The floors of the batch under ``folder``, read now: ``((physics, updates) wall s,
+    (physics, updates) CPU s)`` (qlearn: no update floor)."""
+    updates = update_floor(folder, seeds) if learner != "qlearn" else (0.0, 0.0)
+    wall = physics_floor(learner, n, seeds, folder, time.perf_counter), updates[0]
+    return wall, (physics_floor(learner, n, seeds, folder, time.process_time), updates[1])
+
+
 def load() -> str:
     return "/".join(f"{x:.2f}" for x in os.getloadavg())
 
@@ -362,13 +370,6 @@ def main() -> None:
               f"({min(wall):.2f}-{max(wall):.2f}) target_cpu_ratio={statistics.median(cpu):.2f} "
               f"({min(cpu):.2f}-{max(cpu):.2f})")
 
-
-def floors_of(learner: str, n: str, seeds: int, folder: Path) -> tuple[tuple[float, float], tuple[float, float]]:
-    """The batch under ``folder``'s floors read now: ``((physics, updates) wall s, (physics,
-    updates) CPU s)`` (qlearn: no update floor)."""
-    updates = update_floor(folder, seeds) if learner != "qlearn" else (0.0, 0.0)
-    return tuple((physics_floor(learner, n, seeds, folder, clock), priced)  # type: ignore[return-value]
-                 for clock, priced in zip((time.perf_counter, time.process_time), updates))
 
 if __name__ == "__main__":
     main()
