@@ -1303,13 +1303,16 @@ class PolicyMembers(MemberLearner):
         n = observation.shape[1]
         noise, warm = None, []
         if not greedy:
-            noise = torch.zeros(k, n, self.n_actions)
+            rows = []
             for j, (b, g) in enumerate(zip(members, generators)):
-                if g is not None and self._warming(b):
-                    noise[j] = torch.rand(n, self.n_actions, generator=g) * 2 - 1
+                if g is None:
+                    rows.append(torch.zeros(n, self.n_actions))
+                elif self._warming(b):
+                    rows.append(torch.rand(n, self.n_actions, generator=g) * 2 - 1)
                     warm.append(j)
-                elif g is not None:
-                    noise[j] = self.draw_act(g, n)
+                else:
+                    rows.append(self.draw_act(g, n))
+            noise = torch.stack(rows)
         params = self.groups["actor"].params if k == self.members else self.groups["actor"].params[members]
         with torch.no_grad():
             found = self.act_with(lambda x: self.groups["actor"].net.q(params, x), observation,

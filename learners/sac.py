@@ -109,8 +109,8 @@ class SAC(ReplaySettings, ActorCriticLearner):
 
     def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None) -> dict:
         """The squashed Gaussian's draw at ``noise``, or its deterministic action ``tanh(loc)``."""
-        loc, scale = actor(observation)
-        return {"action": lanes(safetanh_noeps, loc) if noise is None else squashed(loc, scale, noise)[0]}
+        loc, scale = actor(observation)  # the draw's action as :func:`squashed` makes it, its log-prob not needed
+        return {"action": lanes(safetanh_noeps, loc if noise is None else loc + noise * scale)}
 
     def draw_update(self, generator: torch.Generator, batch_size: int) -> torch.Tensor:
         """One update's draws: standard normal noise for the next actions, then the current ones."""
