@@ -45,13 +45,18 @@ def tanh_normal_actor(template: nn.Sequential) -> nn.Module:
     return ProbabilisticActor(module, in_keys=["loc", "scale"], distribution_class=TanhNormal)
 
 
+def squash(preimage: torch.Tensor) -> torch.Tensor:
+    """The action of a pre-tanh value: TorchRL's safe tanh, by :func:`~learners.member.lanes`."""
+    return lanes(safetanh_noeps, preimage)
+
+
 def squashed(loc: torch.Tensor, scale: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(action, log_prob)`` of TorchRL's ``TanhNormal(loc, scale)`` at the pre-tanh value
     ``loc + noise * scale``: its ``rsample_and_log_prob`` with the noise given rather than
     drawn, step by step (the Gaussian's log density less the tanh's log Jacobian, TorchRL's
     safe tanh), its transcendental functions by :func:`~learners.member.lanes`."""
     preimage = loc + noise * scale
-    action = lanes(safetanh_noeps, preimage)
+    action = squash(preimage)
     density = -((preimage - loc) ** 2) / (2 * scale**2) - lanes(torch.log, scale) - LOG_SQRT_2PI
     jacobian = 2.0 * (math.log(2.0) - preimage - lanes(nn.functional.softplus, -2.0 * preimage))
     return action, density.sum(-1) - jacobian.sum(-1)

@@ -24,11 +24,11 @@ from typing import Callable, Mapping, Sequence
 
 import torch
 from torch import nn
-from torchrl.modules.distributions.utils import safetanh_noeps
 
 from learners.device import DEVICE_NOTE, check_device, resolve_device
 from learners.member import GroupStep, Losses, RolloutLearner, lanes, obs_scale_param
-from learners.continuous import ACTIVATIONS, LOG_SQRT_2PI, GaussianHead, log_prob_of, mlp, squashed, tanh_normal_actor
+from learners.continuous import (ACTIVATIONS, LOG_SQRT_2PI, GaussianHead, log_prob_of, mlp, squash, squashed,
+                                 tanh_normal_actor)
 from params import require
 from params.declare import check_fields, param
 
@@ -111,7 +111,7 @@ class PPO(RolloutLearner):
         ``tanh(loc)``), with its pre-tanh value and log-probability, which the rollout keeps."""
         loc, scale = actor(observation)
         if noise is None:
-            return {"action": lanes(safetanh_noeps, loc), "action_preimage": loc,
+            return {"action": squash(loc), "action_preimage": loc,
                     "action_log_prob": log_prob_of(loc, scale, loc)}
         action, log_prob = squashed(loc, scale, noise)
         return {"action": action, "action_preimage": loc + noise * scale, "action_log_prob": log_prob}

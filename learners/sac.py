@@ -23,9 +23,8 @@ from typing import Callable, Mapping, Sequence
 
 import torch
 from torch import nn
-from torchrl.modules.distributions.utils import safetanh_noeps
 
-from learners.continuous import DISTANCES, GaussianHead, ReplaySettings, mlp, squashed, tanh_normal_actor
+from learners.continuous import DISTANCES, GaussianHead, ReplaySettings, mlp, squash, squashed, tanh_normal_actor
 from learners.device import resolve_device
 from learners.member import ActorCriticLearner, GroupStep, Losses, check_replay_settings, lanes
 from learners.transitions import Transitions
@@ -110,7 +109,7 @@ class SAC(ReplaySettings, ActorCriticLearner):
     def act_with(self, actor: Callable, observation: torch.Tensor, noise: torch.Tensor | None) -> dict:
         """The squashed Gaussian's draw at ``noise``, or its deterministic action ``tanh(loc)``."""
         loc, scale = actor(observation)  # the draw's action as :func:`squashed` makes it, its log-prob not needed
-        return {"action": lanes(safetanh_noeps, loc if noise is None else loc + noise * scale)}
+        return {"action": squash(loc if noise is None else loc + noise * scale)}
 
     def draw_update(self, generator: torch.Generator, batch_size: int) -> torch.Tensor:
         """One update's draws: standard normal noise for the next actions, then the current ones."""
