@@ -23,7 +23,9 @@ pair a record (``<task>/<learner>_<setting>.json``: its command, exit code, wall
 seeds' rows) from which the tables are made again when the job folders are gone. A folder
 under ``bench/results/`` is kept in the repository without its job folders and consoles
 (``.gitignore``): a benchmark run over several sessions commits its records as pairs end.
-``--jobs N`` trains N pairs at once (each one process of one thread).
+``--jobs N`` trains N pairs at once (each one process of one thread); ``--threads T`` gives
+each pair's process T torch threads instead (a pair alone on a machine of T cores ends sooner;
+a pair may go on with another number than it began with).
 Without ``--quick`` docs/benchmark.md (between its markers) is rewritten from the table
 (``--readme`` names another file, ``--no-readme`` leaves it alone).
 """
@@ -117,6 +119,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--dry-run", action="store_true", help="with --tune: print each pair's command only")
     parser.add_argument("--jobs", type=int, help="pairs trained at once, a process of one thread each (default: 1); "
                                                  "with --tune: studies at once (default: one per core)")
+    parser.add_argument("--threads", type=int, help="torch threads of each pair's process (default: the runs' "
+                        "torch_threads, 1); a seed's numbers may then differ from one thread's in their last bits")
     parser.add_argument("--studies", type=Path, help="with --tune: the studies' journal folder, from the project's "
                         "root (default: bench/studies); another folder is a replay: no conf/tuned/ file is written")
     parser.add_argument("--minutes", action="store_true", help="with --tune: each study's minutes, its sweeps' (the "
@@ -273,21 +277,24 @@ def check_tuned_budget(job: Job) -> None:
                        f"there (or give --budget to run another budget on purpose)")
 
 
-def pair_command(job: Job, out: Path) -> tuple[list[str], bool]:
+def pair_command(job: Job, out: Path, threads: int | None = None) -> tuple[list[str], bool]:
     """The command that trains ``job``'s seeds as one multirun into ``out/<task>/<learner>_<setting>/``,
     and whether it resumes: a pair stopped part way (its sweep folder there, no record)
-    continues its seeds from their checkpoints (``train.py resume=<sweep>``)."""
+    continues its seeds from their checkpoints (``train.py resume=<sweep>``). ``threads``: its
+    process's torch threads (None: the runs' ``torch_threads``)."""
     sweep = out / job.folder
     resumed = is_sweep_folder(sweep)
+    more = [] if threads is None else [f"torch_threads={threads}"]
     if resumed:
-        return [sys.executable, "train.py", f"resume={sweep}"], True
+        return [sys.executable, "train.py", f"resume={sweep}", *more], True
     return [sys.executable, "train.py", "-m", "quiet=true", f"hydra.sweep.dir={sweep}",
-            f"seed={','.join(map(str, job.seeds))}", *overrides(job)], False
+            f"seed={','.join(map(str, job.seeds))}", *overrides(job), *more], False
 
 
-def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool = False) -> None:
+def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool = False,
+              threads: int | None = None) -> None:
     """Trains the pairs of ``todo``, ``jobs`` at once (each a process of one thread, the seeds
-    launcher's), each pair's seeds as one multirun (:func:`pair_command`). As a pair ends,
+    launcher's, or of ``threads``), each pair's seeds as one multirun (:func:`pair_command`). As a pair ends,
     its command, exit code, start (local time) and wall seconds (from its start; ``resumed``:
     from where it went on) go to ``<learner>_<setting>.json`` beside its sweep, with its seeds' rows
     (:func:`pair_seeds`); its console is ``<learner>_<setting>.log``. The bar moves as each
@@ -295,7 +302,7 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
     on with it), nor a pair refused because another benchmark on ``out`` took it after this
     one planned (that one writes its record). ``solo`` (one pair at a time): also times the pair's first
     seed trained alone (``solo_wall_s``), to say what training the seeds in one process saved."""
-    commands = [pair_command(job, out) for job in todo]
+    commands = [pair_command(job, out, threads) for job in todo]
     logs = [(out / job.folder).with_suffix(".log") for job in todo]
     for log, (_, resumed) in zip(logs, commands):
         if not resumed:  # a fresh pair's console starts empty (a resumed one's goes on)
@@ -323,7 +330,8 @@ def run_pairs(todo: list[Job], out: Path, bar: tqdm, jobs: int = 1, solo: bool =
         done[i] = len(job.seeds)
         lines = logs[i].read_text(errors="replace").strip().splitlines()
         record = {"command": cmd, "returncode": returncode, "wall_s": wall, "started": started_at[i],
-                  "last_line": lines[-1] if lines else "", **({"resumed": True} if resumed else {})}
+                  "last_line": lines[-1] if lines else "", **({"resumed": True} if resumed else {}),
+                  **({} if threads is None else {"torch_threads": threads})}
         if solo:
             t0 = time.perf_counter()
             alone = subprocess.run([sys.executable, "train.py", "quiet=true", f"hydra.run.dir={out / job.folder}_solo",
@@ -639,7 +647,7 @@ def run(args: argparse.Namespace) -> Path:
         (out / "plan.json").write_text(json.dumps(
             {"commands": commands, "jobs": [asdict(job) for job in jobs]}, indent=1))
         with tqdm(total=sum(len(job.seeds) for job in todo), unit="seed", desc="benchmark") as bar:
-            run_pairs(todo, out, bar, args.jobs or 1, args.solo)
+            run_pairs(todo, out, bar, args.jobs or 1, args.solo, args.threads)
     pairs, all_seeds = tabulate(jobs, runnable, out)
     figures = {}
     if page is not None:  # the page's figures, beside it
@@ -747,6 +755,8 @@ def main(argv: list[str] | None = None) -> None:
         if args.jobs is not None and args.jobs < 1:
             what = "studies" if args.tune else "pairs"
             raise BadInput(f"--jobs must be at least 1 ({what} at once), got {args.jobs}")
+        if args.threads is not None and args.threads < 1:
+            raise BadInput(f"--threads must be at least 1 (torch threads a pair's process), got {args.threads}")
         if args.solo and (args.jobs or 1) > 1:
             raise BadInput("--solo times a seed alone beside nothing else: give it --jobs 1")
         if args.tune:

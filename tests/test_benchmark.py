@@ -103,6 +103,7 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
     (["--settings", "best"], "unknown setting 'best'; settings: published, tuned"),
     (["--tune", "--jobs", "0"], "--jobs must be at least 1 (studies at once), got 0"),
     (["--quick", "--jobs", "0"], "--jobs must be at least 1 (pairs at once), got 0"),
+    (["--quick", "--threads", "0"], "--threads must be at least 1 (torch threads a pair's process), got 0"),
     (["--quick", "--solo", "--jobs", "2"], "--solo times a seed alone beside nothing else: give it --jobs 1"),
     (["--tune", "--studies", "/etc"], "--studies must be a folder inside the project (its journals are kept "
                                       "with it), got /etc"),
@@ -304,7 +305,21 @@ def test_a_pair_stopped_part_way_continues_from_its_checkpoints(tmp_path):
         cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert killed.returncode == -9, killed.stderr[-2000:]
     assert not any(sweep.glob("*/summary.json")) and any(sweep.glob("*/checkpoint.pt"))
-    goes_on(args, job, out)
+    at = args.index("--")
+    goes_on([*args[:at], "--threads", "2", *args[at:]], job, out)  # going on with two torch threads
+    assert benchmark.job_record(job, out)["torch_threads"] == 2
+
+
+def test_a_pairs_threads_reach_its_command_begun_or_going_on(tmp_path):
+    """``--threads T``: the pair's process runs with T torch threads, begun or resumed."""
+    _, job, out = small_pair(tmp_path)
+    fresh, resumed = benchmark.pair_command(job, out, 2)
+    assert fresh[-1] == "torch_threads=2" and not resumed
+    assert not any("torch_threads" in part for part in benchmark.pair_command(job, out)[0])
+    (out / job.folder).mkdir(parents=True)
+    (out / job.folder / "multirun.yaml").write_text("{}")
+    going_on, resumed = benchmark.pair_command(job, out, 2)
+    assert resumed and going_on[2:] == [f"resume={out / job.folder}", "torch_threads=2"]
 
 
 STOPPER = """
