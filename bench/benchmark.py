@@ -757,6 +757,8 @@ def main(argv: list[str] | None = None) -> None:
             raise BadInput(f"--jobs must be at least 1 ({what} at once), got {args.jobs}")
         if args.threads is not None and args.threads < 1:
             raise BadInput(f"--threads must be at least 1 (torch threads a pair's process), got {args.threads}")
+        if args.threads is not None and args.tune:
+            raise BadInput("--threads is for training pairs; a study (--tune) is one process of one thread")
         if args.solo and (args.jobs or 1) > 1:
             raise BadInput("--solo times a seed alone beside nothing else: give it --jobs 1")
         if args.tune:

@@ -104,6 +104,7 @@ def test_quick_benchmark_end_to_end(tmp_path, solo):
     (["--tune", "--jobs", "0"], "--jobs must be at least 1 (studies at once), got 0"),
     (["--quick", "--jobs", "0"], "--jobs must be at least 1 (pairs at once), got 0"),
     (["--quick", "--threads", "0"], "--threads must be at least 1 (torch threads a pair's process), got 0"),
+    (["--tune", "--threads", "2"], "--threads is for training pairs; a study (--tune) is one process of one thread"),
     (["--quick", "--solo", "--jobs", "2"], "--solo times a seed alone beside nothing else: give it --jobs 1"),
     (["--tune", "--studies", "/etc"], "--studies must be a folder inside the project (its journals are kept "
                                       "with it), got /etc"),
