@@ -56,10 +56,7 @@ def squashed(loc: torch.Tensor, scale: torch.Tensor, noise: torch.Tensor) -> tup
     drawn, step by step (the Gaussian's log density less the tanh's log Jacobian, TorchRL's
     safe tanh), its transcendental functions by :func:`~learners.member.lanes`."""
     preimage = loc + noise * scale
-    action = squash(preimage)
-    density = -((preimage - loc) ** 2) / (2 * scale**2) - lanes(torch.log, scale) - LOG_SQRT_2PI
-    jacobian = 2.0 * (math.log(2.0) - preimage - lanes(nn.functional.softplus, -2.0 * preimage))
-    return action, density.sum(-1) - jacobian.sum(-1)
+    return squash(preimage), log_prob_of(loc, scale, preimage)
 
 
 def mlp(inputs: int, outputs: int, hidden: list[int], activation: str) -> nn.Sequential:
@@ -95,5 +92,5 @@ class ReplaySettings:
                         note=DEVICE_NOTE, check=check_device)
 
 
-__all__ = ["ACTIVATIONS", "DISTANCES", "GaussianHead", "ReplaySettings", "log_prob_of", "mlp", "squashed",
+__all__ = ["ACTIVATIONS", "DISTANCES", "GaussianHead", "ReplaySettings", "log_prob_of", "mlp", "squash", "squashed",
            "tanh_normal_actor"]
