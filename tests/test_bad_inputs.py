@@ -4,9 +4,9 @@ the run folder Hydra makes before the job starts).
 The table holds what a skeptical user tried (values of the wrong type, integers with
 no upper bound, removed keys, unknown keys with and without ``+``, Hydra grammar and
 interpolation errors, unknown config choices, a task that does not fit the robot,
-folders that cannot be created) plus every case of tests/test_validation.py, run
-through the real entry point (``train.cli``) in this process: a case costs a
-fraction of a second.
+folders that cannot be created) plus every case of tests/test_validation.py (its line
+names the key and the value given), run through the real entry point (``train.cli``) in
+this process: a case costs a fraction of a second.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ TRIED = [
     ["learner=dqn", "learner.epsilon._target_=learners.schedules.Nope"], ["learner.epsilon.steps=3"],
     ["robot=cartpole", "task=wall"], ["robot=turtlebot", "robot.laser_rays=1"],
 ]
-ALL = TRIED + [overrides for overrides, _, _ in CASES]
+ALL = [(args, "", "") for args in TRIED] + CASES  # (overrides, the key its line names, the value shown)
 
 
 def cli(args: list[str], tmp_path, monkeypatch) -> int:
@@ -63,11 +63,13 @@ def cli(args: list[str], tmp_path, monkeypatch) -> int:
     return stop.value.code
 
 
-@pytest.mark.parametrize("args", ALL, ids=[" ".join(a) for a in ALL])
-def test_a_bad_command_line_is_one_error_line_and_exit_2(args, tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("args, key, shown", ALL, ids=[" ".join(a) for a, _, _ in ALL])
+def test_a_bad_command_line_is_one_error_line_and_exit_2(args, key, shown, tmp_path, monkeypatch, capsys):
     code = cli(args, tmp_path, monkeypatch)
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
     assert code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    assert key in err[0], err[0]
+    assert not shown or shown in err[0].rpartition("; got ")[2], err[0]
     left = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
     assert left == [], f"a refused command left {left}"  # not even the folder Hydra made
 

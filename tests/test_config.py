@@ -14,6 +14,7 @@ from hydra.utils import instantiate
 from tasks import catalog
 from tasks import factory
 from params import ConfigError
+from runs.settings import check_run_config
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))
@@ -29,7 +30,10 @@ def compose_cfg(*overrides: str):
 @pytest.mark.parametrize("robot", ROBOTS)
 @pytest.mark.parametrize("learner", LEARNERS)
 def test_every_robot_learner_pair_composes_and_builds(robot, learner):
+    """Every shipped robot x learner pair (their tuned files included) passes the run's checks,
+    builds, acts and steps."""
     cfg = compose_cfg(f"robot={robot}", f"learner={learner}")
+    check_run_config(cfg)
     OmegaConf.resolve(cfg)
     env = factory.build_env(cfg, num_envs=2, seed=0)
     try:

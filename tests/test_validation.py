@@ -33,8 +33,6 @@ from params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
-ROBOTS = sorted(p.stem for p in (CONF / "robot").glob("*.yaml"))
-LEARNERS = sorted(p.stem for p in (CONF / "learner").glob("*.yaml"))
 
 
 @lru_cache(maxsize=None)
@@ -73,11 +71,6 @@ def one_line_error(cfg, parts: str = "all") -> str:
     return message
 
 
-@pytest.mark.parametrize("robot", ROBOTS)
-@pytest.mark.parametrize("learner", LEARNERS)
-def test_every_shipped_config_passes(robot, learner):
-    build(compose_cfg(f"robot={robot}", f"learner={learner}"))
-
 
 @pytest.mark.parametrize("task", ["wall"])
 def test_other_shipped_tasks_pass(task):
@@ -90,7 +83,8 @@ def test_hydras_own_node_is_left_to_hydra():
     check_run_config(cfg)
 
 
-# (overrides, key the message must name, value it must show)
+# (overrides, key the message must name, value it must show after "; got "): each run through
+# the command line in tests/test_bad_inputs.py (one error line, exit 2, nothing written)
 CASES = [
     # top level
     (["seed=-1"], "seed", "-1"),
@@ -172,9 +166,9 @@ CASES = [
     (["robot=turtlebot", "+task.ring.bogus=1"], "task.ring", "'bogus'"),
     (["robot=turtlebot", "task=wall", "task.cell_size=-1"], "task.cell_size", "-1"),
     # a task that does not fit the robot
-    (["robot=cartpole", "task=one_disk_walk"], "needs robot=cube", "'CartPole'"),
-    (["robot=cube", "task=stay_up"], "needs robot=cartpole", "'Cube'"),
-    (["robot=cartpole", "task=maze"], "needs robot=turtlebot", "'CartPole'"),
+    (["robot=cartpole", "task=one_disk_walk"], "needs robot=cube", "robot=cartpole"),
+    (["robot=cube", "task=stay_up"], "needs robot=cartpole", "robot=cube"),
+    (["robot=cartpole", "task=maze"], "needs robot=turtlebot", "robot=cartpole"),
     # learners: qlearn
     (["learner.alpha=-0.1"], "learner.alpha", "-0.1"),
     (["learner.alpha=nan"], "learner.alpha", "nan"),
@@ -244,13 +238,6 @@ CASES = [
     (["learner=sac", "~task.actions", "+task.actions={values: {torque: [1.0]}}", "robot=pendulum",
       "+task.actions.continuous={torque: [1, -1]}"], "task.actions.continuous.torque", "[1, -1]"),
 ]
-
-
-@pytest.mark.parametrize("overrides, key, shown", CASES)
-def test_bad_value_is_one_line_naming_key_and_value(overrides, key, shown):
-    message = one_line_error(compose_cfg(*overrides))
-    assert key in message, message
-    assert not shown or shown in message.rpartition("; got ")[2], message
 
 
 # -- hypothesis: over a key's range, valid values build and invalid ones give the line ----
