@@ -132,8 +132,8 @@ def test_a_submitit_job_holds_a_batch_of_seeds(tmp_path):
 
 def test_a_failing_job_does_not_cost_the_sweep_its_other_jobs_but_fails_it(tmp_path):
     sweep = tmp_path / "sweep"
-    proc = run(["train.py", "-m", f"hydra.sweep.dir={sweep}", "learner=qlearn",
-                "learner.alpha=-1,0.5", "max_episodes=5", "eval_episodes=0", "quiet=true"])
+    proc = run_train("-m", f"hydra.sweep.dir={sweep}", "learner=qlearn",  # in this process: the sweep's end,
+                     "learner.alpha=-1,0.5", "max_episodes=5", "eval_episodes=0", "quiet=true")  # not a process's
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "error: 1 of 2 jobs failed or never started" in proc.stderr
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir())

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from inprocess import run_train
+
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ["max_episodes=20", "eval_episodes=0", "quiet=true"]
 
@@ -97,24 +99,23 @@ def files(folder: Path) -> dict[str, bytes | None]:
 
 def test_an_existing_run_is_neither_overwritten_nor_damaged_by_a_rejected_one(tmp_path):
     """Not a byte of the finished run changes, Hydra's record (.hydra/), its log and its
-    lock included: a bad value, a valid run into the same folder, a resume of it."""
+    lock included: a bad value, a valid run into the same folder, a resume of it (each
+    command in this process: tests/inprocess.py)."""
     run_dir = tmp_path / "run"
-    first = train(f"hydra.run.dir={run_dir}", *QUICK)
-    assert first.wait(timeout=300) == 0
+    first = run_train(f"hydra.run.dir={run_dir}", *QUICK)
+    assert first.returncode == 0, first.stderr[-1500:]
     before = files(run_dir)
     assert {".hydra/config.yaml", ".hydra/overrides.yaml", "run.json", "train.log", ".lock"} <= set(before)
     for bad in (["learner.alpha=-1"], QUICK, ["seed=3", *QUICK]):
-        proc = train(f"hydra.run.dir={run_dir}", *bad)
-        _, err = proc.communicate(timeout=300)
-        assert proc.returncode == 2, err[-1500:]
-        assert err.strip().splitlines()[-1].startswith("error: "), err[-1500:]
-    resumed = train(f"resume={run_dir}", "quiet=true")  # finished, and still so: nothing to resume
-    _, err = resumed.communicate(timeout=300)
-    assert resumed.returncode == 2 and f"resume={run_dir}: it is finished" in err, err[-1500:]
+        done = run_train(f"hydra.run.dir={run_dir}", *bad)
+        assert done.returncode == 2, done.stderr[-1500:]
+        assert done.stderr.strip().splitlines()[-1].startswith("error: "), done.stderr[-1500:]
+    resumed = run_train(f"resume={run_dir}", "quiet=true")  # finished, and still so: nothing to resume
+    assert resumed.returncode == 2 and f"resume={run_dir}: it is finished" in resumed.stderr, resumed.stderr[-1500:]
     assert files(run_dir) == before  # no .hydra-resume/ either
 
 
-def test_a_refused_command_leaves_no_trace(tmp_path):
+def test_a_refused_command_leaves_no_trace(tmp_path, monkeypatch):
     """Refused before the job (a bad value) or inside it, once its folder is locked (a task
     that does not fit the robot, found when it is built): the folders Hydra made are gone,
     an empty folder given stays empty, and another program's folder (a .hydra/ of its
@@ -126,14 +127,15 @@ def test_a_refused_command_leaves_no_trace(tmp_path):
     (other / ".hydra" / "config.yaml").write_text("theirs: 1\n")
     (other / "app.log").write_text("their log\n")
     before = files(tmp_path)
+    monkeypatch.chdir(tmp_path)  # each command in this process, from this folder (tests/inprocess.py)
     for args in (["learner.alpha=-1", f"hydra.run.dir={tmp_path / 'a' / 'b'}"],
                  ["task=maze", f"hydra.run.dir={tmp_path / 'a' / 'b'}"],
                  ["task=maze", f"hydra.run.dir={given}"],
                  [f"hydra.run.dir={other}"],
                  ["seed=abc"], ["task=maze"]):  # these two into outputs/ of the working folder
-        proc = train(*args, *QUICK, cwd=tmp_path)
-        _, err = proc.communicate(timeout=300)
-        assert proc.returncode == 2 and err.strip().splitlines()[-1].startswith("error: "), (args, err[-1500:])
+        done = run_train(*args, *QUICK)
+        err = done.stderr
+        assert done.returncode == 2 and err.strip().splitlines()[-1].startswith("error: "), (args, err[-1500:])
         assert files(tmp_path) == before, args
 
 
