@@ -71,7 +71,6 @@ def one_line_error(cfg, parts: str = "all") -> str:
     return message
 
 
-
 @pytest.mark.parametrize("task", ["wall"])
 def test_other_shipped_tasks_pass(task):
     build(compose_cfg("robot=turtlebot", f"task={task}"))
