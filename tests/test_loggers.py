@@ -9,7 +9,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from learners.member import UpdateStats
+from learners.member import UpdateStats, track
 from runs.loggers import csv_sizes, flat_config, log_hparams, make_logger, run_scalar_names
 from tests.inprocess import train_in_process
 from runs.run import Hooks, Run
@@ -168,8 +168,8 @@ def test_update_stats_average_each_interval_without_per_update_syncs():
     stats.FOLD = 2  # reduce in the middle of the interval too
     q = [torch.tensor([[1.0], [3.0]]), torch.tensor([[5.0], [7.0]]), torch.tensor([[0.0], [0.0]])]
     target = [x + 1 for x in q[:2]] + [torch.tensor([[-2.0], [2.0]])]
-    for i in range(3):
-        stats.add(float(i), q[i], target[i], torch.tensor(float(i + 1)))
+    for i in range(3):  # a round of one member: its loss [1], values [1, 2, 1], norm [1]
+        track([stats], [0], torch.tensor([float(i)]), q[i][None], target[i][None], torch.tensor([float(i + 1)]), [True])
     peek = stats.read(updates=3, reset=False)
     assert peek["loss"] == 1.0 and peek["q_mean"] == 16 / 6 and peek["td_error"] == 8 / 6
     assert peek["grad_norm"] == 2.0 and peek["updates"] == 3.0
