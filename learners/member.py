@@ -881,8 +881,8 @@ class ReplayLearner(ReplayMembers):
         # Every member's layers as autograd leaves whose gradients are views of ``grads`` (an
         # update of every member and acting use them: views made once, ~0.1 ms a round less),
         # and the target network's (without one: the online network values the next state).
-        self._online = self.net.layers(self.params, self.grads)
-        self._valued = self.net.layers(self.target)
+        self.leaves = self.net.layers(self.params, self.grads)
+        self.target_layers = self.net.layers(self.target)
         self.credit = [0.0] * self.members  # updates owed, fractions carried over
         self.owed = [0] * self.members  # whole updates owed, run by settle
         self.schedules = [v.epsilon if b == 0 else copy.deepcopy(v.epsilon) for b, v in enumerate(self.settings)]
@@ -966,7 +966,7 @@ class ReplayLearner(ReplayMembers):
         member ``members[j]``'s), ``generators[j]`` drawing its noise and exploration
         (:meth:`choose`); greedy: the mean weights and no exploration. Returns a new
         tensordict of ``td``'s entries and ``action``."""
-        params = self._online if members is None else self.params[list(members)]
+        params = self.leaves if members is None else self.params[list(members)]
         members = range(self.members) if members is None else list(members)
         k = len(members)
         noise = self.net.noise(generators, self.device) if self.noisy and not greedy else None
@@ -993,8 +993,8 @@ class ReplayLearner(ReplayMembers):
         drawn, weights = self._sample(due, stored, minibatch)
         batch = unpack(minibatch[:k])
         if k == self.members:  # every member: its own tensors, in place
-            rows, params, target, grads, valued = None, self.params, self.target, self.grads, self._valued
-            online = self._online
+            rows, params, target, grads, valued = None, self.params, self.target, self.grads, self.target_layers
+            online = self.leaves
             grads.zero_()
         else:  # the due members' rows, written back after the step
             rows = torch.tensor(due, device=self.params.device)

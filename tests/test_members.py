@@ -349,3 +349,34 @@ def test_a_member_loads_another_members_state_and_acts_as_it():
         with mine.greedy(), theirs.greedy():
             assert torch.equal(mine.policy(td)["action"], theirs.policy(td)["action"]), name
         env.close()
+
+
+def squares(out) -> torch.Tensor:
+    """The sum of squares of a network's output (or outputs: an actor's location and scale)."""
+    return sum(o.square().sum() for o in (out if isinstance(out, tuple) else (out,)))
+
+
+@pytest.mark.parametrize("robot, name", [("cartpole", "dqn"), ("pendulum", "sac")])
+def test_every_weight_and_bias_takes_its_gradient_after_adam_moved_them(robot, name):
+    """A learner makes its members' layer views once: after Adam changed the parameters in
+    place, a backward through them still gives each member the gradients its network alone
+    (the template holding its parameters) gets, every weight's and bias's (an unsqueezed view
+    of a bias leaf loses its way back to it and reads 0)."""
+    learner = made(compose(robot, learner=name), SEEDS)
+    groups = list(learner.groups.values()) if hasattr(learner, "groups") else [learner]
+    for group in [g for g in groups if getattr(g, "net", None) is not None]:
+        inputs = next(m for m in group.net.template if isinstance(m, torch.nn.Linear)).in_features
+        x = torch.randn(len(SEEDS), 64, inputs, generator=torch.Generator().manual_seed(0))
+        for _ in range(2):  # two Adam steps on gradients that moved every parameter
+            group.grads.fill_(0.1)
+            group.adam.step(None, group.params, group.grads, range(len(SEEDS)), [1e-2] * len(SEEDS))
+        group.grads.zero_()
+        squares(group.net.q(group.leaves, x)).backward()
+        for b in range(len(SEEDS)):
+            alone = group.net.load(group.params[b])
+            alone.zero_grad()
+            squares(alone(x[b])).backward()
+            expected = torch.cat([p.grad.reshape(-1) for p in alone.parameters()])
+            slots = [slot for layer in group.net.plan if not callable(layer) for slot in layer]
+            assert all(expected[start:end].ne(0).any() for start, end, _ in slots)  # every weight and bias moves
+            torch.testing.assert_close(group.grads[b], expected, rtol=1e-4, atol=1e-6)
