@@ -871,18 +871,11 @@ class ReplayLearner(ReplayMembers):
         self.n_obs, self.n_actions = len(task.observation_names), int(task.n_actions)
         with torch.random.fork_rng(devices=[]):  # its own init is replaced by each member's
             template = self.template(task)
-        self.net = MemberNets(template, self.device)
         self.actor = self.actor_of(template)
-        self.params = torch.stack([self.net.initial(g) for g in self.generators]).to(self.device)
         self.has_target = bool(self.target_update or self.tau)
-        self.target = self.params.clone() if self.has_target else self.params
-        self.adam = MemberAdam(self.params)
-        self.grads = torch.zeros_like(self.params)  # each member's latest gradients
-        # Every member's layers as autograd leaves whose gradients are views of ``grads`` (an
-        # update of every member and acting use them: views made once, ~0.1 ms a round less),
-        # and the target network's (without one: the online network values the next state).
-        self.leaves = self.net.layers(self.params, self.grads)
-        self.target_layers = self.net.layers(self.target)
+        self.group = MemberGroup(template, [MemberNets(template).initial(g) for g in self.generators], self.device,
+                                 self.has_target)
+        self.net = self.group.net
         self.credit = [0.0] * self.members  # updates owed, fractions carried over
         self.owed = [0] * self.members  # whole updates owed, run by settle
         self.schedules = [v.epsilon if b == 0 else copy.deepcopy(v.epsilon) for b, v in enumerate(self.settings)]
@@ -897,6 +890,25 @@ class ReplayLearner(ReplayMembers):
         require(len({bool(v.target_update or v.tau) for v in settings}) == 1,
                 "learner.tau and learner.target_update: members of one batch must all have a target network or none",
                 [(v.tau, v.target_update) for v in settings])
+
+    @property
+    def params(self) -> torch.Tensor:
+        """Every member's parameters, ``[members, P]`` (:class:`MemberGroup`)."""
+        return self.group.params
+
+    @property
+    def target(self) -> torch.Tensor:
+        """Every member's target network's parameters (without one: :attr:`params`)."""
+        return self.group.target if self.has_target else self.group.params
+
+    @property
+    def grads(self) -> torch.Tensor:
+        """Every member's latest gradients."""
+        return self.group.grads
+
+    @property
+    def adam(self) -> MemberAdam:
+        return self.group.adam
 
     @property
     def steps(self) -> list[int]:
@@ -919,11 +931,7 @@ class ReplayLearner(ReplayMembers):
         own = self.variant(variant)
         self._one_target_kind([self.settings[0], own])
         self.generators[b], self.settings[b] = generator, own
-        self.params[b] = self.net.initial(generator)
-        if self.has_target:
-            self.target[b] = self.params[b]
-        self.adam.reset(b)
-        self.grads[b].zero_()
+        self.group.renew(b, self.net.initial(generator).to(self.device))
         self.credit[b], self.owed[b] = 0.0, 0
         self.schedules[b] = dataclasses.replace(own.epsilon)  # at its start, whatever own's has done
         self.trackers[b] = UpdateStats()
@@ -966,7 +974,7 @@ class ReplayLearner(ReplayMembers):
         member ``members[j]``'s), ``generators[j]`` drawing its noise and exploration
         (:meth:`choose`); greedy: the mean weights and no exploration. Returns a new
         tensordict of ``td``'s entries and ``action``."""
-        params = self.leaves if members is None else self.params[list(members)]
+        params = self.group.layers if members is None else self.params[list(members)]
         members = range(self.members) if members is None else list(members)
         k = len(members)
         noise = self.net.noise(generators, self.device) if self.noisy and not greedy else None
@@ -992,23 +1000,14 @@ class ReplayLearner(ReplayMembers):
         k = len(due)
         drawn, weights = self._sample(due, stored, minibatch)
         batch = unpack(minibatch[:k])
-        if k == self.members:  # every member: its own tensors, in place
-            rows, params, target, grads, valued = None, self.params, self.target, self.grads, self.target_layers
-            online = self.leaves
-            grads.zero_()
-        else:  # the due members' rows, written back after the step
-            rows = torch.tensor(due, device=self.params.device)
-            params = self.params.index_select(0, rows)
-            grads = torch.zeros_like(params)
-            target = self.target.index_select(0, rows) if self.has_target else params
-            valued = self.net.layers(target)
-            online = self.net.layers(params, grads)
+        step = self.group.open(None if k == self.members else torch.tensor(due, device=self.device))
+        online, valued = step.leaves, step.target_layers if self.has_target else step.layers
         if self.noisy:  # fresh noise for each update: the online network's, then the target's
             streams = [self.generators[b] for b in due]
             noise = self.net.noise(streams, self.device)
             target_noise = self.net.noise(streams, self.device) if self.has_target else noise
             online, valued = self.net.with_noise(online, noise), self.net.with_noise(valued, target_noise)
-        gamma = self.own("gamma", due, params.dtype, params.device)
+        gamma = self.own("gamma", due, torch.float32, self.device)
         gamma = gamma.unsqueeze(-1) if isinstance(gamma, torch.Tensor) else gamma
         loss, q, td_target, errors, *extra = self.terms(lambda x: self.net.q(online, x),
                                                         lambda x: self.net.q(valued, x), batch, gamma)
@@ -1019,27 +1018,17 @@ class ReplayLearner(ReplayMembers):
                 self.buffers[b].priorities.update(drawn[j], errors[j])
         loss = loss.mean((1, 2))
         loss.sum().backward()
+        # Adam, then the target networks: Polyak averaging by tau (a member with tau 0 moves by
+        # 0: exactly not), a hard copy every target_update steps.
+        norms = step.step(due, [self.lr_of(b, self.steps[b]) for b in due],
+                          self.own("grad_clip", due, torch.float32, self.device),
+                          self.own("tau", due, torch.float32, self.device))
         with torch.no_grad():
-            norms = clip_norms(grads, self.own("grad_clip", due, params.dtype, params.device))
-            self.adam.step(rows, params, grads, due, [self.lr_of(b, self.steps[b]) for b in due])
-            self._follow(due, params, target)
-            if rows is not None:
-                self.params.index_copy_(0, rows, params)
-                self.grads.index_copy_(0, rows, grads)
-                if self.has_target:
-                    self.target.index_copy_(0, rows, target)
+            for b in due:
+                every = self.settings[b].target_update
+                if every and self.steps[b] % every == 0:
+                    self.target[b] = self.params[b]
         track(self.trackers, due, loss, q, td_target, norms, [self.settings[b].grad_clip > 0 for b in due], extras)
-
-    def _follow(self, due: list[int], params: torch.Tensor, target: torch.Tensor) -> None:
-        """The target networks of ``due`` after their step: Polyak averaging by ``tau``, a
-        hard copy every ``target_update`` steps."""
-        tau = self.own("tau", due, params.dtype, params.device)
-        if isinstance(tau, torch.Tensor) or tau:  # (a member with tau 0 moves by 0: exactly not)
-            target.lerp_(params, tau)
-        for j, b in enumerate(due):
-            every = self.settings[b].target_update
-            if every and self.steps[b] % every == 0:
-                target[j].copy_(params[j])
 
     # -- persistence ---------------------------------------------------------
     def _optimizer_state(self, b: int) -> dict:

@@ -363,7 +363,7 @@ def test_every_weight_and_bias_takes_its_gradient_after_adam_moved_them(robot, n
     (the template holding its parameters) gets, every weight's and bias's (an unsqueezed view
     of a bias leaf loses its way back to it and reads 0)."""
     learner = made(compose(robot, learner=name), SEEDS)
-    groups = list(learner.groups.values()) if hasattr(learner, "groups") else [learner]
+    groups = list(learner.groups.values()) if hasattr(learner, "groups") else [learner.group]
     for group in [g for g in groups if getattr(g, "net", None) is not None]:
         inputs = next(m for m in group.net.template if isinstance(m, torch.nn.Linear)).in_features
         x = torch.randn(len(SEEDS), 64, inputs, generator=torch.Generator().manual_seed(0))
