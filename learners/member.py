@@ -726,7 +726,8 @@ class ReplayMembers(MemberLearner):
         """Each live member adds its block's transitions to its replay buffer (with
         ``n_step`` > 1, the n-step rows that leave its queues); the block size."""
         n = td.numel() // self.members
-        flat = td.reshape(-1) if self.n_step > 1 or not self.alike else None
+        alike = all(v is self.settings[0] for v in self.settings)  # seeds of the learner's settings, not trials
+        flat = td.reshape(-1) if self.n_step > 1 or not alike else None
         if self.n_step > 1:
             self._queues(n)
             done = flat.get(("next", "done")).reshape(-1)
@@ -736,16 +737,11 @@ class ReplayMembers(MemberLearner):
                 if rows is not None:
                     self.buffers[b].put(pack(rows).to(self.device))
             return n
-        blocks = pack(self.transitions_of(td, self)).to(self.device).split(n) if self.alike else None
+        blocks = pack(self.transitions_of(td, self)).to(self.device).split(n) if alike else None
         for b in everyone(self, live):
             self.buffers[b].put(blocks[b] if blocks is not None else pack(
                 self.transitions_of(flat[b * n:(b + 1) * n], self.settings[b])).to(self.device))
         return n
-
-    @property
-    def alike(self) -> bool:
-        """Whether every member has the learner's own settings (seeds, not trials)."""
-        return all(v is self.settings[0] for v in self.settings)
 
     def _queues(self, copies: int) -> None:
         """Each member's n-step queues for ``copies`` copies (made at the first step or the
