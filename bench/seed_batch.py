@@ -212,7 +212,33 @@ def update_floor(folder: Path, seeds: int, seconds: float = 15.0) -> tuple[float
     steps = max(int(m["optimizer_steps"]) for m in saved)
     cfg = OmegaConf.load(models[0].parent / "config.yaml")
     shapes = [tuple(v.shape) for k, v in saved[0]["actor"].items() if k.endswith("weight")]  # [out, in] a layer
-    batch, activation = int(cfg.learner.batch_size), torch.relu if cfg.learner.activation == "relu" else torch.tanh
+    activation = torch.relu if cfg.learner.activation == "relu" else torch.tanh
+    step = plain_update(saved[0]["kind"], seeds, shapes, int(cfg.learner.batch_size), activation)
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(int(cfg.get("torch_threads", threads)))  # as many threads as the batch's updates had
+    try:
+        for _ in range(20):
+            step()
+        rounds, wall, cpu = 0, time.perf_counter(), time.process_time()
+        while time.perf_counter() - wall < seconds:
+            step()
+            rounds += 1
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    finally:
+        torch.set_num_threads(threads)
+    return wall / rounds * steps, cpu / rounds * steps
+
+
+def plain_update(kind: str, seeds: int, shapes: list[tuple[int, int]], batch: int,
+                 activation: Callable) -> Callable[[], None]:
+    """One plain stacked PyTorch update of ``seeds`` members, as a function to call: the
+    actor's layer ``shapes`` (``[out, in]`` each) of a learner of ``kind`` (``sac``: its
+    three losses; else dqn's double-DQN Huber TD loss) with ``activation`` between layers, on
+    random minibatches of ``batch`` transitions, each linear layer one ``baddbmm``, then
+    ``backward`` and one ``torch.optim.Adam`` step."""
+    import torch
+
     gen = torch.Generator().manual_seed(0)
 
     def net(sizes: list[tuple[int, int]]) -> list[tuple[torch.Tensor, torch.Tensor]]:
@@ -228,7 +254,7 @@ def update_floor(folder: Path, seeds: int, seconds: float = 15.0) -> tuple[float
     n_obs = shapes[0][1]
     obs, nxt = torch.randn(seeds, batch, n_obs, generator=gen), torch.randn(seeds, batch, n_obs, generator=gen)
     reward = torch.randn(seeds, batch, 1, generator=gen)
-    if saved[0]["kind"] == "sac":  # the learner that wrote model.pt
+    if kind == "sac":
         update, leaves = sac_update(net, q, shapes, obs, nxt, reward, gen)
     else:
         layers = net(shapes)
@@ -249,19 +275,7 @@ def update_floor(folder: Path, seeds: int, seconds: float = 15.0) -> tuple[float
         optimizer.step()
         optimizer.zero_grad()
 
-    threads = torch.get_num_threads()
-    torch.set_num_threads(int(cfg.get("torch_threads", threads)))  # as many threads as the batch's updates had
-    try:
-        for _ in range(20):
-            step()
-        rounds, wall, cpu = 0, time.perf_counter(), time.process_time()
-        while time.perf_counter() - wall < seconds:
-            step()
-            rounds += 1
-        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    finally:
-        torch.set_num_threads(threads)
-    return wall / rounds * steps, cpu / rounds * steps
+    return step
 
 
 def sac_update(net, q, shapes, obs, nxt, reward, gen):

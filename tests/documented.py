@@ -49,6 +49,7 @@ SMALL = {
     "bench/env_throughput.py": "--seconds 0.2 --rounds 1 --robots cartpole --sizes 1 8",
     "bench/update_rate.py": "--seconds 0.05 --rounds 1",
     "bench/seed_batch.py": "--seeds 2 --learners qlearn --num-envs 1 --qlearn-steps 400",
+    "bench/async_bound.py": "--steps 100 --rounds 1",
     "bench/soak.py": "--episodes 40 --every 20",
     "bench/tune_batch.py": "--trials 2 --budget 1000 --per-batch 2",
     "bench/width.py": "--members 4 --steps 20 --repeats 1",
