@@ -34,8 +34,11 @@ sys.path.insert(0, str(ROOT))
 
 
 def main() -> None:
+    from tasks import catalog
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robot", default="cartpole", help="its default task, with its tuned dqn file")
+    parser.add_argument("--robot", default="cartpole", choices=catalog.robot_names(),
+                        help="its default task, with its tuned dqn file")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--steps", type=int, default=3000, help="env steps a round")
     parser.add_argument("--rounds", type=int, default=3)
@@ -46,7 +49,6 @@ def main() -> None:
     import torch
 
     from bench.seed_batch import plain_update
-    from tasks import catalog
 
     torch.set_num_threads(1)  # as a run's updates (torch_threads)
     cfg = catalog.compose(robot=args.robot, learner="dqn")
@@ -88,7 +90,7 @@ def main() -> None:
         serial = env_s + updates_s
         saved.append((serial - threads_s) / serial)
         hidden.append((serial - threads_s) / updates_s)
-        print(f"ROUND {r} env_s={env_s:.2f} updates_s={updates_s:.2f} serial_s={serial:.2f} threads_s={threads_s:.2f} "
+        print(f"ROUND {r} env_s={env_s:.3f} updates_s={updates_s:.3f} serial_s={serial:.3f} threads_s={threads_s:.3f} "
               f"saved={saved[-1]:.2f} hidden={hidden[-1]:.2f}", flush=True)
     env.close()
     print(f"BOUND saved={statistics.median(saved):.2f} hidden={statistics.median(hidden):.2f}")

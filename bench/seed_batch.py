@@ -337,6 +337,9 @@ def load() -> str:
 
 
 def main() -> None:
+    sys.path.insert(0, str(ROOT))
+    from tasks.catalog import robot_names
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--learners", nargs="+", default=["qlearn", "dqn"])
@@ -345,7 +348,8 @@ def main() -> None:
     parser.add_argument("--qlearn-steps", type=int, default=150000)
     parser.add_argument("--dqn-steps", type=int, default=30000)
     parser.add_argument("--sac-steps", type=int, default=20000)
-    parser.add_argument("--robot", default="cartpole", help="the robot every run trains (its default task)")
+    parser.add_argument("--robot", default="cartpole", choices=robot_names(),
+                        help="the robot every run trains (its default task)")
     parser.add_argument("--repeats", type=int, default=1,
                         help="batches per learner and copies, each followed by a reading of its floors")
     args = parser.parse_args()

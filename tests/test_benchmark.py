@@ -800,3 +800,37 @@ def test_the_physics_floor_steps_the_tasks_own_moving_episodes():
     assert len({ctrl.tobytes() for _, ctrl in steps}) > 10  # the controls changed with the actions
     assert 0 < per_copy_step("cartpole", 4, 0.05) < 0.01
     assert 0 < per_copy_step("cartpole", 4, 0.05, at_rest=True) < 0.01
+
+
+@pytest.mark.parametrize("script", ["seed_batch", "async_bound"])
+def test_a_seeds_bench_refuses_an_unknown_robot_before_it_runs_anything(script, monkeypatch, capsys):
+    """``--robot`` names one of the robots there are configs of; anything else is argparse's
+    error line, naming them, before a run starts."""
+    import importlib
+
+    main = importlib.import_module(f"bench.{script}").main
+    monkeypatch.setattr(sys, "argv", [f"bench/{script}.py", "--robot", "nope"])
+    with pytest.raises(SystemExit) as stop:
+        main()
+    assert stop.value.code == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "argument --robot: invalid choice: 'nope'" in error and "'cartpole'" in error
+
+
+def test_the_async_bound_times_steps_and_updates_alone_and_together(monkeypatch, capsys):
+    """``bench/async_bound.py``: a round's serial time is its env steps' and updates' (timed one
+    after the other), and what it saved is that against the same work on two threads."""
+    from bench import async_bound
+
+    monkeypatch.setattr(sys, "argv", ["bench/async_bound.py", "--seeds", "3", "--steps", "100", "--rounds", "1"])
+    async_bound.main()
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("cartpole: 3 copies, 100 env steps and 50 updates of 3 members (layers [4, 64, 64, 2]")
+    found = dict(pair.split("=") for pair in out[-2].split()[2:])
+    env_s, updates_s, serial_s, threads_s = (float(found[k]) for k in ("env_s", "updates_s", "serial_s", "threads_s"))
+    assert min(env_s, updates_s, threads_s) > 0 and serial_s == pytest.approx(env_s + updates_s, abs=0.0015)
+    assert float(found["saved"]) == pytest.approx((serial_s - threads_s) / serial_s, abs=0.02)
+    assert out[-1] == f"BOUND saved={found['saved']} hidden={found['hidden']}"
+    monkeypatch.setattr(sys, "argv", ["bench/async_bound.py", "--steps", "0"])
+    with pytest.raises(SystemExit, match="must be >= 1"):
+        async_bound.main()
