@@ -70,7 +70,8 @@ def main() -> None:
         for _ in range(n):
             update()
 
-    steps(200), updates(100)  # warm
+    steps(200)  # warm
+    updates(100)
     saved, hidden = [], []
     print(f"{args.robot}: {args.seeds} copies, {args.steps} env steps and {rounds} updates of {args.seeds} members "
           f"(layers {sizes}, minibatch {cfg.learner.batch_size}) a round", flush=True)

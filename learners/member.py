@@ -869,8 +869,8 @@ class ReplayLearner(ReplayMembers):
             template = self.template(task)
         self.actor = self.actor_of(template)
         self.has_target = bool(self.target_update or self.tau)
-        self.group = MemberGroup(template, [MemberNets(template).initial(g) for g in self.generators], self.device,
-                                 self.has_target)
+        starts = MemberNets(template)  # draws each member's start into the template
+        self.group = MemberGroup(template, [starts.initial(g) for g in self.generators], self.device, self.has_target)
         self.net = self.group.net
         self.credit = [0.0] * self.members  # updates owed, fractions carried over
         self.owed = [0] * self.members  # whole updates owed, run by settle
@@ -1016,7 +1016,7 @@ class ReplayLearner(ReplayMembers):
         loss.sum().backward()
         # Adam, then the target networks: Polyak averaging by tau (a member with tau 0 moves by
         # 0: exactly not), a hard copy every target_update steps.
-        norms = step.step(due, [self.lr_of(b, self.steps[b]) for b in due],
+        norms = step.step(due, [self.lr_of(b) for b in due],
                           self.own("grad_clip", due, torch.float32, self.device),
                           self.own("tau", due, torch.float32, self.device))
         with torch.no_grad():
